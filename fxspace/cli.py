@@ -1,0 +1,125 @@
+"""The ``fxspace`` command: ``demo``, ``run CONFIG``, ``sweep``, ``view``, ``bench``, ``data``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+__all__ = ["main"]
+
+_DEMO = {
+    "experiment": "threshold_sweep",
+    "seed": 0,
+    "data": {"source": "synthetic"},
+}
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .pipelines import run_dict
+
+    raw = dict(_DEMO)
+    raw["seed"] = args.seed
+    if args.real:
+        raw["data"] = {"source": "animface"}
+    dirs = run_dict(raw, args.out, force=True)
+    for d in dirs:
+        print(f"demo results in {d}: metrics.json, " + ", ".join(p.name for p in sorted(d.glob("*.png"))))
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .pipelines import run_config
+
+    run_config(args.config, args.out, force=args.force)
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    try:
+        from .viewer import serve  # type: ignore[attr-defined]
+    except ImportError as e:
+        print(f"fxspace view needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
+              file=sys.stderr)
+        return 2
+    serve(args.target, port=args.port)
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    import runpy
+
+    root = Path(__file__).resolve().parent.parent / "experiments"
+    script = root / f"bench_{args.name}.py"
+    if not script.is_file():
+        names = sorted(p.stem.removeprefix("bench_") for p in root.glob("bench_*.py"))
+        print(f"no benchmark {args.name!r}; available: {names}", file=sys.stderr)
+        return 2
+    sys.argv = [str(script), *args.rest]
+    runpy.run_path(str(script), run_name="__main__")
+    return 0
+
+
+def _cmd_data(args: argparse.Namespace) -> int:
+    from .data import ENV_VAR, data_root
+
+    root = data_root()
+    if root is None:
+        print(f"no data root: set {ENV_VAR} (defaults to ../shared/data when present)")
+        return 1
+    print(root)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="fxspace",
+        description="fxspace: motion-capture-driven facial and character animation in JAX.",
+        epilog="Real data is read from $FXSPACE_DATA (default ../shared/data when present).",
+    )
+    sub = p.add_subparsers(dest="command", required=True)
+
+    d = sub.add_parser("demo", help="expression space of the embedded synthetic face (no data needed)")
+    d.add_argument("--out", default="runs/demo", help="run folder (default runs/demo)")
+    d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    d.add_argument("--real", action="store_true", help="use the AnimFace capture instead")
+    d.set_defaults(func=_cmd_demo)
+
+    for name, helptext in (("run", "run the experiment a TOML config describes"),
+                           ("sweep", "run a config with a [sweep] table (resumes finished runs)")):
+        r = sub.add_parser(name, help=helptext)
+        r.add_argument("config", help="path to a TOML config (see configs/)")
+        r.add_argument("--out", default=None, help="output folder (default runs/<config stem>)")
+        r.add_argument("--force", action="store_true", help="rerun runs that are already complete")
+        r.set_defaults(func=_cmd_run)
+
+    v = sub.add_parser("view", help="interactive navigator in the browser (needs .[viewer])")
+    v.add_argument("target", help="a run folder or a config file")
+    v.add_argument("--port", type=int, default=8080)
+    v.set_defaults(func=_cmd_view)
+
+    b = sub.add_parser("bench", help="run experiments/bench_NAME.py (e.g. geodesic)")
+    b.add_argument("name")
+    b.add_argument("rest", nargs=argparse.REMAINDER)
+    b.set_defaults(func=_cmd_bench)
+
+    s = sub.add_parser("data", help="print the data root in use")
+    s.set_defaults(func=_cmd_data)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    from .errors import FxspaceError
+
+    try:
+        return int(args.func(args) or 0)
+    except FxspaceError as e:
+        print(f"fxspace: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

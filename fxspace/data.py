@@ -1,0 +1,44 @@
+"""Where the real capture data lives: one setting, ``FXSPACE_DATA``.
+
+The data is never part of the package or the repository. ``data_root()`` returns
+``$FXSPACE_DATA`` when set, else ``../shared/data`` relative to the current directory
+or to the repository checkout (when that folder exists), else ``None``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .errors import DataNotFoundError
+
+__all__ = ["data_root", "data_path", "ENV_VAR"]
+
+ENV_VAR = "FXSPACE_DATA"
+_REPO = Path(__file__).resolve().parent.parent
+
+
+def data_root() -> Path | None:
+    """The data root, or ``None`` when no data folder can be found."""
+    env = os.environ.get(ENV_VAR)
+    if env:
+        p = Path(env).expanduser()
+        return p if p.is_dir() else None
+    for cand in (Path.cwd() / ".." / "shared" / "data", _REPO / ".." / "shared" / "data"):
+        if cand.is_dir():
+            return cand.resolve()
+    return None
+
+
+def data_path(*parts: str) -> Path:
+    """Path of a file under the data root; raises ``DataNotFoundError`` with the fix."""
+    root = data_root()
+    if root is None:
+        raise DataNotFoundError(
+            f"real capture data not found: set {ENV_VAR} to the folder that holds face/, "
+            "body/ and mesh/ (defaults to ../shared/data when it exists)"
+        )
+    p = root.joinpath(*parts)
+    if not p.exists():
+        raise DataNotFoundError(f"{p} does not exist under the data root {root} ({ENV_VAR})")
+    return p

@@ -1,0 +1,162 @@
+"""Run folders: config + seed + versions beside the results, every write atomic.
+
+A run folder holds ``config.toml`` (the resolved config), ``meta.json`` (seed,
+versions, git SHA, platform, device), ``metrics.json`` and figures (PNG). Files are
+written to a temporary name in the same folder and renamed into place, so an
+interrupted run never leaves a half-written file; ``metrics.json`` is written last
+and marks the run complete. ``cached`` stores intermediate results so an
+interrupted sweep resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "write_bytes_atomic",
+    "write_text_atomic",
+    "write_json_atomic",
+    "save_figure_atomic",
+    "save_npz_atomic",
+    "versions",
+    "git_sha",
+    "write_meta",
+    "cached",
+    "to_jsonable",
+]
+
+_PACKAGES = ("fxspace", "jax", "jaxlib", "numpy", "scipy", "optax", "jaxopt", "optimistix",
+             "matplotlib")
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file in the same folder + rename)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return p
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    return write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Arrays → lists, numpy scalars → Python, NaN/inf kept as JSON's NaN/Infinity."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [to_jsonable(v) for v in obj]
+    if hasattr(obj, "__array__") and not isinstance(obj, str | bytes):
+        arr = np.asarray(obj)
+        return arr.item() if arr.ndim == 0 else arr.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_json_atomic(path: str | Path, obj: Any) -> Path:
+    return write_text_atomic(path, json.dumps(to_jsonable(obj), indent=2, sort_keys=False) + "\n")
+
+
+def save_figure_atomic(fig: Any, path: str | Path, dpi: int = 120) -> Path:
+    """Save a matplotlib figure to PNG atomically and close it."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return write_bytes_atomic(path, buf.getvalue())
+
+
+def save_npz_atomic(path: str | Path, **arrays: Any) -> Path:
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    return write_bytes_atomic(path, buf.getvalue())
+
+
+def versions() -> dict[str, str]:
+    out = {"python": sys.version.split()[0]}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def git_sha() -> str | None:
+    here = Path(__file__).resolve().parent.parent
+    try:
+        r = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
+                           text=True, timeout=5, check=False)
+        sha = r.stdout.strip()
+        if not sha:
+            return None
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5, check=False).stdout.strip()
+        return sha + ("-dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def write_meta(run_dir: str | Path, seed: int, extra: dict[str, Any] | None = None) -> Path:
+    import jax
+
+    meta = {
+        "seed": seed,
+        "versions": versions(),
+        "git_sha": git_sha(),
+        "platform": platform.platform(),
+        "device": str(jax.devices()[0]),
+        "x64": bool(jax.config.read("jax_enable_x64")),
+        "started": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "argv": sys.argv,
+    }
+    meta.update(extra or {})
+    return write_json_atomic(Path(run_dir) / "meta.json", meta)
+
+
+def cached(run_dir: str | Path, key: str, compute: Callable[[], Any]) -> Any:
+    """Return the JSON result stored under ``key`` in ``run_dir/cache``, computing it once.
+
+    Used by sweeps: each finished point is stored atomically, so re-running an
+    interrupted sweep only computes the missing points.
+    """
+    p = Path(run_dir) / "cache" / f"{key}.json"
+    if p.is_file():
+        try:
+            return json.loads(p.read_text())
+        except json.JSONDecodeError:
+            pass  # a damaged cache entry is recomputed
+    value = to_jsonable(compute())
+    write_json_atomic(p, value)
+    return value

@@ -1,0 +1,33 @@
+"""Shared test helpers: tree_allclose and finite-difference checks."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def tree_allclose(a, b, rtol=1e-6, atol=1e-8) -> bool:
+    la, ta = jax.tree_util.tree_flatten(a)
+    lb, tb = jax.tree_util.tree_flatten(b)
+    if ta != tb:
+        return False
+    return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol, equal_nan=True)
+               for x, y in zip(la, lb, strict=True))
+
+
+def finite_difference_jvp(f, x, v, eps=1e-6):
+    """Central difference of scalar/array f at x along direction v (float64)."""
+    x = jnp.asarray(x, dtype=jnp.float64)
+    v = jnp.asarray(v, dtype=jnp.float64)
+    return (f(x + eps * v) - f(x - eps * v)) / (2 * eps)
+
+
+def check_grad(f, x, rng, n_dirs=3, eps=1e-6, rtol=1e-4, atol=1e-7):
+    """Compare jax.grad of scalar f with central differences along random directions."""
+    g = jax.grad(f)(x)
+    for _ in range(n_dirs):
+        v = jnp.asarray(rng.standard_normal(np.shape(x)))
+        fd = float(finite_difference_jvp(f, x, v, eps))
+        an = float(jnp.vdot(g, v))
+        assert np.isclose(an, fd, rtol=rtol, atol=atol), (an, fd)
