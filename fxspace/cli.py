@@ -25,7 +25,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         raw["data"] = {"source": "animface"}
     dirs = run_dict(raw, args.out, force=True)
     for d in dirs:
-        print(f"demo results in {d}: metrics.json, " + ", ".join(p.name for p in sorted(d.glob("*.png"))))
+        print(
+            f"demo results in {d}: metrics.json, "
+            + ", ".join(p.name for p in sorted(d.glob("*.png")))
+        )
     return 0
 
 
@@ -40,8 +43,10 @@ def _cmd_view(args: argparse.Namespace) -> int:
     try:
         from .viewer import serve  # type: ignore[attr-defined]
     except ImportError as e:
-        print(f"fxspace view needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
-              file=sys.stderr)
+        print(
+            f"fxspace view needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
+            file=sys.stderr,
+        )
         return 2
     serve(args.target, port=args.port)
     return 0
@@ -80,14 +85,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = p.add_subparsers(dest="command", required=True)
 
-    d = sub.add_parser("demo", help="expression space of the embedded synthetic face (no data needed)")
+    d = sub.add_parser(
+        "demo", help="expression space of the embedded synthetic face (no data needed)"
+    )
     d.add_argument("--out", default="runs/demo", help="run folder (default runs/demo)")
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     d.add_argument("--real", action="store_true", help="use the AnimFace capture instead")
     d.set_defaults(func=_cmd_demo)
 
-    for name, helptext in (("run", "run the experiment a TOML config describes"),
-                           ("sweep", "run a config with a [sweep] table (resumes finished runs)")):
+    for name, helptext in (
+        ("run", "run the experiment a TOML config describes"),
+        ("sweep", "run a config with a [sweep] table (resumes finished runs)"),
+    ):
         r = sub.add_parser(name, help=helptext)
         r.add_argument("config", help="path to a TOML config (see configs/)")
         r.add_argument("--out", default=None, help="output folder (default runs/<config stem>)")

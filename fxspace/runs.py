@@ -37,8 +37,17 @@ __all__ = [
     "to_jsonable",
 ]
 
-_PACKAGES = ("fxspace", "jax", "jaxlib", "numpy", "scipy", "optax", "jaxopt", "optimistix",
-             "matplotlib")
+_PACKAGES = (
+    "fxspace",
+    "jax",
+    "jaxlib",
+    "numpy",
+    "scipy",
+    "optax",
+    "jaxopt",
+    "optimistix",
+    "matplotlib",
+)
 
 
 def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
@@ -116,13 +125,23 @@ def versions() -> dict[str, str]:
 def git_sha() -> str | None:
     here = Path(__file__).resolve().parent.parent
     try:
-        r = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
-                           text=True, timeout=5, check=False)
+        r = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=False,
+        )
         sha = r.stdout.strip()
         if not sha:
             return None
-        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=5, check=False).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=False,
+        ).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return None

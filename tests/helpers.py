@@ -12,8 +12,10 @@ def tree_allclose(a, b, rtol=1e-6, atol=1e-8) -> bool:
     lb, tb = jax.tree_util.tree_flatten(b)
     if ta != tb:
         return False
-    return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol, equal_nan=True)
-               for x, y in zip(la, lb, strict=True))
+    return all(
+        np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol, equal_nan=True)
+        for x, y in zip(la, lb, strict=True)
+    )
 
 
 def finite_difference_jvp(f, x, v, eps=1e-6):

@@ -17,7 +17,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..config import ConfigError, config_from_dict, config_to_dict, dumps_toml, expand_sweep, load_toml
+from ..config import (
+    ConfigError,
+    config_from_dict,
+    config_to_dict,
+    dumps_toml,
+    expand_sweep,
+    load_toml,
+)
 from ..runs import write_json_atomic, write_meta, write_text_atomic
 
 __all__ = ["run_config", "run_dict", "load_pipeline", "available"]
@@ -55,8 +62,7 @@ def run_dict(raw: dict[str, Any], out: str | Path, force: bool = False) -> list[
         run_dir = out / label if label else out
         metrics_p = run_dir / "metrics.json"
         cfg_p = run_dir / "config.toml"
-        if (not force and metrics_p.is_file() and cfg_p.is_file()
-                and cfg_p.read_text() == text):
+        if not force and metrics_p.is_file() and cfg_p.is_file() and cfg_p.read_text() == text:
             print(f"[fxspace] {run_dir}: already complete (metrics.json present); --force reruns")
             done.append(run_dir)
             continue

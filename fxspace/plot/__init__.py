@@ -13,16 +13,29 @@ if _mpl.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend
         pass
 
 # --- expression space (issue 2) ---
-# --- end expression space ---
+from ._expression import plot_embedding as plot_embedding
+from ._expression import plot_embedding_panels as plot_embedding_panels
+from ._expression import plot_sweep as plot_sweep
 
-# --- hierarchy / navigation (issue 3) ---
+# --- end motion ---
+# --- mesh IK (issue 6) ---
+from ._mesh import plot_ik_poses as plot_ik_poses
+from ._mesh import plot_time_per_frame as plot_time_per_frame
+from ._mesh import plot_vs_markers as plot_vs_markers
+
 # --- end hierarchy / navigation ---
-
 # --- control points (issue 4) ---
 # --- end control points ---
-
 # --- motion (issue 5) ---
-# --- end motion ---
+from ._motion import plot_clocks as plot_clocks
+from ._motion import plot_filmstrip as plot_filmstrip
+from ._motion import plot_parameter_space as plot_parameter_space
 
-# --- mesh IK (issue 6) ---
+# --- end expression space ---
+# --- hierarchy / navigation (issue 3) ---
+from ._navigation import face_frame as face_frame
+from ._navigation import face_wireframe as face_wireframe
+from ._navigation import plot_level as plot_level
+from ._navigation import plot_levels_grid as plot_levels_grid
+from ._navigation import write_navigation_animation as write_navigation_animation
 # --- end mesh IK ---

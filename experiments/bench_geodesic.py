@@ -1,0 +1,175 @@
+"""Geodesic benchmark (issue 2): fxspace vs scipy (FW, Dijkstra) and scikit-learn Isomap.
+
+For T frames of realistic data (the AnimFace capture, resampled in time to T frames; the
+synthetic face when the data is absent) and one ε-graph (``--eps-factor`` × the smallest
+connecting threshold), prints in one run the median time of ≥ 3 runs of
+
+- ours: `floyd_warshall` (distances), `geodesic_distances` (+ next-hop matrix),
+  and the whole chain graph → geodesic → MDS → Pearson r (from the pairwise matrix);
+- scipy `shortest_path` with method FW and with Dijkstra on the sparse graph (+
+  predecessors for the path-comparable row);
+- scikit-learn `Isomap` end to end on the same neighbourhood graph (radius = ε);
+
+and the ratios, with compile time reported separately and the max relative difference
+to scipy. Usage: ``python experiments/bench_geodesic.py [--sizes 1000 2400 4800]
+[--repeats 3] [--fw-max 2400] [--quick] [--json out.json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def _median_time(fn, repeats):
+    ts = []
+    out = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        jax.block_until_ready(out)
+        ts.append(time.perf_counter() - t0)
+    return statistics.median(ts), out
+
+
+def _frames(T: int, seed: int = 0) -> tuple[np.ndarray, str]:
+    from fxspace.pipelines._face import FaceData, load_face
+
+    try:
+        face = load_face(FaceData(source="animface", target_frames=T), seed)
+        return face.positions, "AnimFace (resampled)"
+    except (ValueError, FileNotFoundError):
+        face = load_face(FaceData(source="synthetic", synthetic_frames=T), seed)
+        return face.positions, "synthetic face"
+
+
+def bench_one(T: int, repeats: int, fw_max: int, eps_factor: float, isomap: bool) -> dict:
+    import scipy.sparse as sps
+    from scipy.sparse.csgraph import shortest_path
+
+    import fxspace as fx
+
+    X, source = _frames(T)
+    F = fx.distance_features(jnp.asarray(X, jnp.float32))
+    P = jax.block_until_ready(fx.pairwise_distances(F))
+    eps = float(fx.connecting_threshold(P)) * eps_factor
+    W = jax.block_until_ready(fx.epsilon_graph(P, eps))
+    Wn = np.asarray(W)
+    deg = float((np.isfinite(Wn).sum() - T) / T)
+    res = {"T": T, "source": source, "epsilon": eps, "mean_degree": deg}
+
+    # ours: compile separately
+    t0 = time.perf_counter()
+    fw = jax.jit(fx.floyd_warshall).lower(W).compile()
+    res["ours_compile_s"] = time.perf_counter() - t0
+    fw(W).block_until_ready()
+    res["ours_fw_s"], D = _median_time(lambda: fw(W), repeats)
+    fx.geodesic_distances(W)  # warm the next-hop kernel for this degree
+    res["ours_fw_nexthop_s"], geo = _median_time(lambda: fx.geodesic_distances(W), repeats)
+
+    @jax.jit
+    def chain(P, eps):
+        Wc = fx.epsilon_graph(P, eps)
+        Dc = fx.floyd_warshall(Wc)
+        mds = fx.classical_mds(Dc, 2)
+        return mds.embedding, fx.pearson_score(Dc, mds.embedding)
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(chain(P, eps))
+    res["chain_compile_s"] = time.perf_counter() - t0
+    res["ours_chain_s"], (Y, r) = _median_time(lambda: chain(P, eps), repeats)
+    res["r"] = float(r)
+
+    # scipy on the same sparse graph (float64, as scipy computes)
+    Pn = np.asarray(P, np.float64)
+    csr = sps.csr_matrix(np.where(np.isfinite(Wn) & (Pn > 0), Pn, 0.0))
+    res["scipy_dijkstra_s"], Dd = _median_time(
+        lambda: shortest_path(csr, method="D", directed=False), repeats
+    )
+    res["scipy_dijkstra_pred_s"], _ = _median_time(
+        lambda: shortest_path(csr, method="D", directed=False, return_predecessors=True), repeats
+    )
+    Dn = np.asarray(D, np.float64)
+    fin = np.isfinite(Dd) & (Dd > 0)
+    res["max_rel_diff_vs_scipy"] = float(np.max(np.abs(Dn[fin] - Dd[fin]) / Dd[fin]))
+    if T <= fw_max:
+        res["scipy_fw_s"], _ = _median_time(
+            lambda: shortest_path(csr, method="FW", directed=False), repeats
+        )
+    if isomap:
+        from sklearn.manifold import Isomap
+
+        Fn = np.asarray(F, np.float64)
+
+        def iso():
+            return Isomap(
+                n_neighbors=None, radius=eps, n_components=2, path_method="D", eigen_solver="arpack"
+            ).fit_transform(Fn)
+
+        res["sklearn_isomap_s"], _ = _median_time(iso, repeats)
+    res["ratio_dijkstra"] = res["scipy_dijkstra_s"] / res["ours_fw_s"]
+    res["ratio_dijkstra_paths"] = res["scipy_dijkstra_pred_s"] / res["ours_fw_nexthop_s"]
+    if "scipy_fw_s" in res:
+        res["ratio_fw"] = res["scipy_fw_s"] / res["ours_fw_s"]
+    if "sklearn_isomap_s" in res:
+        res["ratio_isomap"] = res["sklearn_isomap_s"] / res["ours_chain_s"]
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 2400, 4800])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument(
+        "--fw-max",
+        type=int,
+        default=2400,
+        help="skip scipy FW above this many frames (it is O(T³) in Python-free C but ~6 s at 2400)",
+    )
+    ap.add_argument("--eps-factor", type=float, default=1.05)
+    ap.add_argument("--no-isomap", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="T = 600 and 1000, 3 repeats")
+    ap.add_argument("--json", default=None, help="also write the results here")
+    a = ap.parse_args(argv)
+    sizes = [600, 1000] if a.quick else a.sizes
+    print(
+        f"device: {jax.devices()[0]}, float32, median of {a.repeats} runs, "
+        f"ε = {a.eps_factor} × connecting threshold"
+    )
+    hdr = (
+        f"{'T':>5} {'deg':>6} {'ours FW':>8} {'+next':>7} {'chain':>7} {'compile':>8} "
+        f"{'Dijkstra':>9} {'+pred':>7} {'scipy FW':>9} {'Isomap':>8} "
+        f"{'×Dijk':>6} {'×Dpath':>6} {'×FW':>6} {'×Iso':>6} {'maxrel':>8}"
+    )
+    print(hdr)
+    rows = []
+    for T in sizes:
+        r = bench_one(T, a.repeats, a.fw_max, a.eps_factor, not a.no_isomap)
+        rows.append(r)
+
+        def f(k, w=7, d=3, r=r):
+            return f"{r[k]:>{w}.{d}f}" if k in r else f"{'—':>{w}}"
+
+        print(
+            f"{T:>5} {r['mean_degree']:>6.0f} {f('ours_fw_s', 8)} {f('ours_fw_nexthop_s')} "
+            f"{f('ours_chain_s')} {f('ours_compile_s', 8, 2)} {f('scipy_dijkstra_s', 9)} "
+            f"{f('scipy_dijkstra_pred_s')} {f('scipy_fw_s', 9)} {f('sklearn_isomap_s', 8)} "
+            f"{f('ratio_dijkstra', 6, 2)} {f('ratio_dijkstra_paths', 6, 2)} "
+            f"{f('ratio_fw', 6, 1)} {f('ratio_isomap', 6, 2)} "
+            f"{r['max_rel_diff_vs_scipy']:>8.1e}",
+            flush=True,
+        )
+    if a.json:
+        from fxspace.runs import write_json_atomic
+
+        write_json_atomic(a.json, {"device": str(jax.devices()[0]), "rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,107 @@
+"""Figures of the expression space: the threshold sweep and the 2-D embedding."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+
+__all__ = ["plot_sweep", "plot_embedding", "plot_embedding_panels"]
+
+
+def plot_sweep(
+    thresholds: np.ndarray,
+    scores: np.ndarray,
+    connected: np.ndarray,
+    marks: dict[str, float] | None = None,
+    connecting: float | None = None,
+    reference: tuple[float, str] | None = (0.9647, "seed paper r = 0.9647"),
+    mean_degree: np.ndarray | None = None,
+) -> Figure:
+    """Pearson r against the threshold ε (log scale); disconnected ε shown as crosses."""
+    th = np.asarray(thresholds, float)
+    r = np.asarray(scores, float)
+    conn = np.asarray(connected, bool)
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ax.plot(th[conn], r[conn], "o-", color="C0", label="Pearson r (connected)")
+    if (~conn).any():
+        lo = np.nanmin(r[conn]) if conn.any() else 0.0
+        ax.plot(
+            th[~conn],
+            np.full((~conn).sum(), lo),
+            "x",
+            color="C3",
+            label="disconnected (r undefined)",
+        )
+    if connecting is not None:
+        ax.axvline(connecting, color="0.5", ls=":", label=f"connecting ε = {connecting:.4g}")
+    for k, (name, t) in enumerate((marks or {}).items()):
+        ax.axvline(t, color=f"C{k + 1}", ls="--", label=f"{name}: ε = {t:.4g}")
+    if reference is not None:
+        ax.axhline(reference[0], color="0.3", lw=0.8, ls="-.", label=reference[1])
+    ax.set_xscale("log")
+    ax.set_xlabel("threshold ε (state distance)")
+    ax.set_ylabel("Pearson r (geodesic vs 2-D distance)")
+    if mean_degree is not None:
+        ax2 = ax.twinx()
+        ax2.plot(th, np.asarray(mean_degree), color="0.7", lw=1)
+        ax2.set_ylabel("mean degree", color="0.5")
+        ax2.set_yscale("log")
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title("Threshold sweep")
+    fig.tight_layout()
+    return fig
+
+
+def plot_embedding(
+    embedding: np.ndarray,
+    color: np.ndarray,
+    title: str = "",
+    categories: Sequence[str] | None = None,
+    ax: plt.Axes | None = None,
+    cmap: str = "viridis",
+) -> Figure:
+    """Scatter of the 2-D expression space; ``categories`` names integer colours."""
+    Y = np.asarray(embedding)
+    c = np.asarray(color)
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(5.2, 4.6))
+    else:
+        fig = ax.figure
+    if categories is not None:
+        for k, name in enumerate(categories):
+            m = c == k
+            ax.scatter(Y[m, 0], Y[m, 1], s=4, color=f"C{k % 10}", label=name)
+        ax.legend(markerscale=3, fontsize=7)
+    else:
+        sc = ax.scatter(Y[:, 0], Y[:, 1], s=4, c=c, cmap=cmap)
+        fig.colorbar(sc, ax=ax, shrink=0.8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("MDS 1")
+    ax.set_ylabel("MDS 2")
+    ax.set_title(title)
+    return fig
+
+
+def plot_embedding_panels(
+    embedding: np.ndarray,
+    take: np.ndarray,
+    time: np.ndarray,
+    take_names: Sequence[str],
+    title: str = "",
+) -> Figure:
+    """Two panels: coloured by take and by time within the take."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.8))
+    plot_embedding(
+        embedding,
+        take,
+        "by take" if len(set(take_names)) > 1 and "neutral" not in take_names else "by expression",
+        categories=take_names,
+        ax=axes[0],
+    )
+    plot_embedding(embedding, time, "by time (frame in take)", ax=axes[1])
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,62 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.distance import cdist, pdist
+from scipy.spatial.transform import Rotation
+
+import fxspace as fx
+
+
+def _rigid(rng, X):
+    R = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+    t = rng.standard_normal(3) * 100
+    return X @ R.T + t
+
+
+def test_features_match_pdist(rng):
+    X = rng.standard_normal((5, 7, 3))
+    F = np.asarray(fx.distance_features(X))
+    assert F.shape == (5, 21)
+    for t in range(5):
+        np.testing.assert_allclose(F[t], pdist(X[t]), rtol=1e-12)
+
+
+def test_features_rigid_invariant(rng):
+    X = rng.standard_normal((4, 10, 3)) * 50
+    Y = np.stack([_rigid(rng, x) for x in X])
+    np.testing.assert_allclose(fx.distance_features(X), fx.distance_features(Y), rtol=1e-9)
+
+
+def test_pairwise_matches_cdist_and_jit(rng):
+    F = rng.standard_normal((30, 12)) * 40 + 500
+    P = fx.pairwise_distances(F)
+    np.testing.assert_allclose(P, cdist(F, F), rtol=1e-9, atol=1e-8)
+    np.testing.assert_allclose(jax.jit(fx.pairwise_distances)(F), P, rtol=1e-12)
+    assert np.all(np.diag(np.asarray(P)) == 0)
+
+
+def test_feature_grad_finite(rng):
+    X = jnp.asarray(rng.standard_normal((3, 4, 3)))
+    X = X.at[0, 1].set(X[0, 0])  # coincident markers: gradient must stay finite
+    g = jax.grad(lambda x: jnp.sum(fx.pairwise_distances(fx.distance_features(x))))(X)
+    assert np.all(np.isfinite(g))
+
+
+def test_bad_shapes():
+    with pytest.raises(ValueError, match="positions"):
+        fx.distance_features(np.zeros((3, 4)))
+    with pytest.raises(ValueError, match="features"):
+        fx.pairwise_distances(np.zeros(3))
+
+
+def test_clean_frames_drop_and_raise(rng):
+    X = rng.standard_normal((6, 5, 3))
+    X[2, 1, 0] = np.nan
+    X[4] = np.nan
+    with pytest.warns(UserWarning, match="dropped 2 of 6"):
+        Y, kept = fx.clean_frames(X)
+    assert Y.shape == (4, 5, 3)
+    np.testing.assert_array_equal(kept, [0, 1, 3, 5])
+    with pytest.raises(ValueError, match="2 of 6 frames"):
+        fx.clean_frames(X, policy="raise")

@@ -1,0 +1,133 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import connected_components as sp_cc
+from scipy.sparse.csgraph import minimum_spanning_tree
+from scipy.sparse.csgraph import shortest_path as sp_shortest
+
+import fxspace as fx
+
+
+def _graph(rng, n, q, dim=3):
+    X = rng.standard_normal((n, dim))
+    P = np.sqrt(((X[:, None] - X[None]) ** 2).sum(-1))
+    thr = np.quantile(P[np.triu_indices(n, 1)], q)
+    return P, np.asarray(fx.epsilon_graph(P, thr)), thr
+
+
+def _scipy(W):
+    return sp_shortest(np.where(np.isinf(W), 0, W), method="D", directed=False)
+
+
+def test_epsilon_graph_definition(rng):
+    P, W, thr = _graph(rng, 20, 0.3)
+    assert np.all(np.diag(W) == 0)
+    off = ~np.eye(20, dtype=bool)
+    np.testing.assert_array_equal(np.isfinite(W[off]), P[off] <= thr)
+    np.testing.assert_array_equal(W[np.isfinite(W)], P[np.isfinite(W)])
+
+
+@pytest.mark.parametrize("method", ["scan", "blocked"])
+@pytest.mark.parametrize("q", [0.03, 0.1, 0.5])
+def test_floyd_matches_scipy(rng, method, q):
+    P, W, _ = _graph(rng, 150, q)
+    D = np.asarray(fx.floyd_warshall(W, method=method, block=32))
+    ref = _scipy(W)
+    np.testing.assert_array_equal(np.isinf(D), np.isinf(ref))
+    fin = np.isfinite(ref)
+    np.testing.assert_allclose(D[fin], ref[fin], rtol=1e-12)
+
+
+def test_blocked_with_padding_and_float32(rng):
+    P, W, _ = _graph(rng, 301, 0.05)
+    D = np.asarray(fx.floyd_warshall(jnp.asarray(W, jnp.float32), method="blocked", block=64))
+    ref = _scipy(W)
+    fin = np.isfinite(ref)
+    np.testing.assert_array_equal(np.isfinite(D), fin)
+    np.testing.assert_allclose(D[fin], ref[fin], rtol=1e-5)
+
+
+def test_directed_graph(rng):
+    n = 40
+    W = np.where(rng.random((n, n)) < 0.1, rng.random((n, n)) + 0.1, np.inf)
+    np.fill_diagonal(W, 0)
+    ref = sp_shortest(np.where(np.isinf(W), 0, W), directed=True)
+    np.testing.assert_allclose(fx.floyd_warshall(W), ref, rtol=1e-12)
+
+
+def test_paths_sum_to_geodesic(rng):
+    P, W, _ = _graph(rng, 120, 0.05)
+    geo = fx.geodesic_distances(W)
+    D = np.asarray(geo.distances)
+    for i, j in rng.integers(0, 120, (25, 2)):
+        if not np.isfinite(D[i, j]):
+            with pytest.raises(fx.DisconnectedGraphError):
+                fx.shortest_path(geo, i, j)
+            continue
+        path = fx.shortest_path(geo, i, j)
+        assert path[0] == i and path[-1] == j
+        length = sum(W[a, b] for a, b in zip(path[:-1], path[1:], strict=True))
+        np.testing.assert_allclose(length, D[i, j], rtol=1e-10)
+
+
+def test_next_hop_dense_equals_neighbour_search(rng):
+    P, W, _ = _graph(rng, 90, 0.1)
+    geo = fx.geodesic_distances(W)
+    dense = fx.next_hops(W, geo.distances)
+    sparse = fx.next_hops(W, geo.distances, max_degree=64)
+    D = np.asarray(geo.distances)
+    # both give valid first steps: W[i,k] + D[k,j] == D[i,j]
+    for nxt in (np.asarray(dense), np.asarray(sparse)):
+        i, j = np.nonzero(np.isfinite(D) & ~np.eye(90, dtype=bool))
+        k = nxt[i, j]
+        np.testing.assert_allclose(W[i, k] + D[k, j], D[i, j], rtol=1e-10)
+    assert np.all(np.asarray(dense)[~np.isfinite(D)] == -1)
+
+
+def test_jit_vmap(rng):
+    P, W, _ = _graph(rng, 60, 0.1)
+    geo = jax.jit(fx.geodesic_distances)(W)
+    np.testing.assert_allclose(geo.distances, fx.geodesic_distances(W).distances)
+    thr = jnp.asarray([0.5, 1.0, 2.0])
+    Ws = jax.vmap(lambda t: fx.epsilon_graph(P, t))(thr)
+    Ds = jax.vmap(fx.floyd_warshall)(Ws)
+    for k in range(3):
+        np.testing.assert_allclose(Ds[k], _scipy(np.asarray(Ws[k])), rtol=1e-12)
+
+
+def test_grad_is_path_indicator(rng):
+    P, W, _ = _graph(rng, 30, 0.3)
+    geo = fx.geodesic_distances(W)
+    i, j = 0, int(np.argmax(np.where(np.isfinite(geo.distances[0]), geo.distances[0], -1)))
+    g = jax.grad(lambda w: fx.floyd_warshall(w)[i, j])(jnp.asarray(W))
+    path = fx.shortest_path(geo, i, j)
+    expect = np.zeros_like(W)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        expect[a, b] += 1
+    off = ~np.eye(len(W), dtype=bool)  # the diagonal is the constant 0 of epsilon_graph
+    gs = np.asarray(g) + np.asarray(g).T
+    np.testing.assert_allclose(gs[off], (expect + expect.T)[off], atol=1e-12)
+
+
+def test_components_and_connecting_threshold(rng):
+    P, W, _ = _graph(rng, 80, 0.02)
+    n, lab = fx.connected_components(W)
+    n_ref, _ = sp_cc(np.isfinite(W) & ~np.eye(80, dtype=bool), directed=False)
+    assert int(n) == n_ref
+    thr = float(fx.connecting_threshold(P))
+    np.testing.assert_allclose(thr, minimum_spanning_tree(P).max(), rtol=1e-12)
+    assert int(fx.connected_components(fx.epsilon_graph(P, thr))[0]) == 1
+    assert int(fx.connected_components(fx.epsilon_graph(P, thr * 0.999))[0]) > 1
+    with pytest.raises(fx.DisconnectedGraphError, match="smallest threshold that connects"):
+        fx.check_connected(fx.epsilon_graph(P, thr * 0.999), P)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="square"):
+        fx.geodesic_distances(np.zeros((3, 4)))
+    with pytest.raises(ValueError, match="method"):
+        fx.floyd_warshall(np.zeros((3, 3)), method="dijkstra")
+    geo = fx.geodesic_distances(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="out of range"):
+        fx.shortest_path(geo, 0, 7)

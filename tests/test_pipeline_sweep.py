@@ -1,0 +1,104 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fxspace.cli import main
+from fxspace.config import ConfigError
+from fxspace.pipelines import run_dict
+
+SMALL = {
+    "experiment": "threshold_sweep",
+    "seed": 3,
+    "data": {"source": "synthetic", "synthetic_frames": 240, "synthetic_markers": 30},
+    "graph": {"num_thresholds": 6, "batch_size": 3},
+}
+
+
+def test_synthetic_run_folder(tmp_path):
+    (d,) = run_dict(SMALL, tmp_path / "run")
+    for f in (
+        "config.toml",
+        "meta.json",
+        "metrics.json",
+        "r_vs_threshold.png",
+        "expression_space.png",
+        "expression_space.npz",
+    ):
+        assert (d / f).is_file() and (d / f).stat().st_size > 0, f
+    m = json.loads((d / "metrics.json").read_text())
+    meta = json.loads((d / "meta.json").read_text())
+    assert meta["seed"] == 3 and "jax" in meta["versions"]
+    assert len(m["sweep"]) == 6 and m["frames"] == 240
+    assert 0.9 < m["r_at_best"] <= 1.0
+    assert m["best_threshold"] >= m["connecting_threshold"]
+    assert set(m["choices"]) == {"max_r", "bounded_degree", "elbow"}
+    emb = np.load(d / "expression_space.npz")["embedding"]
+    assert emb.shape == (240, 2) and np.isfinite(emb).all()
+
+
+def test_rerun_is_reproducible_and_resumes(tmp_path, capsys):
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    first = json.loads((d / "metrics.json").read_text())
+    run_dict(SMALL, tmp_path / "a")  # complete: skipped
+    assert "already complete" in capsys.readouterr().out
+    # an interrupted run: metrics gone, cache kept -> same numbers
+    (d / "metrics.json").unlink()
+    run_dict(SMALL, tmp_path / "a")
+    again = json.loads((d / "metrics.json").read_text())
+    assert again["sweep"] == first["sweep"]
+    (d2,) = run_dict(SMALL, tmp_path / "b")
+    fresh = json.loads((d2 / "metrics.json").read_text())
+    assert fresh["sweep"] == first["sweep"] and fresh["r_at_best"] == first["r_at_best"]
+
+
+def test_sweep_table_expands(tmp_path):
+    raw = dict(SMALL, sweep={"graph.num_thresholds": [4, 5]})
+    dirs = run_dict(raw, tmp_path)
+    assert sorted(d.name for d in dirs) == ["num_thresholds=4", "num_thresholds=5"]
+
+
+@pytest.mark.parametrize(
+    "patch, match",
+    [
+        ({"experiment": "nope"}, "not known"),
+        ({"graph": {"num_thresholds": 1}}, "num_thresholds"),
+        ({"data": {"source": "files"}}, "paths"),
+        ({"seed": "x"}, "seed"),
+        ({"select": {"criterion": "best"}}, "criterion"),
+    ],
+)
+def test_bad_configs(tmp_path, patch, match):
+    with pytest.raises(ConfigError, match=match):
+        run_dict({**SMALL, **patch}, tmp_path)
+    assert not (tmp_path / "metrics.json").exists()
+
+
+def test_cli_help_and_errors(tmp_path, capsys):
+    r = subprocess.run(
+        [sys.executable, "-m", "fxspace.cli", "--help"], capture_output=True, text=True, check=False
+    )
+    assert r.returncode == 0 and "demo" in r.stdout and "run" in r.stdout
+    bad = tmp_path / "bad.toml"
+    bad.write_text('experiment = "threshold_sweep"\n[graph]\nnum_thresholds = 0\n')
+    assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "num_thresholds" in capsys.readouterr().err
+
+
+@pytest.mark.data
+def test_real_animface_subsample(tmp_path, data_dir):
+    raw = {
+        "experiment": "threshold_sweep",
+        "seed": 0,
+        "data": {"source": "animface", "max_frames": 300},
+        "graph": {"num_thresholds": 5, "batch_size": 5},
+    }
+    (d,) = run_dict(raw, tmp_path)
+    m = json.loads((d / "metrics.json").read_text())
+    assert m["markers"] == 41 and m["frames"] == 300
+    assert m["takes"] == ["animface_cheeks.c3d", "animface_jaw.c3d", "animface_eyebrows.trc.gz"]
+    rs = [s["r"] for s in m["sweep"] if s["connected"]]
+    assert rs and all(0.5 < r <= 1.0 for r in rs)
+    assert not m["sweep"][0]["connected"]  # grid starts below the connecting threshold

@@ -1,0 +1,99 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import shortest_path as sp_shortest
+from scipy.spatial.distance import cdist
+from scipy.stats import pearsonr
+
+import fxspace as fx
+
+
+def _curve(rng, n=120):
+    """Points on a noisy spiral: geodesics are arc lengths."""
+    s = np.sort(rng.random(n)) * 3 * np.pi
+    X = np.c_[s * np.cos(s), s * np.sin(s), 0.05 * rng.standard_normal(n)]
+    return cdist(X, X)
+
+
+def _reference_score(P, thr):
+    W = np.where(P <= thr, P, 0)
+    D = sp_shortest(W, directed=False)
+    if not np.isfinite(D).all():
+        return np.nan
+    n = len(D)
+    J = np.eye(n) - 1 / n
+    w, V = np.linalg.eigh(-0.5 * J @ (D**2) @ J)
+    Y = V[:, ::-1][:, :2] * np.sqrt(np.maximum(w[::-1][:2], 0))
+    iu = np.triu_indices(n, 1)
+    return pearsonr(D[iu], cdist(Y, Y)[iu])[0]
+
+
+def test_sweep_matches_scipy_reference(rng):
+    P = _curve(rng)
+    th = fx.threshold_grid(P, num=6, upper_quantile=0.3)
+    sw = fx.threshold_sweep(P, th)
+    assert not bool(sw.connected[0])  # starts just below the connecting threshold
+    assert np.isnan(sw.scores[0]) and int(sw.n_components[0]) >= 2
+    for k, t in enumerate(th):
+        ref = _reference_score(P, t)
+        if np.isnan(ref):
+            assert np.isnan(sw.scores[k])
+        else:
+            np.testing.assert_allclose(sw.scores[k], ref, rtol=1e-8)
+
+
+def test_sweep_vmap_equals_loop(rng):
+    P = jnp.asarray(_curve(rng, 80))
+    th = fx.threshold_grid(P, num=5)
+    a = fx.threshold_sweep(P, th, batch_size=None)
+    b = fx.threshold_sweep(P, th, batch_size=5)
+    np.testing.assert_allclose(a.scores, b.scores, rtol=1e-10, equal_nan=True)
+    loop = [fx.threshold_sweep(P, th[k : k + 1]).scores[0] for k in range(5)]
+    np.testing.assert_allclose(a.scores, loop, rtol=1e-10, equal_nan=True)
+
+
+def test_sweep_under_jit(rng):
+    P = jnp.asarray(_curve(rng, 60))
+    th = jnp.asarray(fx.threshold_grid(P, num=4))
+    f = jax.jit(lambda p, t: fx.threshold_sweep(p, t).scores)
+    np.testing.assert_allclose(
+        f(P, th), fx.threshold_sweep(P, th).scores, rtol=1e-10, equal_nan=True
+    )
+
+
+def test_geodesic_curve_known_answer(rng):
+    """On a spiral the geodesic embedding unrolls the curve: r close to 1 at small ε."""
+    P = _curve(rng, 150)
+    t0 = float(fx.connecting_threshold(P))
+    sw = fx.threshold_sweep(P, [t0 * 1.05])
+    assert float(sw.scores[0]) > 0.99
+
+
+def test_choose_threshold_criteria(rng):
+    P = _curve(rng)
+    sw = fx.threshold_sweep(P, fx.threshold_grid(P, num=8, upper_quantile=0.9))
+    best = fx.choose_threshold(sw, "max_r")
+    assert best["score"] == np.nanmax(np.asarray(sw.scores))
+    bd = fx.choose_threshold(sw, "bounded_degree", max_mean_degree=10)
+    assert bd["mean_degree"] <= 10 or bd["index"] == int(np.flatnonzero(sw.connected)[0])
+    el = fx.choose_threshold(sw, "elbow")
+    assert bool(sw.connected[el["index"]])
+    with pytest.raises(ValueError, match="criterion"):
+        fx.choose_threshold(sw, "best")
+
+
+def test_all_disconnected_is_reported(rng):
+    P = _curve(rng, 50)
+    t0 = float(fx.connecting_threshold(P))
+    sw = fx.threshold_sweep(P, [t0 * 0.5, t0 * 0.9])
+    assert not np.any(np.asarray(sw.connected))
+    with pytest.raises(ValueError, match="components"):
+        fx.choose_threshold(sw)
+
+
+def test_bad_thresholds():
+    with pytest.raises(ValueError, match="positive"):
+        fx.threshold_sweep(np.zeros((4, 4)), [-1.0])
+    with pytest.raises(ValueError, match="square"):
+        fx.threshold_sweep(np.zeros((4, 3)), [1.0])
