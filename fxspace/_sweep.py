@@ -135,7 +135,7 @@ def choose_threshold(
     - ``"max_r"``: the seed paper's — the highest Pearson r. On real data r keeps rising
       toward the complete graph (Euclidean, least geodesic) so this drifts upward.
     - ``"bounded_degree"``: the highest r among graphs whose mean degree is at most
-      ``max_mean_degree`` (default: 5 % of the frames) — stays geodesic.
+      ``max_mean_degree`` (default: a quarter of the frames) — stays geodesic.
     - ``"elbow"``: the knee of the r-vs-log ε curve (largest height above the chord
       between the first and last connected thresholds; Kneedle) — where extra
       neighbours stop buying correlation.
@@ -154,7 +154,7 @@ def choose_threshold(
         k = idx[np.argmax(r[idx])]
     elif criterion == "bounded_degree":
         deg = np.asarray(sweep.mean_degree, float)
-        limit = max_mean_degree if max_mean_degree is not None else 0.05 * sweep.num_frames
+        limit = max_mean_degree if max_mean_degree is not None else 0.25 * sweep.num_frames
         ok = idx[deg[idx] <= limit]
         if not ok.size:
             ok = idx[:1]

@@ -131,3 +131,23 @@ def test_bad_input():
     geo = fx.geodesic_distances(np.zeros((3, 3)))
     with pytest.raises(ValueError, match="out of range"):
         fx.shortest_path(geo, 0, 7)
+
+
+@pytest.mark.data
+def test_real_capture_graph_matches_scipy(data_dir):
+    """AnimFace jaw take, every 8th frame: connected and disconnected ε-graphs vs scipy."""
+    seq = fx.io.read_markers(data_dir / "face" / "animface_jaw.c3d")
+    pos, _ = fx.clean_frames(seq.positions[::8])
+    P = np.asarray(fx.pairwise_distances(fx.distance_features(pos)))
+    t0 = float(fx.connecting_threshold(P))
+    for eps in (0.7 * t0, 1.2 * t0):
+        W = np.asarray(fx.epsilon_graph(P, eps))
+        geo = fx.geodesic_distances(W)
+        ref = _scipy(W)
+        D = np.asarray(geo.distances)
+        np.testing.assert_array_equal(np.isfinite(D), np.isfinite(ref))
+        fin = np.isfinite(ref)
+        np.testing.assert_allclose(D[fin], ref[fin], rtol=1e-10)
+        n_ref, _ = sp_cc(np.isfinite(W) & ~np.eye(len(W), dtype=bool), directed=False)
+        assert int(fx.connected_components(W)[0]) == n_ref
+    assert n_ref == 1  # the last (1.2 × connecting) graph is connected

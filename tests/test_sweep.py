@@ -97,3 +97,16 @@ def test_bad_thresholds():
         fx.threshold_sweep(np.zeros((4, 4)), [-1.0])
     with pytest.raises(ValueError, match="square"):
         fx.threshold_sweep(np.zeros((4, 3)), [1.0])
+
+
+def test_expression_space_on_synthetic_face():
+    face = fx.io.synthetic_face(n_markers=24, n_frames=150, seed=1)
+    pos = face.sequence.positions
+    P = fx.pairwise_distances(fx.distance_features(pos))
+    t0 = float(fx.connecting_threshold(P))
+    es = fx.expression_space(pos, 1.1 * t0)
+    assert es.embedding.shape == (150, 2) and 0.9 < float(es.score) <= 1.0
+    path = fx.shortest_path(es.geodesics, 0, 149)
+    assert path[0] == 0 and path[-1] == 149
+    with pytest.raises(fx.DisconnectedGraphError, match="connected components"):
+        fx.expression_space(pos, 0.5 * t0)

@@ -54,7 +54,7 @@ class GraphConfig:
 @dataclasses.dataclass(frozen=True)
 class SelectConfig:
     """How ε is chosen: ``max_r`` (the seed paper's), ``bounded_degree`` (highest r with mean
-    degree ≤ ``max_mean_degree``, default 5 % of the frames) or ``elbow`` (knee of r vs ε)."""
+    degree ≤ ``max_mean_degree``, default a quarter of the frames) or ``elbow`` (knee of r vs ε)."""
 
     criterion: Literal["max_r", "bounded_degree", "elbow"] = "bounded_degree"
     max_mean_degree: float | None = None
