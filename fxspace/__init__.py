@@ -9,29 +9,39 @@ from . import config as config
 from . import data as data
 from . import errors as errors
 from . import io as io
-
-# --- end hierarchy / navigation ---
-# --- control points (issue 4) ---
-# --- end control points ---
-# --- motion (issue 5) ---
 from . import motion as motion
 from . import plot as plot
 from . import runs as runs
-
-# --- expression space (issue 2) ---
+from ._controlpoints import ControlPointModel as ControlPointModel
+from ._controlpoints import blend_weights as blend_weights
+from ._controlpoints import compression_ratio as compression_ratio
+from ._controlpoints import control_point_model as control_point_model
+from ._controlpoints import edit_control_point as edit_control_point
+from ._controlpoints import fit_control_points as fit_control_points
+from ._controlpoints import linear_interpolation as linear_interpolation
+from ._controlpoints import reconstruct as reconstruct
+from ._controlpoints import reconstruction_error as reconstruction_error
+from ._controlpoints import residual_trajectories as residual_trajectories
+from ._controlpoints import storage_size as storage_size
+from ._controlpoints import temporal_window as temporal_window
 from ._expression import ExpressionSpace as ExpressionSpace
 from ._expression import expression_space as expression_space
-
-# --- end expression space ---
-# --- hierarchy / navigation (issue 3) ---
 from ._fcm import FCMResult as FCMResult
 from ._fcm import fcm_memberships as fcm_memberships
 from ._fcm import fcm_objective as fcm_objective
 from ._fcm import fuzzy_cmeans as fuzzy_cmeans
+from ._fcm import kmeanspp_extend as kmeanspp_extend
 from ._fcm import kmeanspp_init as kmeanspp_init
 from ._features import clean_frames as clean_frames
 from ._features import distance_features as distance_features
 from ._features import pairwise_distances as pairwise_distances
+from ._fitting import FitResult as FitResult
+from ._fitting import refine_control_points as refine_control_points
+from ._fused_lasso import FusedLassoResult as FusedLassoResult
+from ._fused_lasso import flsa_objective as flsa_objective
+from ._fused_lasso import fused_lasso as fused_lasso
+from ._fused_lasso import fused_lasso_solve as fused_lasso_solve
+from ._fused_lasso import tv_denoise as tv_denoise
 from ._geodesic import Geodesics as Geodesics
 from ._geodesic import check_connected as check_connected
 from ._geodesic import connected_components as connected_components
@@ -50,9 +60,6 @@ from ._hierarchy import level_sizes as level_sizes
 from ._hierarchy import link_graph_connected as link_graph_connected
 from ._hierarchy import nearest_frames as nearest_frames
 from ._hierarchy import split_centers as split_centers
-
-# --- end motion ---
-# --- mesh IK (issue 6) ---
 from ._ik import IKForward as IKForward
 from ._ik import IKModel as IKModel
 from ._ik import IKResult as IKResult
@@ -63,10 +70,16 @@ from ._ik import ik_gradient_naive as ik_gradient_naive
 from ._ik import ik_jacobian as ik_jacobian
 from ._ik import ik_markers as ik_markers
 from ._ik import ik_model as ik_model
+from ._ik import ik_normal_equations as ik_normal_equations
 from ._ik import ik_objective as ik_objective
 from ._ik import ik_residuals as ik_residuals
 from ._ik import solve_ik as solve_ik
 from ._ik import track_ik as track_ik
+from ._kernel_kmeans import KernelKMeansResult as KernelKMeansResult
+from ._kernel_kmeans import gaussian_kernel as gaussian_kernel
+from ._kernel_kmeans import kernel_kmeans as kernel_kmeans
+from ._kernel_kmeans import kernel_kmeans_gram as kernel_kmeans_gram
+from ._kernel_kmeans import median_gamma as median_gamma
 from ._markers_mesh import MarkerSet as MarkerSet
 from ._markers_mesh import marker_influences as marker_influences
 from ._markers_mesh import marker_positions as marker_positions
@@ -87,6 +100,14 @@ from ._navigate import refine_route as refine_route
 from ._playback import Playback as Playback
 from ._playback import playback as playback
 from ._playback import rigid_align as rigid_align
+from ._rbf import FaceSurface as FaceSurface
+from ._rbf import face_surface as face_surface
+from ._rbf import rbf_deform as rbf_deform
+from ._rbf import rbf_transfer_matrix as rbf_transfer_matrix
+from ._segment import Segmentation as Segmentation
+from ._segment import motion_summary as motion_summary
+from ._segment import segment_motion as segment_motion
+from ._segment import segments_from_boundaries as segments_from_boundaries
 from ._skinning import Pose as Pose
 from ._skinning import linear_blend_skinning as linear_blend_skinning
 from ._skinning import pose_from_local as pose_from_local
@@ -105,8 +126,6 @@ from .motion import DTWResult as DTWResult
 from .motion import absolute_orientation as absolute_orientation
 from .motion import dtw as dtw
 from .motion import forward_kinematics as forward_kinematics
-
-# --- end mesh IK ---
 
 try:
     __version__ = _metadata.version("fxspace")

@@ -1,0 +1,282 @@
+"""BVH (Biovision hierarchy) reader and writer that keep each joint's channel order.
+
+Angles are degrees in the file; a joint whose channels list rotations in the order
+``Zrotation Yrotation Xrotation`` has local rotation ``R = R_Z(z) @ R_Y(y) @ R_X(x)``
+(the order of the channels, read left to right, is the order of the matrix product).
+Lengths are multiplied by ``scale`` on reading (file units → metres) and divided by it
+on writing, so ``write_bvh(p, read_bvh(p, scale=s), scale=s)`` reproduces the file's units.
+"""
+
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import CorruptFileError
+from ..motion._quat import euler_to_quat, quat_to_euler
+from ._motion import Motion
+
+__all__ = ["read_bvh", "write_bvh"]
+
+_ROT = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
+_POS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
+
+
+def _open_text(path: Path) -> str:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} does not exist") from None
+    if path.suffix == ".gz" or raw[:2] == b"\x1f\x8b":
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError) as e:
+            raise CorruptFileError(f"{path}: not a valid gzip file ({e})") from e
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+class _Tokens:
+    def __init__(self, lines: list[str], path: Path):
+        self.toks = [(t, n + 1) for n, line in enumerate(lines) for t in line.split()]
+        self.i = 0
+        self.path = path
+
+    def error(self, msg: str, line: int | None = None) -> CorruptFileError:
+        if line is None:
+            line = self.toks[min(self.i, len(self.toks) - 1)][1] if self.toks else 1
+        return CorruptFileError(f"{self.path}, line {line}: {msg}")
+
+    def next(self, what: str) -> tuple[str, int]:
+        if self.i >= len(self.toks):
+            raise self.error(f"unexpected end of file, expected {what}")
+        t = self.toks[self.i]
+        self.i += 1
+        return t
+
+    def expect(self, word: str) -> int:
+        t, n = self.next(repr(word))
+        if t != word:
+            raise self.error(f"expected {word!r}, found {t!r}", n)
+        return n
+
+    def number(self, what: str) -> float:
+        t, n = self.next(what)
+        try:
+            return float(t)
+        except ValueError:
+            raise self.error(f"expected a number for {what}, found {t!r}", n) from None
+
+
+def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
+    """Read a ``.bvh`` (or ``.bvh.gz``) file into a :class:`Motion`.
+
+    **Arguments:**
+
+    - ``path``: the file.
+    - ``scale``: metres per file length unit (CMU's BVH conversion uses the ASF unit,
+      ``0.0254 / 0.45`` m).
+
+    **Returns:** a ``Motion``; end sites become joints named ``<parent>_end``.
+
+    Raises ``CorruptFileError`` naming the line of the first malformed token.
+    """
+    path = Path(path)
+    lines = _open_text(path).splitlines()
+    try:
+        mline = next(i for i, ln in enumerate(lines) if ln.strip().upper() == "MOTION")
+    except StopIteration:
+        raise CorruptFileError(f"{path}: no MOTION section (is this a BVH file?)") from None
+    tk = _Tokens(lines[:mline], path)
+    tk.expect("HIERARCHY")
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[tuple[str, ...]] = []
+
+    def joint(parent: int, is_end: bool, name: str) -> None:
+        idx = len(names)
+        names.append(name)
+        parents.append(parent)
+        tk.expect("{")
+        tk.expect("OFFSET")
+        offsets.append([tk.number("OFFSET x"), tk.number("OFFSET y"), tk.number("OFFSET z")])
+        chans: tuple[str, ...] = ()
+        if not is_end:
+            tk.expect("CHANNELS")
+            t, n = tk.next("channel count")
+            if not t.isdigit():
+                raise tk.error(f"expected the channel count, found {t!r}", n)
+            chans = tuple(tk.next("channel name")[0] for _ in range(int(t)))
+            for c in chans:
+                if c not in _ROT and c not in _POS:
+                    raise tk.error(f"unknown channel {c!r} of joint {name!r}", n)
+                if c in _POS and parent != -1:
+                    raise tk.error(
+                        f"joint {name!r} has a position channel {c!r}; only the "
+                        "root may be translated",
+                        n,
+                    )
+        channels.append(chans)
+        while True:
+            t, n = tk.next("JOINT, End Site or }")
+            if t == "}":
+                return
+            if is_end:
+                raise tk.error(f"End Site of {names[parent]!r} has children ({t!r})", n)
+            if t == "JOINT":
+                joint(idx, False, tk.next("joint name")[0])
+            elif t == "End":
+                tk.expect("Site")
+                joint(idx, True, f"{name}_end")
+            else:
+                raise tk.error(f"expected JOINT, End Site or '}}', found {t!r}", n)
+
+    t, n = tk.next("ROOT")
+    if t != "ROOT":
+        raise tk.error(f"expected ROOT, found {t!r}", n)
+    joint(-1, False, tk.next("root name")[0])
+    if tk.i != len(tk.toks):
+        raise tk.error(f"unexpected {tk.toks[tk.i][0]!r} after the root joint")
+
+    # MOTION section
+    def header(k: int, key: str) -> tuple[str, int]:
+        while k < len(lines) and not lines[k].strip():
+            k += 1
+        if k >= len(lines) or not lines[k].strip().startswith(key):
+            raise CorruptFileError(f"{path}, line {k + 1}: expected '{key}'")
+        return lines[k].strip()[len(key) :].strip(), k + 1
+
+    val, k = header(mline + 1, "Frames:")
+    try:
+        n_frames = int(val)
+    except ValueError:
+        raise CorruptFileError(f"{path}, line {k}: bad frame count {val!r}") from None
+    val, k = header(k, "Frame Time:")
+    try:
+        dt = float(val)
+    except ValueError:
+        raise CorruptFileError(f"{path}, line {k}: bad frame time {val!r}") from None
+    if dt <= 0:
+        raise CorruptFileError(f"{path}, line {k}: frame time must be positive, got {dt}")
+    n_ch = sum(len(c) for c in channels)
+    rows = []
+    for ln_no in range(k, len(lines)):
+        s = lines[ln_no].split()
+        if not s:
+            continue
+        if len(s) != n_ch:
+            raise CorruptFileError(
+                f"{path}, line {ln_no + 1}: {len(s)} values, the hierarchy declares {n_ch} channels"
+            )
+        try:
+            rows.append([float(x) for x in s])
+        except ValueError:
+            raise CorruptFileError(
+                f"{path}, line {ln_no + 1}: non-numeric value in frame data"
+            ) from None
+    if len(rows) != n_frames:
+        raise CorruptFileError(
+            f"{path}, line {len(lines)}: header says {n_frames} frames, "
+            f"found {len(rows)} (truncated file?)"
+        )
+    data = np.asarray(rows, dtype=np.float64).reshape(n_frames, n_ch)
+    J = len(names)
+    quats = np.zeros((n_frames, J, 4))
+    quats[..., 0] = 1.0
+    root = np.zeros((n_frames, 3))
+    col = 0
+    for j, chans in enumerate(channels):
+        order = "".join(_ROT[c] for c in chans if c in _ROT)
+        rcols = [col + i for i, c in enumerate(chans) if c in _ROT]
+        for i, c in enumerate(chans):
+            if c in _POS:
+                root[:, _POS[c]] = data[:, col + i]
+        if order:
+            quats[:, j] = euler_to_quat(data[:, rcols], order)
+        col += len(chans)
+    return Motion(
+        names=tuple(names),
+        parents=tuple(parents),
+        offsets=jnp.asarray(np.asarray(offsets) * scale),
+        root_translation=jnp.asarray(root * scale),
+        rotations=jnp.asarray(quats),
+        rate=float(1.0 / dt),
+        channels=tuple(channels),
+    )
+
+
+def _fmt(x: float) -> str:
+    s = f"{x:.6f}"
+    return "0.000000" if s == "-0.000000" else s
+
+
+def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
+    """Write ``motion`` as BVH, each joint's Euler angles in the order of its ``channels``.
+
+    Joints without channels that have no children are written as ``End Site``; a joint
+    whose rotation channels are not three distinct axes must have identity rotation.
+    Lengths are divided by ``scale`` (metres per file unit). Written atomically; ``.gz``
+    paths are compressed.
+    """
+    from ..runs import write_bytes_atomic
+
+    path = Path(path)
+    J = motion.num_joints
+    children: list[list[int]] = [[] for _ in range(J)]
+    for j, p in enumerate(motion.parents):
+        if p >= 0:
+            children[p].append(j)
+    offsets = np.asarray(motion.offsets) / scale
+    out: list[str] = ["HIERARCHY"]
+
+    def emit(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        chans = motion.channels[j]
+        is_end = not chans and not children[j]
+        if motion.parents[j] == -1:
+            out.append(f"ROOT {motion.names[j]}")
+        elif is_end:
+            out.append(f"{ind}End Site")
+        else:
+            out.append(f"{ind}JOINT {motion.names[j]}")
+        out.append(f"{ind}{{")
+        out.append(f"{ind}\tOFFSET " + " ".join(_fmt(v) for v in offsets[j]))
+        if not is_end:
+            out.append(f"{ind}\tCHANNELS {len(chans)} " + " ".join(chans))
+            for c in children[j]:
+                emit(c, depth + 1)
+        out.append(f"{ind}}}")
+
+    emit(0, 0)
+    T = motion.num_frames
+    cols = []
+    quats = np.asarray(motion.rotations)
+    root = np.asarray(motion.root_translation) / scale
+    for j, chans in enumerate(motion.channels):
+        order = "".join(_ROT[c] for c in chans if c in _ROT)
+        if order and len(order) != 3:
+            raise ValueError(
+                f"motion.channels[{j}] ({motion.names[j]!r}) has rotation channels "
+                f"{order!r}; write_bvh needs three distinct axes"
+            )
+        eul = quat_to_euler(quats[:, j], order) if order else None
+        r = 0
+        for c in chans:
+            if c in _POS:
+                cols.append(root[:, _POS[c]])
+            else:
+                cols.append(eul[:, r])
+                r += 1
+    data = np.stack(cols, axis=1) if cols else np.zeros((T, 0))
+    out += ["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / motion.rate:.8f}"]
+    out += [" ".join(_fmt(v) for v in row) for row in data]
+    text = ("\n".join(out) + "\n").encode("utf-8")
+    if path.suffix == ".gz":
+        text = gzip.compress(text, mtime=0)
+    return write_bytes_atomic(path, text)

@@ -1,0 +1,73 @@
+"""Absolute orientation (Horn 1987, closed form with unit quaternions)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._quat import quat_to_matrix
+
+__all__ = ["absolute_orientation", "RigidTransform", "apply_rigid"]
+
+
+class RigidTransform(NamedTuple):
+    """``R`` ``(3, 3)`` proper rotation and ``t`` ``(3,)``: ``x ↦ R x + t``."""
+
+    R: Float[Array, "3 3"]
+    t: Float[Array, " 3"]
+
+
+def absolute_orientation(
+    src: Float[Array, "k 3"],
+    dst: Float[Array, "k 3"],
+    weights: Float[Array, " k"] | None = None,
+) -> RigidTransform:
+    """Rigid transform minimising ``Σ_k w_k ||R src_k + t − dst_k||²`` (Horn 1987).
+
+    Horn's closed form: with centred points and ``M = Σ w_k src_k dst_kᵀ``, the optimal
+    rotation is the unit quaternion eigenvector of the largest eigenvalue of the symmetric
+    4×4 matrix ``N(M)`` (Horn 1987, J. Opt. Soc. Am. A 4(4), the matrix N of §4); the
+    translation is ``t = d̄ − R s̄`` (the centroid result of §2). A quaternion is
+    always a proper rotation, so a reflection (``det = −1`` in the SVD solution) can never
+    be returned — the reflection case of Kabsch/Umeyama is handled by construction.
+    Needs ``k ≥ 3`` non-collinear points for a unique answer. O(k). Batched over leading
+    axes via ``jax.vmap``; differentiable where the top eigenvalue is simple.
+
+    **Returns:** ``RigidTransform(R, t)`` (unpacks as ``R, t = absolute_orientation(...)``).
+    """
+    src = jnp.asarray(src)
+    dst = jnp.asarray(dst)
+    if src.ndim != 2 or src.shape[-1] != 3 or src.shape != dst.shape:
+        raise ValueError(f"src and dst must both be (k, 3), got {src.shape} and {dst.shape}")
+    if src.shape[0] < 3:
+        raise ValueError(f"absolute_orientation needs at least 3 point pairs, got {src.shape[0]}")
+    w = jnp.ones(src.shape[0], src.dtype) if weights is None else jnp.asarray(weights, src.dtype)
+    if w.shape != src.shape[:1]:
+        raise ValueError(f"weights must have shape ({src.shape[0]},), got {w.shape}")
+    w = w / jnp.sum(w)
+    sbar = jnp.sum(w[:, None] * src, axis=0)
+    dbar = jnp.sum(w[:, None] * dst, axis=0)
+    S = jnp.einsum("k,ka,kb->ab", w, src - sbar[None], dst - dbar[None])
+    sxx, sxy, sxz = S[0, 0], S[0, 1], S[0, 2]
+    syx, syy, syz = S[1, 0], S[1, 1], S[1, 2]
+    szx, szy, szz = S[2, 0], S[2, 1], S[2, 2]
+    N = jnp.stack(
+        [
+            jnp.stack([sxx + syy + szz, syz - szy, szx - sxz, sxy - syx]),
+            jnp.stack([syz - szy, sxx - syy - szz, sxy + syx, szx + sxz]),
+            jnp.stack([szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy]),
+            jnp.stack([sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz]),
+        ]
+    )
+    _, vecs = jnp.linalg.eigh(N)
+    q = vecs[:, -1]
+    R = quat_to_matrix(q)
+    return RigidTransform(R, dbar - R @ sbar)
+
+
+def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    """``R x + t`` for points ``x`` (any leading shape)."""
+    x = jnp.asarray(x)
+    return jnp.einsum("ab,...b->...a", tf.R, x) + tf.t.reshape((1,) * (x.ndim - 1) + (3,))

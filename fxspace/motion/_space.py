@@ -1,0 +1,66 @@
+"""Building parameter spaces from example clips: padding/stacking, key times, windows."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._blend import ExampleSet
+
+__all__ = ["stack_examples", "find_key_times", "extract_window"]
+
+
+def stack_examples(rotations: list, roots: list, warps: Float[Array, "E N"]) -> ExampleSet:
+    """Pad clips of different lengths (repeating the last frame) into an :class:`ExampleSet`."""
+    if len(rotations) != len(roots) or len(rotations) != warps.shape[0]:
+        raise ValueError(
+            f"rotations ({len(rotations)}), roots ({len(roots)}) and warps "
+            f"({warps.shape[0]}) must describe the same number of examples"
+        )
+    lengths = [int(np.shape(r)[0]) for r in rotations]
+    T = max(lengths)
+
+    def pad(x):
+        x = np.asarray(x)
+        return np.concatenate([x, np.repeat(x[-1:], T - x.shape[0], axis=0)], axis=0)
+
+    return ExampleSet(
+        rotations=jnp.asarray(np.stack([pad(r) for r in rotations])),
+        root=jnp.asarray(np.stack([pad(r) for r in roots])),
+        lengths=jnp.asarray(lengths, dtype=jnp.int32),
+        warps=jnp.asarray(warps),
+    )
+
+
+def find_key_times(
+    signal, min_separation: int, max_keys: int, margin: int = 0, rel_height: float = 0.7
+) -> list[int]:
+    """Frames of the strongest local maxima of a 1-D ``signal`` (e.g. hand reach, foot
+    height): greedy, highest first, at least ``min_separation`` frames apart, at least
+    ``margin`` frames from either end, and at least ``rel_height`` of the way from the
+    signal's median to its maximum. Sorted by time."""
+    s = np.asarray(signal, dtype=np.float64)
+    if s.ndim != 1 or s.size < 3:
+        raise ValueError(f"signal must be a 1-D array of at least 3 frames, got shape {s.shape}")
+    lo, hi = np.median(s), s.max()
+    thr = lo + rel_height * (hi - lo)
+    peak = np.zeros(s.size, bool)
+    peak[1:-1] = (s[1:-1] >= s[:-2]) & (s[1:-1] >= s[2:]) & (s[1:-1] >= thr)
+    cands = [i for i in np.argsort(-s) if peak[i] and margin <= i < s.size - margin]
+    keys: list[int] = []
+    for i in cands:
+        if all(abs(i - k) >= min_separation for k in keys):
+            keys.append(int(i))
+        if len(keys) == max_keys:
+            break
+    return sorted(keys)
+
+
+def extract_window(motion, start: int, stop: int):
+    """Frames ``start:stop`` of a Motion (clamped to the clip)."""
+    start = max(0, start)
+    stop = min(motion.num_frames, stop)
+    if stop - start < 2:
+        raise ValueError(f"window [{start}, {stop}) holds fewer than 2 frames")
+    return motion.frames(slice(start, stop))

@@ -1,0 +1,79 @@
+"""Upper/lower-body splicing (after Heck, Kovar & Gleicher 2006) and heading utilities."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ._quat import _xp, quat_conj, quat_from_axis_angle, quat_mul, quat_normalize, quat_rotate
+
+__all__ = ["heading_quat", "align_start", "upper_body_mask", "splice_pose"]
+
+
+def heading_quat(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+    """Yaw-only (about +Y) part of a root orientation: the rotation taking +Z to the root's
+    forward direction projected on the ground."""
+    xp = _xp(q)
+    f = quat_rotate(q, xp.broadcast_to(xp.asarray([0.0, 0.0, 1.0], q.dtype), q.shape[:-1] + (3,)))
+    yaw = xp.arctan2(f[..., 0], f[..., 2])
+    up = xp.broadcast_to(xp.asarray([0.0, 1.0, 0.0], q.dtype), q.shape[:-1] + (3,))
+    return quat_from_axis_angle(up, yaw)
+
+
+def align_start(motion, frame: int = 0):
+    """A copy of ``motion`` moved on the ground so that at ``frame`` the root is above the
+    origin and faces +Z (a rotation about +Y and a horizontal translation; heights kept)."""
+    xp = _xp(motion.rotations, motion.root_translation)
+    q0 = motion.rotations[frame, 0]
+    hinv = quat_conj(heading_quat(q0))
+    r0 = motion.root_translation[frame] * xp.asarray([1.0, 0.0, 1.0])
+    T = motion.root_translation.shape[0]
+    root = quat_rotate(xp.broadcast_to(hinv, (T, 4)), motion.root_translation - r0)
+    root_q = quat_mul(xp.broadcast_to(hinv, (T, 4)), motion.rotations[:, 0])
+    rot = xp.concatenate([root_q[:, None], motion.rotations[:, 1:]], axis=1)
+    return dataclasses.replace(motion, root_translation=root, rotations=rot)
+
+
+def upper_body_mask(
+    parents: tuple[int, ...], names: tuple[str, ...], spine_root: str = "lowerback"
+) -> Bool[Array, " J"]:
+    """Joints above the pelvis: ``spine_root`` and all its descendants."""
+    if spine_root not in names:
+        raise ValueError(f"spine_root {spine_root!r} is not a joint; joints are {list(names)}")
+    s = names.index(spine_root)
+    mask = [False] * len(parents)
+    for j, p in enumerate(parents):
+        mask[j] = j == s or (p >= 0 and mask[p])
+    return jnp.asarray(mask)
+
+
+def splice_pose(
+    lower_q: Float[Array, "J 4"],
+    upper_q: Float[Array, "J 4"],
+    mask: Bool[Array, " J"],
+    spine_root: int,
+    posture_transfer: float | Float[Array, ""] = 1.0,
+) -> Float[Array, "J 4"]:
+    """Upper body of ``upper_q`` on the lower body of ``lower_q`` (root = joint 0 = pelvis).
+
+    Joints in ``mask`` take the upper frame's local rotations (posture relative to the
+    pelvis); the rest, the root included, come from the lower frame. Spatial alignment /
+    posture transfer at the pelvis (after Heck, Kovar & Gleicher 2006, "Splicing upper-body
+    actions with locomotion"; simplified): the world orientation of the
+    upper body's first spine joint is taken *relative to the pelvis heading* (yaw only)
+    rather than to the full pelvis rotation, so the upper body keeps its lean with respect
+    to the ground and faces where the lower body faces: with ``H`` the heading of a root,
+    ``q_spine_world = H_lower ⊗ H_upper⁻¹ ⊗ q_root_upper ⊗ q_spine_upper`` (blended with the
+    plain local copy by ``posture_transfer`` ∈ [0, 1], nlerp).
+    """
+    out = jnp.where(mask[:, None], upper_q, lower_q)
+    root_l, root_u = lower_q[0], upper_q[0]
+    world_u = quat_mul(root_u, upper_q[spine_root])
+    target = quat_mul(quat_mul(heading_quat(root_l), quat_conj(heading_quat(root_u))), world_u)
+    local_aligned = quat_mul(quat_conj(root_l), target)
+    plain = upper_q[spine_root]
+    sign = jnp.where(jnp.sum(plain * local_aligned) < 0, -1.0, 1.0)
+    q = quat_normalize((1 - posture_transfer) * plain + posture_transfer * sign * local_aligned)
+    return out.at[spine_root].set(q)

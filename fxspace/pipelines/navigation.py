@@ -1,0 +1,275 @@
+"""Hierarchical navigation of the expression space (issue 3, Kim & Jung §4–5).
+
+Loads facial frames (AnimFace takes or the synthetic face), builds the expression space
+at ε = ``threshold_factor`` × the smallest connecting threshold (or an explicit one),
+builds the fuzzy c-means levels (warm-started, and cold for comparison), their links,
+runs a scripted navigation (key centres at the first level refined automatically to the
+finest) and writes the level figures, the grid of all levels, the animation, the
+routes and the hierarchy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._features import distance_features, pairwise_distances
+from .._geodesic import connecting_threshold, epsilon_graph, geodesic_distances
+from .._hierarchy import Hierarchy, build_hierarchy, link_graph_connected
+from .._mds import classical_mds, pearson_score
+from .._navigate import is_graph_walk, navigate
+from .._playback import playback
+from ..config import ConfigError
+from ..runs import save_figure_atomic, save_npz_atomic, write_json_atomic
+from ._face import FaceData, load_face
+
+__all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "run", "auto_key_centres"]
+
+
+@dataclasses.dataclass(frozen=True)
+class GraphConfig:
+    """ε: ``threshold`` (same units as the features, mm) or, when 0, ``threshold_factor`` ×
+    the smallest threshold that connects the graph (a sparse graph gives smooth paths)."""
+
+    threshold: float = 0.0
+    threshold_factor: float = 1.25
+    dtype: Literal["float32", "float64"] = "float32"
+
+    def validate(self) -> None:
+        if self.threshold < 0:
+            raise ConfigError("graph.threshold must be >= 0 (0: use graph.threshold_factor)")
+        if self.threshold == 0 and self.threshold_factor < 1.0:
+            raise ConfigError(
+                "graph.threshold_factor must be >= 1 (below 1 the graph is disconnected)"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class HierarchyConfig:
+    """FCM levels c0·2^l (see :func:`fxspace.build_hierarchy`)."""
+
+    c0: int = 10
+    m: float = 2.0
+    tol: float = 1e-4
+    max_steps: int = 300
+    restarts: int = 1
+    rho_scale: float = 0.5
+    compare_cold: bool = True
+    max_link_centres: int = 0  # 0: links at every level
+
+    def validate(self) -> None:
+        if self.c0 < 1 or self.max_steps < 1 or not self.m > 1 or self.tol <= 0:
+            raise ConfigError("hierarchy: need c0 >= 1, max_steps >= 1, m > 1, tol > 0")
+        if self.rho_scale <= 0:
+            raise ConfigError("hierarchy.rho_scale must be > 0")
+        if self.restarts < 0:
+            raise ConfigError("hierarchy.restarts must be >= 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class NavConfig:
+    """Scripted navigation: ``key_centres`` at the first level (empty: ``num_keys`` centres
+    chosen automatically along links), refined to the finest level, played at ``fps``."""
+
+    key_centres: tuple[int, ...] = ()
+    num_keys: int = 4
+    fps: float = 30.0
+    duration: float = 0.0  # 0: one captured frame per 1/rate s
+    by: Literal["arclength", "frame"] = "arclength"
+    animation: Literal["gif", "mp4", "none"] = "gif"
+    animation_frames: int = 200
+    level_figures: bool = True
+
+    def validate(self) -> None:
+        if self.num_keys < 2 and not self.key_centres:
+            raise ConfigError("navigation.num_keys must be >= 2")
+        if self.fps <= 0:
+            raise ConfigError("navigation.fps must be > 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    data: FaceData = FaceData(max_frames=2400)
+    graph: GraphConfig = GraphConfig()
+    hierarchy: HierarchyConfig = HierarchyConfig()
+    navigation: NavConfig = NavConfig()
+
+
+def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[int]:
+    """``n`` key centres at ``level``, each linked to the previous: start at the centre
+    geodesically farthest from the others on average, then repeatedly step to the linked,
+    unvisited centre farthest (geodesically) from those already picked."""
+    lv = h.levels[level]
+    D = np.asarray(geodesics.distances, np.float64)[np.ix_(lv.center_frames, lv.center_frames)]
+    D = np.where(np.isfinite(D), D, 0.0)
+    seq = [int(np.argmax(D.mean(axis=1)))]
+    while len(seq) < n:
+        nb = [int(k) for k in lv.neighbours(seq[-1]) if int(k) not in seq]
+        if not nb:
+            break
+        seq.append(max(nb, key=lambda k: D[k, seq].min()))
+    return seq
+
+
+def run(cfg: Config, run_dir: Path, seed: int) -> dict:
+    from ..plot import plot_level, plot_levels_grid, write_navigation_animation
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    face = load_face(cfg.data, seed)
+    timings["load_s"] = time.perf_counter() - t0
+    dtype = jnp.float32 if cfg.graph.dtype == "float32" else jnp.float64
+
+    t0 = time.perf_counter()
+    P = pairwise_distances(distance_features(jnp.asarray(face.positions, dtype)))
+    t_conn = float(connecting_threshold(P))
+    eps = cfg.graph.threshold or cfg.graph.threshold_factor * t_conn
+    if eps < t_conn:
+        raise ConfigError(
+            f"graph.threshold = {eps:.4g} leaves the graph disconnected; the "
+            f"smallest connecting threshold is {t_conn:.4g}"
+        )
+    W = epsilon_graph(P, eps)
+    geo = jax.block_until_ready(geodesic_distances(W))
+    mds = classical_mds(geo.distances, 2)
+    r = float(pearson_score(geo.distances, mds.embedding))
+    timings["expression_space_s"] = time.perf_counter() - t0
+    Y = np.asarray(mds.embedding)
+
+    hc = cfg.hierarchy
+    t0 = time.perf_counter()
+    h = build_hierarchy(
+        Y,
+        geo,
+        c0=hc.c0,
+        m=hc.m,
+        key=jax.random.PRNGKey(seed),
+        tol=hc.tol,
+        max_steps=hc.max_steps,
+        warm_start=True,
+        restarts=hc.restarts,
+        compare_cold=hc.compare_cold,
+        rho_scale=hc.rho_scale,
+        max_link_centres=hc.max_link_centres or None,
+    )
+    timings["hierarchy_s"] = time.perf_counter() - t0
+
+    nc = cfg.navigation
+    keys = list(nc.key_centres) or auto_key_centres(h, geo, nc.num_keys)
+    t0 = time.perf_counter()
+    routes = navigate(h, geo, keys)
+    timings["navigation_s"] = time.perf_counter() - t0
+    final = routes[-1]
+    Wn = np.asarray(W)
+    play = playback(
+        final.frames,
+        Y,
+        face.positions,
+        fps=nc.fps,
+        rate=face.rate,
+        duration=nc.duration or None,
+        by=nc.by,
+    )
+
+    t0 = time.perf_counter()
+    if nc.level_figures:
+        for li in range(len(h.levels)):
+            rt = next((rr for rr in routes if rr.level == li), None)
+            save_figure_atomic(plot_level(h, li, rt), run_dir / f"level_{li:02d}.png")
+    save_figure_atomic(plot_levels_grid(h, routes), run_dir / "levels_grid.png")
+    timings["figures_s"] = time.perf_counter() - t0
+    anim_path = None
+    if nc.animation != "none":
+        t0 = time.perf_counter()
+        anim_path = write_navigation_animation(
+            run_dir / f"navigation.{nc.animation}",
+            play,
+            Y,
+            route=routes[0],
+            names=face.marker_names,
+            max_frames=nc.animation_frames,
+            title=f"key centres {'-'.join(map(str, keys))} (level 0)",
+        )
+        timings["animation_s"] = time.perf_counter() - t0
+
+    save_npz_atomic(
+        run_dir / "hierarchy.npz",
+        embedding=Y,
+        sizes=np.asarray(h.sizes),
+        final_frames=final.frames,
+        playback_xy=play.xy,
+        playback_frame=play.frame,
+        **{f"centers_{i}": lv.centers for i, lv in enumerate(h.levels)},
+        **{f"center_frames_{i}": lv.center_frames for i, lv in enumerate(h.levels)},
+    )
+    write_json_atomic(
+        run_dir / "routes.json",
+        [
+            {
+                "level": rt.level,
+                "centres": list(rt.centres),
+                "key_frames": rt.key_frames,
+                "frames": rt.frames,
+                "takes": face.take[rt.frames],
+                "take_frames": face.frame[rt.frames],
+            }
+            for rt in routes
+        ],
+    )
+
+    levels = []
+    for lv in h.levels:
+        levels.append(
+            {
+                "centres": lv.n_clusters,
+                "init": lv.init,
+                "iterations_warm": lv.num_steps,
+                "iterations_split_start": lv.num_steps_split,
+                "iterations_all_starts": lv.total_steps,
+                "iterations_cold": lv.num_steps_cold,
+                "objective_warm": lv.objective,
+                "objective_cold": lv.objective_cold,
+                "converged": lv.converged,
+                "distinct_centre_frames": int(len(np.unique(lv.center_frames))),
+                "links": int(lv.links.sum() // 2) if lv.links is not None else None,
+                "bridges": int(lv.bridges.sum() // 2) if lv.bridges is not None else None,
+                "link_graph_connected": (
+                    link_graph_connected(lv) if lv.links is not None else None
+                ),
+                "radius": lv.radius,
+                "fcm_time_s": lv.time_s,
+            }
+        )
+    # the warm start's own cost: the split start alone, on the levels where it ran
+    split = [lv for lv in levels if lv["iterations_split_start"] >= 0]
+    warm = sum(lv["iterations_split_start"] for lv in split)
+    cold = sum(lv["iterations_cold"] for lv in split) if hc.compare_cold else None
+    return {
+        "frames": int(len(Y)),
+        "markers": int(face.positions.shape[1]),
+        "takes": list(face.take_names),
+        "threshold": eps,
+        "connecting_threshold": t_conn,
+        "r": r,
+        "num_levels": len(h.levels),
+        "centres_per_level": list(h.sizes),
+        "levels": levels,
+        "iterations_split_start_total": warm,
+        "iterations_cold_total": cold,
+        "iterations_saved_by_warm_start": (cold - warm) if cold is not None else None,
+        "iterations_all_starts_total": sum(lv["iterations_all_starts"] for lv in levels),
+        "key_centres": keys,
+        "route_centres_per_level": [len(rt.centres) for rt in routes],
+        "path_length_frames": int(len(final.frames)),
+        "path_is_graph_walk": is_graph_walk(final.frames, Wn),
+        "playback_frames": int(len(play.times)),
+        "playback_duration_s": float(play.times[-1]),
+        "animation": anim_path.name if anim_path is not None else None,
+        "timings": timings,
+    }

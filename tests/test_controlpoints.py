@@ -1,0 +1,156 @@
+"""Control-point model: linear interpolation, eq. (1), exact rigid reconstruction, editing,
+gradient fitting, jit/vmap/grad, real data."""
+
+import jax
+import jax.numpy as jnp
+import matplotlib.figure
+import numpy as np
+import pytest
+from helpers import check_grad
+
+import fxspace as fx
+
+
+def test_linear_interpolation_and_error_by_hand():
+    first = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    last = np.array([[3.0, 0.0, 0.0], [1.0, 4.0, 1.0]])
+    L = np.asarray(fx.linear_interpolation(first, last, 4))
+    np.testing.assert_allclose(L[:, 0, 0], [0, 1, 2, 3])
+    np.testing.assert_allclose(L[:, 1, 1], [1, 2, 3, 4])
+    X = L.copy()
+    X[1, 0] += [0.0, 2.0, 0.0]  # one vertex, one frame off by 2
+    X[2, 1] += [1.0, 0.0, 1.0]  # another off by (1, 0, 1)
+    assert float(fx.reconstruction_error(X, L)) == pytest.approx(4.0 + 2.0)
+
+
+def _rigid_clusters(rng, T=12, per=15, k=3):
+    """Each cluster translates rigidly along its own non-linear path."""
+    P = rng.standard_normal((k * per, 3))
+    labels = np.repeat(np.arange(k), per)
+    paths = np.cumsum(rng.standard_normal((k, T, 3)), axis=1)
+    X = P[None] + paths[labels].transpose(1, 0, 2)
+    return X, labels
+
+
+def test_exact_when_controls_are_cluster_means_on_rigid_motion(rng):
+    X, labels = _rigid_clusters(rng)
+    model = fx.control_point_model(X, labels, 3)
+    np.testing.assert_allclose(np.asarray(fx.reconstruct(model)), X, atol=1e-12)
+    lin = fx.linear_interpolation(X[0], X[-1], X.shape[0])
+    assert float(fx.reconstruction_error(X, lin)) > 1.0
+    # kernel k-means finds those clusters itself
+    fitted, km = fx.fit_control_points(X, 3, key=jax.random.PRNGKey(0), n_init=5)
+    assert float(fx.reconstruction_error(X, fx.reconstruct(fitted))) < 1e-20
+    assert fx.compression_ratio(fitted) > 1.0
+    T, N = X.shape[:2]
+    assert fx.storage_size(fitted) == 2 * N * 3 + 3 * (T - 2) * 3 + N
+
+
+def test_edit_moves_only_the_intended_region(rng):
+    X, labels = _rigid_clusters(rng)
+    model = fx.control_point_model(X, labels, 3)
+    edited = fx.edit_control_point(model, 1, [0.0, 5.0, 0.0], center=5.0, width=4.0)
+    d = np.asarray(fx.reconstruct(edited) - fx.reconstruct(model))
+    moved = np.abs(d).max(axis=(0, 2)) > 0
+    np.testing.assert_array_equal(moved, labels == 1)
+    np.testing.assert_allclose(
+        d[:, labels == 1, 1],
+        np.asarray(fx.temporal_window(X.shape[0], 5.0, 4.0))[:, None] * 5.0 * np.ones((1, 15)),
+        atol=1e-12,
+    )
+    assert np.all(d[0] == 0) and np.all(d[-1] == 0)  # key frames stay
+    # blended weights: the edit spreads smoothly into the border, not beyond
+    W = fx.blend_weights(X[0], labels, 3, radius=0.3)
+    np.testing.assert_allclose(np.asarray(W.sum(1)), 1.0, atol=1e-12)
+    soft = model._replace(weights=W)
+    d2 = np.asarray(
+        fx.reconstruct(fx.edit_control_point(soft, 1, [0.0, 5.0, 0.0])) - fx.reconstruct(soft)
+    )
+    np.testing.assert_array_equal(np.abs(d2).max(axis=(0, 2)) > 0, np.asarray(W[:, 1]) > 0)
+    with pytest.raises(fx.FxspaceError, match="index"):
+        fx.edit_control_point(model, 7, [0.0, 1.0, 0.0])
+
+
+def test_gradient_of_eq1_vs_finite_differences(rng):
+    X, labels = _rigid_clusters(rng, T=6, per=4)
+    X = X + 0.1 * rng.standard_normal(X.shape)
+    model = fx.control_point_model(X, labels, 3)
+    f = lambda C: fx.reconstruction_error(X, fx.reconstruct(model._replace(controls=C)))
+    check_grad(f, model.controls + 0.05, rng)
+    g = lambda W: fx.reconstruction_error(X, fx.reconstruct(model._replace(weights=W)))
+    check_grad(g, model.weights + 0.1, rng)
+
+
+def test_jit_and_vmap(rng):
+    X, labels = _rigid_clusters(rng)
+    model = fx.control_point_model(X, labels, 3)
+    np.testing.assert_allclose(
+        np.asarray(jax.jit(fx.reconstruct)(model)), np.asarray(fx.reconstruct(model)), atol=1e-12
+    )
+    offs = jnp.array([[0.0, 1.0, 0.0], [2.0, 0.0, 0.0]])
+    vm = jax.vmap(lambda o: fx.reconstruct(fx.edit_control_point(model, 0, o)))(offs)
+    loop = np.stack([np.asarray(fx.reconstruct(fx.edit_control_point(model, 0, o))) for o in offs])
+    np.testing.assert_allclose(np.asarray(vm), loop, atol=1e-12)
+
+
+def test_gradient_refinement_lowers_error(rng):
+    X, labels = _rigid_clusters(rng, T=10, per=10)
+    X = X + 0.2 * rng.standard_normal(X.shape)
+    W = fx.blend_weights(X[0], labels, 3, radius=0.5)
+    model = fx.control_point_model(X, labels, 3, W)
+    before = float(fx.reconstruction_error(X, fx.reconstruct(model)))
+    res = fx.refine_control_points(X, model, steps=150, learning_rate=0.05, smoothness=0.0)
+    assert float(res.error) < before
+    assert res.losses.shape == (150,) and float(res.losses[-1]) < float(res.losses[0])
+    np.testing.assert_allclose(np.asarray(res.model.weights.sum(1)), 1.0, atol=1e-9)
+
+
+def test_plots(rng):
+    X, labels = _rigid_clusters(rng)
+    f1 = fx.plot.plot_control_points(X[0], labels)
+    f2 = fx.plot.plot_reconstruction_frames([X[3], X[4]], ["a", "b"], reference=X[3])
+    assert isinstance(f1, matplotlib.figure.Figure) and isinstance(f2, matplotlib.figure.Figure)
+
+
+def test_real_face_segment_beats_linear(data_dir):
+    """A real AnimFace segment on a small dense surface: ours well below linear."""
+    seq = fx.io.read_markers(data_dir / "face" / "animface_cheeks.c3d")
+    P = np.asarray(seq.positions, dtype=float)
+    surf = fx.face_surface(P[0], 600)
+    X = fx.rbf_deform(surf.vertices, P[0], P[300:352])
+    lin = float(fx.reconstruction_error(X, fx.linear_interpolation(X[0], X[-1], X.shape[0])))
+    model, km = fx.fit_control_points(X, 20, gamma=0.5, key=jax.random.PRNGKey(0), n_init=4)
+    ours = float(fx.reconstruction_error(X, fx.reconstruct(model)))
+    assert ours < 0.11 * lin
+
+
+@pytest.mark.slow
+def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
+    """The experiment end to end on a small surface (run with -m slow)."""
+    from fxspace.pipelines import run_dict
+
+    raw = {
+        "experiment": "reconstruction",
+        "seed": 0,
+        "n_vertices": 400,
+        "clusters": [20],
+        "gammas": [0.5],
+        "n_init": 2,
+        "fit_steps": 20,
+        "timing_repeats": 1,
+        "gltf_mesh": "",
+    }
+    (run_dir,) = run_dict(raw, tmp_path, force=True)
+    import json
+
+    m = json.loads((run_dir / "metrics.json").read_text())
+    assert m["ratio"] < 0.11 and m["segmentation"]["n_segments"] == 8
+    for name in (
+        "reconstruction.png",
+        "segmentation.png",
+        "edited_sequence.npz",
+        "edited_markers.trc",
+    ):
+        assert (run_dir / name).is_file()
+    seq = fx.io.read_markers(run_dir / "edited_markers.trc")
+    assert seq.positions.shape == (150, 41, 3)

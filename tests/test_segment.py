@@ -1,0 +1,52 @@
+"""Segmentation by the fused lasso: known change points, target count, figure."""
+
+import matplotlib.figure
+import numpy as np
+import pytest
+
+import fxspace as fx
+
+
+def _piecewise_linear(rng, knots, T=120, channels=12):
+    """Motion whose velocity changes exactly at ``knots``."""
+    t = np.arange(T, dtype=float)
+    X = np.zeros((T, channels))
+    pts = [0, *knots, T - 1]
+    vel = rng.standard_normal((len(pts) - 1, channels)) * 2
+    for i, (a, b) in enumerate(zip(pts[:-1], pts[1:], strict=True)):
+        X[a : b + 1] = X[a] + np.outer(t[a : b + 1] - a, vel[i])
+    return X
+
+
+def test_finds_velocity_change_points(rng):
+    knots = [30, 55, 90]
+    X = _piecewise_linear(rng, knots)
+    seg = fx.segment_motion(X, 4, min_length=5)
+    assert seg.boundaries[0] == 0 and seg.boundaries[-1] == len(X) - 1
+    np.testing.assert_allclose(seg.boundaries[1:-1], knots, atol=1)
+
+
+def test_position_mode_on_steps(rng):
+    X = np.repeat(rng.standard_normal((4, 6)) * 5, 20, axis=0)
+    seg = fx.segment_motion(X, 4, on="position", min_length=5)
+    np.testing.assert_array_equal(seg.boundaries, [0, 20, 40, 60, 79])
+
+
+def test_fixed_lambda_and_segments_helper(rng):
+    X = _piecewise_linear(rng, [40, 80])
+    seg = fx.segment_motion(X, None, lam=2.0)
+    assert seg.lam == 2.0
+    segs = fx.segments_from_boundaries(seg.boundaries)
+    assert segs[0][0] == 0 and segs[-1][1] == len(X) - 1
+    assert all(a < b for a, b in segs)
+
+
+def test_plot_and_errors(rng):
+    X = _piecewise_linear(rng, [40, 80])
+    seg = fx.segment_motion(X, 3)
+    fig = fx.plot.plot_segmentation(seg)
+    assert isinstance(fig, matplotlib.figure.Figure)
+    with pytest.raises(fx.FxspaceError, match="n_segments"):
+        fx.segment_motion(X, 100)
+    with pytest.raises(fx.FxspaceError, match="on must be"):
+        fx.segment_motion(X, 3, on="speed")
