@@ -38,6 +38,7 @@ __all__ = [
 
 _BLOCK = 64
 _BLOCKED_FROM = 256
+_SHARDED_FROM = 1024
 
 
 class Geodesics(NamedTuple):
@@ -64,10 +65,32 @@ def epsilon_graph(pairwise: Float[Array, "n n"], threshold: float | Array) -> Fl
 def _minplus(A: Array, B: Array) -> Array:
     """Min-plus product ``C[i,j] = min_k A[i,k] + B[k,j]``.
 
-    XLA fuses the broadcast add into one reduction; reducing over the last (contiguous)
-    axis measured ~10–20 % less CPU time than over the middle one.
+    XLA fuses the broadcast add into one reduction, vectorised along ``j`` (reducing
+    over the middle axis measured ~25 % less CPU time than over the last one).
     """
-    return jnp.min(A[:, None, :] + B.T[None, :, :], axis=2)
+    return jnp.min(A[:, :, None] + B[None, :, :], axis=1)
+
+
+def _minplus_update(D: Array, C: Array, R: Array, rb: int) -> Array:
+    """``min(D, C ⊗ R)`` for a tall ``D`` (rows a multiple of ``rb``), cache-friendly.
+
+    Streams the ``k`` index over blocks of ``rb`` rows, so each row block of ``D`` stays
+    in cache while the pivot rows ``R[k]`` are broadcast-added — plain vector code,
+    ~20–30 % less CPU time than one fused ``(n, b, n)`` reduction.
+    """
+    n, m = D.shape
+    b = C.shape[1]
+
+    def blk(args):
+        d, c = args
+
+        def body(k, d):
+            return jnp.minimum(d, c[:, k, None] + R[k][None, :])
+
+        return jax.lax.fori_loop(0, b, body, d, unroll=8)
+
+    out = jax.lax.map(blk, (D.reshape(n // rb, rb, m), C.reshape(n // rb, rb, b)))
+    return out.reshape(n, m)
 
 
 def _floyd_scan(W: Array) -> Array:
@@ -95,9 +118,54 @@ def _floyd_blocked(W: Array, block: int) -> Array:
         C = jax.lax.dynamic_slice(D, (0, s), (m, block))
         R = jnp.minimum(R, _minplus(dkk, R))
         C = jnp.minimum(C, _minplus(C, dkk))
-        return jnp.minimum(D, _minplus(C, R))
+        return _minplus_update(D, C, R, block)
 
     D = jax.lax.fori_loop(0, nb, phase, D)
+    return D[:n, :n]
+
+
+def _floyd_sharded(W: Array, block: int) -> Array:
+    """Blocked Floyd with the rows split across all local devices (``shard_map``).
+
+    Each device owns a slab of rows; per pivot block the ``block`` pivot rows are
+    broadcast (a masked ``psum``), every device closes the diagonal tile and updates the
+    row panel redundantly, then updates its own slab. On a CPU started with
+    ``--xla_force_host_platform_device_count=N`` (the ``fxspace`` command does this) each
+    device is one core, so the O(n³) work runs on all cores.
+    """
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as Ps
+
+    devs = jax.devices()
+    nd = len(devs)
+    n = W.shape[0]
+    unit = block * nd
+    m = -(-n // unit) * unit
+    rows = m // nd
+    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
+    idx = jnp.arange(n, m)
+    D = D.at[idx, idx].set(0)
+    mesh = Mesh(np.array(devs), ("rows",))
+
+    def slab(Dl):
+        me = jax.lax.axis_index("rows")
+
+        def phase(kb, Dl):
+            s = kb * block
+            owner = s // rows
+            mine = jax.lax.dynamic_slice(Dl, (s - owner * rows, 0), (block, m))
+            R = jax.lax.psum(jnp.where(me == owner, mine, jnp.zeros_like(mine)), "rows")
+            dkk = _floyd_scan(jax.lax.dynamic_slice(R, (0, s), (block, block)))
+            R = jnp.minimum(R, _minplus(dkk, R))
+            C = jax.lax.dynamic_slice(Dl, (0, s), (rows, block))
+            C = jnp.minimum(C, _minplus(C, dkk))
+            return _minplus_update(Dl, C, R, block)
+
+        return jax.lax.fori_loop(0, m // block, phase, Dl)
+
+    D = jax.shard_map(
+        slab, mesh=mesh, in_specs=Ps("rows", None), out_specs=Ps("rows", None), check_vma=False
+    )(D)
     return D[:n, :n]
 
 
@@ -110,7 +178,9 @@ def floyd_warshall(
     **Arguments:**
     - `graph`: ``(n, n)`` edge weights, ``inf`` for no edge, 0 on the diagonal.
     - `method`: ``"scan"`` (one pivot per ``lax.scan`` step), ``"blocked"`` (three-phase
-      tiled, cache-friendly) or ``"auto"`` (blocked from 256 vertices on).
+      tiled, cache-friendly), ``"sharded"`` (blocked, rows split over all local devices)
+      or ``"auto"`` (blocked from 256 vertices on; sharded from 1024 vertices on when
+      more than one device is visible).
     - `block`: tile size of the blocked variant.
 
     O(n³) work, O(n²) memory; jit/vmap/grad compatible (the gradient of a geodesic
@@ -118,12 +188,17 @@ def floyd_warshall(
     """
     W = jnp.asarray(graph)
     if method == "auto":
-        method = "blocked" if W.shape[0] >= _BLOCKED_FROM else "scan"
+        if W.shape[0] >= _SHARDED_FROM and jax.device_count() > 1:
+            method = "sharded"
+        else:
+            method = "blocked" if W.shape[0] >= _BLOCKED_FROM else "scan"
     if method == "scan":
         return _floyd_scan(W)
     if method == "blocked":
         return _floyd_blocked(W, block)
-    raise FxspaceError(f"method must be 'auto', 'scan' or 'blocked', got {method!r}")
+    if method == "sharded":
+        return _floyd_sharded(W, block)
+    raise FxspaceError(f"method must be 'auto', 'scan', 'blocked' or 'sharded', got {method!r}")
 
 
 @partial(jax.jit, static_argnames=("max_degree", "chunk"))

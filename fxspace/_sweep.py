@@ -16,7 +16,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._geodesic import connected_components, connecting_threshold, epsilon_graph, floyd_warshall
+from ._geodesic import (
+    _BLOCKED_FROM,
+    connected_components,
+    connecting_threshold,
+    epsilon_graph,
+    floyd_warshall,
+)
 from ._mds import classical_mds, pearson_score
 from .errors import FxspaceError
 
@@ -66,8 +72,28 @@ def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str):
 
 @partial(jax.jit, static_argnames=("dim", "batch_size", "method", "mds_method"))
 def _sweep(P, thresholds, dim, batch_size, method, mds_method):
+    if method == "auto" and P.shape[0] >= _BLOCKED_FROM:
+        method = "blocked"  # one Floyd per threshold; devices share the thresholds instead
     f = partial(_one, P, dim=dim, method=method, mds_method=mds_method)
-    return jax.lax.map(f, thresholds, batch_size=batch_size)
+    nd = jax.device_count()
+    if nd == 1 or thresholds.shape[0] == 1:
+        return jax.lax.map(f, thresholds, batch_size=batch_size)
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as Ps
+
+    S = thresholds.shape[0]
+    pad = (-S) % nd
+    th = jnp.concatenate([thresholds, jnp.repeat(thresholds[-1:], pad)])
+    mesh = Mesh(np.array(jax.devices()), ("eps",))
+    bs = None if batch_size is None else max(1, batch_size // nd)
+    out = jax.shard_map(
+        lambda t: jax.lax.map(f, t, batch_size=bs),
+        mesh=mesh,
+        in_specs=Ps("eps"),
+        out_specs=Ps("eps"),
+        check_vma=False,
+    )(th)
+    return jax.tree_util.tree_map(lambda a: a[:S], out)
 
 
 def threshold_sweep(
@@ -87,6 +113,10 @@ def threshold_sweep(
     - `batch_size`: thresholds evaluated together (vmapped); ``None`` = one at a time
       (lowest memory, O(n²) each); ``S`` = a single ``vmap``.
     - `method`, `mds_method`: Floyd and eigensolver variants.
+
+    With several devices visible (GPUs, or CPU cores exposed as devices with
+    ``--xla_force_host_platform_device_count``, as the ``fxspace`` command does) the
+    thresholds are split across the devices with ``shard_map``.
 
     **Returns:** :class:`SweepResult`. Cost O(S·n³); the dense Floyd costs the same at every
     ε, while Dijkstra slows down as the graph densifies.

@@ -118,9 +118,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def use_all_cpu_cores() -> None:
+    """Expose every CPU core as a JAX device (before JAX starts), so sharded kernels
+    (Floyd rows, threshold sweeps) use all cores; a no-op once JAX has initialised or
+    when the user set the flag."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" in flags:
+        return
+    try:
+        from jax._src import xla_bridge
+
+        if getattr(xla_bridge, "_backends", None):
+            return  # too late: JAX has already started its backends
+    except ImportError:  # pragma: no cover
+        pass
+    n = os.cpu_count() or 1
+    if n > 1:
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    if os.environ.get("FXSPACE_SINGLE_DEVICE") != "1":
+        use_all_cpu_cores()
     from .errors import FxspaceError
 
     try:
