@@ -151,3 +151,17 @@ def test_real_capture_graph_matches_scipy(data_dir):
         n_ref, _ = sp_cc(np.isfinite(W) & ~np.eye(len(W), dtype=bool), directed=False)
         assert int(fx.connected_components(W)[0]) == n_ref
     assert n_ref == 1  # the last (1.2 × connecting) graph is connected
+
+
+@pytest.mark.parametrize("method", ["scan", "blocked"])
+def test_next_hop_from_recurrence_is_valid(rng, method):
+    P, W, _ = _graph(rng, 130, 0.04)
+    geo = fx.geodesic_distances(W, method=method, block=32)
+    D = np.asarray(geo.distances)
+    nxt = np.asarray(geo.next_hop)
+    np.testing.assert_allclose(D[np.isfinite(D)], _scipy(W)[np.isfinite(D)], rtol=1e-12)
+    i, j = np.nonzero(np.isfinite(D) & ~np.eye(130, dtype=bool))
+    k = nxt[i, j]
+    np.testing.assert_allclose(W[i, k] + D[k, j], D[i, j], rtol=1e-12)
+    assert np.all(nxt[~np.isfinite(D)] == -1)
+    assert np.all(np.diag(nxt) == np.arange(130))

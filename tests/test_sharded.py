@@ -22,6 +22,12 @@ SCRIPT = textwrap.dedent(
     t0 = float(fx.connecting_threshold(P))
     W = np.asarray(fx.epsilon_graph(P, 1.1 * t0))
     D = np.asarray(fx.floyd_warshall(W, method="sharded", block=32))
+    geo = fx.geodesic_distances(W, method="sharded", block=32)
+    assert np.array_equal(np.asarray(geo.distances), D)
+    nxt = np.asarray(geo.next_hop)
+    i, j = np.nonzero(np.isfinite(D) & ~np.eye(len(D), dtype=bool))
+    k = nxt[i, j]
+    assert np.allclose(W[i, k] + D[k, j], D[i, j], rtol=1e-12)
     ref = shortest_path(np.where(np.isinf(W), 0, W), directed=False)
     th = np.array([0.8, 1.1, 1.5]) * t0
     sw = fx.threshold_sweep(P, th)
