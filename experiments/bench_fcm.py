@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.repeats} runs"
     )
 
-    def ours(restarts=1):
+    def ours(restarts=1, split=True):
         return build_hierarchy(
             X,
             None,
@@ -84,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             max_steps=args.max_steps,
             key=jax.random.PRNGKey(0),
             restarts=restarts,
+            split=split,
         )
 
     def ours_fro():
@@ -111,12 +112,20 @@ def main(argv: list[str] | None = None) -> int:
     fro, t_fro, _ = _time(ours_fro, args.repeats)
     ours(0)
     h0, t_split, _ = _time(lambda: ours(0), args.repeats)
+    ours(1, False)
+    h1, t_ext, _ = _time(lambda: ours(1, False), args.repeats)
     rows = [
         (
             "fxspace warm: split + k-means++-extend",
             t_ours,
             [lv.objective for lv in h.levels],
             [lv.total_steps for lv in h.levels],
+        ),
+        (
+            "fxspace warm: k-means++-extend only",
+            t_ext,
+            [lv.objective for lv in h1.levels],
+            [lv.num_steps for lv in h1.levels],
         ),
         (
             "fxspace warm: split only",

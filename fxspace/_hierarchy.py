@@ -377,6 +377,8 @@ def build_hierarchy(
     max_steps: int = 300,
     warm_start: bool = True,
     restarts: int = 1,
+    split: bool = True,
+    first_level_seeds: int = 8,
     compare_cold: bool = False,
     rho_scale: float = 0.5,
     max_link_centres: int | None = None,
@@ -397,6 +399,10 @@ def build_hierarchy(
       the coarse centres and draw the new ones k-means++-style (:func:`kmeanspp_extend`);
       the lowest objective of all starts wins. Without it,
       every level is seeded from scratch (k-means++, 1 + ``restarts`` seeds).
+    - `split`: include the split start (False: only the ``restarts`` k-means++-extend starts,
+      which need ``restarts`` ≥ 1).
+    - `first_level_seeds`: k-means++ seeds at the first level (cheap there, and it decides
+      the coarse structure every finer level inherits).
     - `compare_cold`: also run every warm-started level cold (one k-means++ seed) to
       measure the iterations the warm start saves (``num_steps_cold``/``objective_cold``).
     - `rho_scale`: ρ = rho_scale × median nearest-centre spacing of the level.
@@ -417,6 +423,8 @@ def build_hierarchy(
         )
     if int(restarts) < 0:
         raise FxspaceError(f"restarts must be >= 0, got {restarts}")
+    if not split and int(restarts) < 1:
+        raise FxspaceError("split=False needs restarts >= 1 (the k-means++-extend starts)")
     T = x.shape[0]
     if key is None:
         key = jax.random.PRNGKey(0)
@@ -429,11 +437,12 @@ def build_hierarchy(
         if c == T:
             inits = [x]
         elif prev is None or not warm_start:
-            ks = jax.random.split(k_cold, 1 + restarts)
+            n_seeds = max(1 + restarts, first_level_seeds if prev is None else 1)
+            ks = jax.random.split(k_cold, n_seeds)
             inits = [kmeanspp_init(x, c, k) for k in ks]
         else:
             n_new = c - prev.centers.shape[0]
-            starts = [split_centers(x, prev.centers, prev.memberships, c, m)]
+            starts = [split_centers(x, prev.centers, prev.memberships, c, m)] if split else []
             starts += [
                 kmeanspp_extend(x, prev.centers, n_new, k)
                 for k in jax.random.split(k_ext, restarts)
@@ -465,7 +474,7 @@ def build_hierarchy(
         elif prev is None or not warm_start:
             init_name = "kmeans++"
         else:
-            init_name = "split" if best == 0 else "kmeans++-extend"
+            init_name = "split" if (split and best == 0) else "kmeans++-extend"
         levels.append(
             Level(
                 n_clusters=c,
@@ -483,7 +492,7 @@ def build_hierarchy(
                 time_s=dt,
                 init=init_name,
                 num_steps_split=int(runs[0].num_steps)
-                if init_name.startswith(("split", "kmeans++-"))
+                if split and init_name.startswith(("split", "kmeans++-"))
                 else -1,
                 total_steps=int(sum(int(r.num_steps) for r in runs)),
             )

@@ -17,21 +17,25 @@ the contribution of joint ``j`` to marker ``k``. The gradient has three forms he
   the depth). Written vectorised over a ``(K, N, D)`` gather of the ancestor table and a
   segment-sum into the joints: the same arithmetic as the triple loop.
 * **factored** (eq. (13)): per joint ``j`` precompute ``s_j = Σ_k W_kj δ_k`` and
-  ``c_j = Σ_k q_kj × δ_k`` (one marker × joint pass: two products over the markers), then
-  accumulate them up the hierarchy, ``S_a = Σ_{j ∈ desc(a)} s_j`` and ``C_a`` alike (one
-  joint × ancestor pass: a segment-sum over the hierarchy, as a product with the
-  ``(J, J)`` descendant matrix), and ``∂E/∂θ_ad = 2 ω_ad · (C_a − o_a × S_a)``:
-  ``O(K · J + J²)``.
+  ``c_j = Σ_k q_kj × δ_k`` (one marker × joint pass: a single product of the precomputed
+  dense skinning with ``δ``), then accumulate them up the hierarchy,
+  ``S_a = Σ_{j ∈ desc(a)} s_j`` and ``C_a`` alike (one joint × ancestor pass: a
+  segment-sum over the hierarchy, as a product with the ``(J, J)`` descendant matrix),
+  and ``∂E/∂θ_ad = 2 ω_ad · (C_a − o_a × S_a)``: ``O(K · J + J²)``.
 * **autodiff**: ``jax.grad`` of :func:`ik_objective`.
 
 All three share the same forward pass (:func:`ik_forward`: global transforms, joint
 origins and axes, marker contributions), so timing them compares the gradient
-arithmetic and nothing else (``experiments/bench_ik.py`` times both the full call and
-the arithmetic alone: on XLA:CPU at J = 19, K = 120 the forward pass costs about as much
-as the naive arithmetic, which caps the full-call speed-up). The analytic per-marker
-Jacobian (:func:`ik_jacobian`) feeds a Levenberg–Marquardt solver; :func:`solve_ik` also
-offers optimistix's Levenberg–Marquardt / Gauss–Newton and a first-order optax (Adam)
-variant.
+arithmetic and nothing else. On XLA:CPU at J = 19, K = 120 every kernel launch costs
+about as much as its arithmetic, so the forward pass is written for few kernels, with
+every pose-independent quantity precomputed by :func:`ik_model` (rest transforms folded
+with the base transforms, pointer-jumping tables, axis scales, the packed skinning
+matrices); it still costs about as much as the factored gradient, which bounds the
+full-call speed-up (``experiments/bench_ik.py`` times the full call, the full
+evaluation inside a jitted loop, the forward pass and the arithmetic alone). The
+analytic per-marker Jacobian (:func:`ik_jacobian`) feeds a Levenberg–Marquardt solver;
+:func:`solve_ik` also offers optimistix's Levenberg–Marquardt / Gauss–Newton and a
+first-order optax (Adam) variant.
 """
 
 from __future__ import annotations
@@ -49,10 +53,6 @@ from ._skinning import (
     Pose,
     ancestor_table,
     chain_bases,
-    euler_to_matrix,
-    global_transforms,
-    local_matrices,
-    quaternion_to_matrix,
 )
 from .errors import FxspaceError
 
@@ -86,30 +86,39 @@ GRADIENTS = ("factored", "naive", "autodiff")
 class IKModel(NamedTuple):
     """Everything the IK objective needs, as arrays (a pytree: pass it through ``jit``/``vmap``).
 
-    Build it with :func:`ik_model`. ``ancestors`` is the ``(J, D)`` ancestor table padded
-    with ``J``; ``parents`` uses ``-1`` for roots; ``base`` is the fixed transform above
-    each joint's root; ``marker_*`` is the sparse skinning of the markers
-    (:func:`fxspace.marker_influences`, ``N`` joints per marker; used by the forward pass
-    and the naive gradient); ``dense_*`` is the same as ``(K, J)`` arrays (used by the
-    factored gradient and the Jacobian); ``descendants[a, j] = 1`` when ``a`` is ``j`` or
-    one of its ancestors; ``length_scale`` is the mesh's bounding-box diagonal (used for
-    scale-free tolerances).
+    Build it with :func:`ik_model`; every field is pose-independent (precomputed once):
+
+    - ``local_rest[j]``: the ``4×4`` transform ``T_j · R_rest,j`` of joint ``j``,
+      premultiplied by the fixed base transform above it for roots, so that the posed local
+      transform is ``local_rest[j] · diag(R_x R_y R_z · S_j, 1)``;
+    - ``hops[s]``: the ``(2, J)`` ancestor tables of step ``s`` of the ternary pointer
+      jumping in :func:`ik_forward` (the ``3^s``-th and ``2·3^s``-th ancestor, ``-1`` for
+      none);
+    - ``scales[j] = (s_jx, s_jy, s_jz, 1/σ_j)``: the joint's rest scale ``S_j`` and the
+      inverse of the global scale ``σ_j`` of its frame ``G_j S_j⁻¹`` (pose-independent for
+      rotation + uniform scale; normalises the rotation axes);
+    - ``ancestors``: the ``(J, D)`` ancestor table padded with ``J`` (the naive gradient);
+    - ``marker_joints``, ``marker_skin``: the sparse skinning of the markers
+      (:func:`fxspace.marker_influences`, ``N`` joints per marker), ``marker_skin[k, n] =
+      [u_kn; W_kn]`` (local position and weight: ``q_kn = G_j [u_kn; W_kn]``; the forward
+      pass and the naive gradient);
+    - ``descendants[a, j] = 1`` when ``a`` is ``j`` or one of its ancestors;
+    - ``skin``: the dense marker skinning, transposed and stacked, ``(4J + 1, K)``: rows
+      ``3j + c`` hold ``u_kjc``, rows ``3J + j`` hold ``W_kj`` and the last row is ones
+      (the factored gradient: one product with ``δ`` gives every per-joint sum and
+      ``Σ_k δ_k``; the Jacobian);
+    - ``length_scale``: the mesh's bounding-box diagonal (scale-free tolerances).
     """
 
-    rest_translations: Float[Array, "joints 3"]
-    rest_rotations: Float[Array, "joints 3 3"]
-    rest_scales: Float[Array, "joints 3"]
-    base: Float[Array, "joints 4 4"]
-    parents: Int[Array, " joints"]
+    local_rest: Float[Array, "joints 4 4"]
+    hops: Int[Array, "steps 2 joints"]
+    scales: Float[Array, "joints 4"]  # (S_j, 1/σ_j)
     ancestors: Int[Array, "joints depth"]
     marker_joints: Int[Array, "markers n"]
-    marker_weights: Float[Array, "markers n"]
-    marker_offsets: Float[Array, "markers n 3"]
+    marker_skin: Float[Array, "markers n 4"]  # [u_kn; W_kn]
     length_scale: Float[Array, ""]
     descendants: Float[Array, "joints joints"]  # [a, j] = 1 when a is j or an ancestor of j
-    dense_weights: Float[Array, "markers joints"]  # W_kj
-    dense_offsets: Float[Array, "markers joints 3"]  # u_kj
-    subtree_weights: Float[Array, "markers joints"]  # Σ_{j ∈ desc(a)} W_kj
+    skin: Float[Array, "rows markers"]  # [u_kjc; W_kj; 1] transposed, 4J + 1 rows
 
 
 class IKForward(NamedTuple):
@@ -137,11 +146,43 @@ class IKResult(NamedTuple):
     converged: Bool[Array, ""]
 
 
+def _quaternion_to_matrix_np(q: np.ndarray) -> np.ndarray:
+    """:func:`fxspace.quaternion_to_matrix` in float64 numpy (host-side precomputation)."""
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def _hop_tables(anc: np.ndarray) -> np.ndarray:
+    """``(steps, 2, J)``: for ternary pointer jumping, the ``3^s``-th and ``2·3^s``-th
+    ancestor of each joint (``-1`` past the root); ``3^steps ≥ D``."""
+    nj, depth = anc.shape
+    steps, span = 0, 1
+    while span < depth:
+        steps, span = steps + 1, span * 3
+
+    def up(n: int) -> np.ndarray:
+        if n >= depth:
+            return np.full(nj, -1, np.int64)
+        col = anc[:, n].astype(np.int64)
+        return np.where(col < nj, col, -1)
+
+    return np.array([[up(3**s), up(2 * 3**s)] for s in range(steps)], dtype=np.int32).reshape(
+        steps, 2, nj
+    )
+
+
 def ik_model(mesh: SkinnedMesh, markers: MarkerSet, dtype=None) -> IKModel:
     """Precompute the :class:`IKModel` of ``mesh`` with ``markers`` (host-side, once).
 
-    Refuses skeletons with non-uniform joint scales (the rotation axes of the analytic
-    gradients assume similarity transforms); uniform scales are fine.
+    Refuses skeletons with non-uniform joint scales, or base transforms that are not
+    similarities (the rotation axes of the analytic gradients assume rotation + uniform
+    scale, and their normalisation is precomputed); uniform scales are fine.
     """
     s = np.asarray(mesh.rest_scales, dtype=np.float64)
     if np.any(
@@ -156,6 +197,28 @@ def ik_model(mesh: SkinnedMesh, markers: MarkerSet, dtype=None) -> IKModel:
     inf = marker_influences(mesh, markers)
     ext = np.ptp(np.asarray(mesh.vertices), axis=0)
     nj, nk = mesh.num_joints, inf.joints.shape[0]
+    parents = np.asarray(mesh.parents)
+    # local_rest = P_j · [R_rest | t], P_j = the base transform above root j (else I)
+    rot = _quaternion_to_matrix_np(np.asarray(mesh.rest_rotations, dtype=np.float64))
+    local = np.tile(np.eye(4), (nj, 1, 1))
+    local[:, :3, :3] = rot
+    local[:, :3, 3] = np.asarray(mesh.rest_translations, dtype=np.float64)
+    base = chain_bases(mesh.base_transforms, anc)
+    local = np.where((parents < 0)[:, None, None], base @ local, local)
+    glob = np.zeros_like(local)  # rest-pose global frames G_j S_j⁻¹ (for the axis scales)
+    for j in np.argsort((anc < nj).sum(axis=1), kind="stable"):
+        if parents[j] < 0:
+            glob[j] = local[j]
+        else:
+            glob[j] = glob[parents[j]] @ np.diag(np.append(s[parents[j]], 1.0)) @ local[j]
+    lin = glob[:, :3, :3]
+    sigma = np.cbrt(np.abs(np.linalg.det(lin)))
+    gram = np.einsum("jrc,jsc->jrs", lin, lin) / (sigma**2)[:, None, None]
+    if np.any(np.abs(gram - np.eye(3)) > 1e-5):
+        raise FxspaceError(
+            f"{mesh.name}: the transforms above the skeleton are not rotation + uniform scale; "
+            "the IK model needs similarity transforms (bake the scales into the mesh)"
+        )
     desc = np.zeros((nj, nj))
     for j in range(nj):
         desc[anc[j][anc[j] < nj], j] = 1.0
@@ -164,49 +227,89 @@ def ik_model(mesh: SkinnedMesh, markers: MarkerSet, dtype=None) -> IKModel:
     rows = np.repeat(np.arange(nk), inf.joints.shape[1])
     np.add.at(wd, (rows, inf.joints.reshape(-1)), inf.weights.reshape(-1))
     np.add.at(ud, (rows, inf.joints.reshape(-1)), inf.offsets.reshape(-1, 3))
+    skin = np.concatenate([ud.transpose(1, 2, 0).reshape(3 * nj, nk), wd.T, np.ones((1, nk))])
     a = lambda x: jnp.asarray(x, dtype=dtype)
     return IKModel(
-        rest_translations=a(mesh.rest_translations),
-        rest_rotations=quaternion_to_matrix(a(mesh.rest_rotations)),
-        rest_scales=a(mesh.rest_scales),
-        base=a(chain_bases(mesh.base_transforms, anc)),
-        parents=jnp.asarray(mesh.parents, dtype=jnp.int32),
+        local_rest=a(local),
+        hops=jnp.asarray(_hop_tables(anc), dtype=jnp.int32),
+        scales=a(np.concatenate([s, 1.0 / sigma[:, None]], axis=1)),
         ancestors=jnp.asarray(anc, dtype=jnp.int32),
         marker_joints=jnp.asarray(inf.joints, dtype=jnp.int32),
-        marker_weights=a(inf.weights),
-        marker_offsets=a(inf.offsets),
+        marker_skin=a(np.concatenate([inf.offsets, inf.weights[..., None]], axis=-1)),
         length_scale=a(float(np.linalg.norm(ext)) or 1.0),
         descendants=a(desc),
-        dense_weights=a(wd),
-        dense_offsets=a(ud),
-        subtree_weights=a(wd @ desc.T),
+        skin=a(np.ascontiguousarray(skin)),
     )
+
+
+def _mm_unrolled(a: Array, b: Array) -> Array:
+    """``a @ b`` over the last two axes, the contraction written out (elementwise: fuses)."""
+    return sum(a[..., :, i : i + 1] * b[..., i : i + 1, :] for i in range(a.shape[-1]))
+
+
+def _mm_reduce(a: Array, b: Array) -> Array:
+    """``a @ b`` over the last two axes as multiply + reduce (one fused kernel, whose
+    result XLA materialises rather than recomputing it in every consumer)."""
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+
+
+def _euler_rows(e: Float[Array, "joints 3"]) -> tuple[Array, Array, Array]:
+    """``R_x(θ_0) R_y(θ_1) R_z(θ_2)`` per joint, and ``(cos, sin)`` of ``θ_2``."""
+    c, s = jnp.cos(e), jnp.sin(e)
+    cx, cy, cz = c[:, 0], c[:, 1], c[:, 2]
+    sx, sy, sz = s[:, 0], s[:, 1], s[:, 2]
+    rows = [
+        [cy * cz, -cy * sz, sy],
+        [cx * sz + sx * sy * cz, cx * cz - sx * sy * sz, -sx * cy],
+        [sx * sz - cx * sy * cz, sx * cz + cx * sy * sz, cx * cy],
+    ]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2), cz, sz
 
 
 def ik_forward(model: IKModel, pose: Pose) -> IKForward:
-    """Forward kinematics + marker skinning at ``pose`` (shared by all gradient forms)."""
-    e = pose.angles
-    f0 = model.rest_rotations
-    rot = f0 @ euler_to_matrix(e)
-    local = local_matrices(model.rest_translations, rot, model.rest_scales)
-    base = model.base.at[:, :3, 3].add(pose.translation)
-    g = global_transforms(local, model.ancestors, base)
-    o = g[:, :3, 3]
+    """Forward kinematics + marker skinning at ``pose`` (shared by all gradient forms).
+
+    Written for few kernels (on XLA:CPU at this size every kernel launch costs about as
+    much as its arithmetic), with everything pose-independent precomputed in the model:
+
+    - posed local transforms: one elementwise kernel, ``local_rest · diag(E_j S_j, 1)``
+      with ``E_j = R_x R_y R_z``;
+    - global transforms: ``⌈log₃ D⌉`` steps of ternary pointer jumping (after step ``s``
+      each joint holds the product of the ``3^(s+1)`` links above it,
+      ``G ← G[2·3^s-th ancestor] · G[3^s-th ancestor] · G``), one gather and one
+      multiply-reduce kernel per step (two steps for CesiumMan's depth 6);
+    - Euler axes from each joint's own frame, no parent gather: ``ω_x ∝ F_j E_jᵀ e_x``,
+      ``ω_y ∝ F_j R_zᵀ e_y``, ``ω_z ∝ F_j e_z`` with ``F_j = L_j S_j⁻¹``, normalised by the
+      precomputed ``1/σ_j`` (exact for rotation + uniform scale), one batched product;
+    - marker contributions ``q_kn = G_j [u_kn; W_kn]``: one gather + batched product.
+
+    The axes and contributions come out of products, i.e. as materialised arrays, so the
+    naive gradient's ``(K, N, D)`` gathers read them instead of XLA fusing (and
+    recomputing) the forward pass into its own kernels: both analytic gradients pay for
+    the same forward pass.
+    """
+    rot, cz, sz = _euler_rows(pose.angles)
+    lr, sc = model.local_rest, model.scales
+    rs = rot * sc[:, None, :3]  # R_x R_y R_z S_j
+    g = jnp.concatenate([_mm_unrolled(lr[:, :, :3], rs), lr[:, :, 3:]], axis=2)  # (J, 4, 4)
+    eye = jnp.eye(4, dtype=g.dtype)
+    for step in range(model.hops.shape[0]):
+        h = model.hops[step]  # (2, J)
+        up = jnp.where((h >= 0)[:, :, None, None], g[jnp.maximum(h, 0)], eye[None, None])
+        g = _mm_reduce(_mm_unrolled(up[1], up[0]), g)
+    o = g[:, :3, 3] + pose.translation[None, :]
     lin = g[:, :3, :3]
-    is_root = (model.parents < 0)[:, None, None]
-    plin = jnp.where(is_root, base[:, :3, :3], lin[jnp.maximum(model.parents, 0)])
-    # Euler axes in the parent frame: x after R_rest, y after R_rest R_x, z after R_rest R_x R_y
-    # (the columns of R_x, R_y written out, so this is elementwise and fuses)
-    cx, sx = jnp.cos(e[:, 0:1]), jnp.sin(e[:, 0:1])
-    cy, sy = jnp.cos(e[:, 1:2]), jnp.sin(e[:, 1:2])
-    c0, c1, c2 = f0[:, :, 0], f0[:, :, 1], f0[:, :, 2]
-    local_axes = jnp.stack([c0, cx * c1 + sx * c2, sy * c0 + cy * (cx * c2 - sx * c1)], axis=2)
-    axes = jnp.swapaxes(plin @ local_axes, 1, 2)  # (J, dof, xyz)
-    axes = axes / jnp.linalg.norm(axes, axis=-1, keepdims=True)
-    mj = model.marker_joints
-    q = model.marker_weights[..., None] * o[mj] + jnp.einsum(
-        "knrc,knc->knr", lin[mj], model.marker_offsets
+    # ω_jd = L_j S_j⁻¹ v_jd / σ_j with v_jx = E_jᵀ e_x, v_jy = R_zᵀ e_y, v_jz = e_z
+    zero = jnp.zeros_like(cz)
+    v = jnp.stack(
+        [rot[:, 0, :], jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, zero + 1], -1)], 1
     )
+    v = v * (sc[:, 3:] / sc[:, :3])[:, None, :]
+    v = jnp.concatenate([v, jnp.zeros_like(v[..., :1])], axis=-1)
+    axes = jnp.einsum("jrc,jdc->jdr", g, v)[..., :3]  # (J, dof, xyz)
+    gm = g[model.marker_joints][..., :3, :]  # (K, N, 3, 4)
+    uw = model.marker_skin
+    q = jnp.einsum("knrc,knc->knr", gm, uw) + uw[..., 3:] * pose.translation[None, None, :]
     return IKForward(o, axes, lin, q, q.sum(axis=1))
 
 
@@ -236,53 +339,60 @@ def _pad(x: Array) -> Array:
 
 def gradient_naive_from_forward(
     model: IKModel, fw: IKForward, delta: Float[Array, "markers 3"]
-) -> Float[Array, "joints 3"]:
-    """Eq. (9) from a forward pass: marker × joint × ancestor, ``O(K·N·D)``."""
+) -> Pose:
+    """Eq. (9) from a forward pass: marker × joint × ancestor, ``O(K·N·D)``.
+
+    For every marker ``k``, every joint ``j`` influencing it and every ancestor ``a`` of
+    ``j`` (``j`` included): ``2 ω_ad · ((q_kj − W_kj o_a) × δ_k)``, vectorised over a
+    ``(K, N, D)`` gather of the ancestor table and segment-summed into the joints; the
+    translation gradient is ``2 Σ_k δ_k``.
+    """
     nj = model.ancestors.shape[0]
     a = model.ancestors[model.marker_joints]  # (K, N, D): the ancestors of each marker joint
     o_a = _pad(fw.origins)[a]  # (K, N, D, 3)
     w_a = _pad(fw.axes)[a]  # (K, N, D, 3 dof, 3)
-    r = fw.contributions[:, :, None, :] - model.marker_weights[:, :, None, None] * o_a
+    w = model.marker_skin[..., 3]  # W_kn
+    r = fw.contributions[:, :, None, :] - w[:, :, None, None] * o_a
     tau = jnp.cross(r, delta[:, None, None, :])  # (K, N, D, 3)
     per_dof = 2.0 * jnp.einsum("kndc,kndec->knde", tau, w_a)  # (K, N, D, 3)
     g = jax.ops.segment_sum(per_dof.reshape(-1, 3), a.reshape(-1), num_segments=nj + 1)
-    return g[:nj]
+    return Pose(g[:nj], 2.0 * delta.sum(axis=0))
 
 
 def gradient_factored_from_forward(
     model: IKModel, fw: IKForward, delta: Float[Array, "markers 3"]
-) -> Float[Array, "joints 3"]:
+) -> Pose:
     """Eq. (13) from a forward pass: per-joint sums, then up the hierarchy, ``O(K·J + J²)``.
 
-    Marker × joint (two products over the markers): ``s_j = Σ_k W_kj δ_k`` and
-    ``M_j = Σ_k u_kj δ_kᵀ``, whence ``c_j = Σ_k q_kj × δ_k = o_j × s_j + vee(L_j M_j)``
-    (the paper's ``Σ δ`` and ``Σ (R v)^ δ``). Joint × ancestor: ``S_a = Σ_{j ∈ desc(a)} s_j``
-    and ``C_a`` alike, a segment-sum over the hierarchy written as one product with the
-    ``(J, J)`` descendant matrix. Then ``∂E/∂θ_ad = 2 ω_ad · (C_a − o_a × S_a)``.
+    Marker × joint: one product of the precomputed ``(4J + 1, K)`` dense skinning with
+    ``δ`` gives ``s_j = Σ_k W_kj δ_k``, ``M_j = Σ_k u_kj δ_kᵀ`` (the paper's ``Σ δ`` and
+    ``Σ (R v)^ δ``) and ``Σ_k δ_k`` (the translation gradient, halved), whence
+    ``c_j = Σ_k q_kj × δ_k = o_j × s_j + Σ_c L_j[:, c] × M_j[c, :]``.
+    Joint × ancestor: ``S_a = Σ_{j ∈ desc(a)} s_j`` and ``C_a`` alike, a segment-sum over
+    the hierarchy written as one product with the ``(J, J)`` descendant matrix. Then
+    ``∂E/∂θ_ad = 2 ω_ad · (C_a − o_a × S_a)``.
     """
-    s = model.dense_weights.T @ delta  # (J, 3)
-    m = jnp.einsum("kjc,kd->jcd", model.dense_offsets, delta)  # (J, 3, 3)
-    lm = fw.linear @ m  # Σ_k (L_j u_kj) δ_kᵀ
-    c = jnp.cross(fw.origins, s) + jnp.stack(
-        [lm[:, 1, 2] - lm[:, 2, 1], lm[:, 2, 0] - lm[:, 0, 2], lm[:, 0, 1] - lm[:, 1, 0]], axis=-1
-    )
-    tot = model.descendants @ jnp.concatenate([s, c], axis=1)  # (J, 6)
-    tau = tot[:, 3:] - jnp.cross(fw.origins, tot[:, :3])
-    return 2.0 * jnp.einsum("jc,jdc->jd", tau, fw.axes)
+    nj = fw.origins.shape[0]
+    sm = model.skin @ delta  # (4J + 1, 3)
+    m = sm[: 3 * nj].reshape(nj, 3, 3)  # M_j[c, d] = Σ_k u_kjc δ_kd
+    s = sm[3 * nj : 4 * nj]
+    lin, o = fw.linear, fw.origins
+    c = jnp.cross(o, s) + sum(jnp.cross(lin[:, :, i], m[:, i, :]) for i in range(3))
+    tot = model.descendants @ jnp.concatenate([s, c], axis=1)  # (J, 6): S_a, C_a
+    tau = tot[:, 3:] - jnp.cross(o, tot[:, :3])
+    return Pose(2.0 * jnp.sum(fw.axes * tau[:, None, :], axis=-1), 2.0 * sm[4 * nj])
 
 
 def ik_gradient_naive(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
     """``∇E`` in the naive three-loop form (eq. (9)); same pytree as ``pose``."""
     fw = ik_forward(model, pose)
-    delta = fw.markers - targets
-    return Pose(gradient_naive_from_forward(model, fw, delta), 2.0 * delta.sum(axis=0))
+    return gradient_naive_from_forward(model, fw, fw.markers - targets)
 
 
 def ik_gradient_factored(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
     """``∇E`` in the factored two-loop form (eq. (13)); same pytree as ``pose``."""
     fw = ik_forward(model, pose)
-    delta = fw.markers - targets
-    return Pose(gradient_factored_from_forward(model, fw, delta), 2.0 * delta.sum(axis=0))
+    return gradient_factored_from_forward(model, fw, fw.markers - targets)
 
 
 def ik_gradient_autodiff(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
@@ -304,7 +414,7 @@ def _value_and_grad(gradient: str, model: IKModel, pose: Pose, targets) -> tuple
     fw = ik_forward(model, pose)
     delta = fw.markers - targets
     kernel = gradient_naive_from_forward if gradient == "naive" else gradient_factored_from_forward
-    return jnp.sum(delta * delta), Pose(kernel(model, fw, delta), 2.0 * delta.sum(axis=0))
+    return jnp.sum(delta * delta), kernel(model, fw, delta)
 
 
 def ik_jacobian(
@@ -314,7 +424,7 @@ def ik_jacobian(
 
     ``P_ka = Σ_{j ∈ desc(a)} (q_kj − W_kj o_a) = Q_ka − (Σ_{j ∈ desc(a)} W_kj) o_a`` with
     ``Q_ka = Σ_{j ∈ desc(a)} q_kj``: the factored form again, per marker, as dense products
-    with the ``(J, J)`` descendant matrix (the subtree weight sums are precomputed).
+    with the ``(J, J)`` descendant matrix.
     The translation block is the identity for every marker. ``O(K·J²)`` multiply-adds.
     """
     fw = ik_forward(model, pose)
@@ -325,11 +435,13 @@ def ik_jacobian(
 
 def _lever_arms(model: IKModel, fw: IKForward) -> Float[Array, "markers joints 3"]:
     """``P_ka = Σ_{j ∈ desc(a)} (q_kj − W_kj o_a)`` (dense, through the descendant matrix)."""
-    q = model.dense_weights[..., None] * fw.origins[None] + jnp.einsum(
-        "jrc,kjc->kjr", fw.linear, model.dense_offsets
-    )  # (K, J, 3)
+    nj = fw.origins.shape[0]
+    u = model.skin[: 3 * nj].reshape(nj, 3, -1)  # u_kjc as [j, c, k]
+    w = model.skin[3 * nj : 4 * nj]  # W_kj as [j, k]
+    q = w.T[..., None] * fw.origins[None] + jnp.einsum("jrc,jck->kjr", fw.linear, u)  # (K, J, 3)
     qa = jnp.einsum("aj,kjc->kac", model.descendants, q)
-    return qa - model.subtree_weights[..., None] * fw.origins[None]
+    subtree = (model.descendants @ w).T  # Σ_{j ∈ desc(a)} W_kj, (K, J)
+    return qa - subtree[..., None] * fw.origins[None]
 
 
 def ik_normal_equations(

@@ -16,16 +16,19 @@ from fxspace.errors import FxspaceError
 from fxspace.io import SkinnedMesh
 
 
-def branching_mesh(seed: int = 0, uniform_scale: float = 1.0) -> SkinnedMesh:
-    """A random 6-joint tree (one branch point, one uniformly scaled joint), with vertices
-    scattered around the joints and skinned to each joint and its parent."""
+def branching_mesh(seed: int = 0, uniform_scale: float = 1.0, parents=None) -> SkinnedMesh:
+    """A random 6-joint tree (one branch point, one uniformly scaled joint; or the tree
+    ``parents``), with vertices scattered around the joints and skinned to each joint and
+    its parent."""
     rng = np.random.default_rng(seed)
-    parents = np.array([-1, 0, 1, 1, 3, 2], dtype=np.int32)
+    if parents is None:
+        parents = [-1, 0, 1, 1, 3, 2]
+    parents = np.asarray(parents, dtype=np.int32)
     nj = parents.size
     t = rng.normal(0, 1, (nj, 3))
     q = Rotation.random(nj, random_state=seed).as_quat()
     s = np.ones((nj, 3))
-    s[3] = uniform_scale
+    s[min(3, nj - 1)] = uniform_scale
     local = np.tile(np.eye(4), (nj, 1, 1))
     local[:, :3, :3] = Rotation.from_quat(q).as_matrix() * s[:, None, :]
     local[:, :3, 3] = t
@@ -113,6 +116,28 @@ def test_objective_is_eq1(toy, rng):
         np.sum((np.asarray(p) - np.asarray(targets)) ** 2),
         rtol=1e-12,
     )
+
+
+@pytest.mark.parametrize(
+    "parents",
+    [[-1], [-1, 0], list(range(-1, 11)), [-1, 0, 1, 2, 3, 4, 5, 6, 7, 1, 9, -1, 11, 12]],
+    ids=["single", "pair", "chain12", "forest14"],
+)
+def test_forward_matches_skinned_mesh_at_any_depth(parents, rng):
+    """The pointer-jumping forward pass (0, 1, 2 and 3 ternary steps here) against the
+    skinned mesh (sequential global transforms), and the gradients against autodiff."""
+    m = branching_mesh(1, uniform_scale=1.3, parents=parents)
+    ms = both_views(m, 10, 10)
+    model = fx.ik_model(m, ms)
+    pose = random_pose(rng, m.num_joints)
+    np.testing.assert_allclose(
+        fx.ik_markers(model, pose),
+        fx.marker_positions(fx.pose_vertices(m, pose), m.faces, ms),
+        atol=1e-10,
+    )
+    targets = fx.ik_markers(model, random_pose(rng, m.num_joints))
+    naive, fact, auto = _grads(model, pose, targets)
+    assert _rel(naive, auto) < 1e-10 and _rel(fact, auto) < 1e-10
 
 
 def test_three_gradients_agree_and_match_finite_differences(toy, rng):

@@ -123,17 +123,18 @@ def test_browser_navigator(data):
     assert np.all(np.asarray(ctl.route.frames) >= 0)
 
 
+@pytest.mark.slow
 def test_load_nav_data_from_config(tmp_path):
     cfg = tmp_path / "nav.toml"
     cfg.write_text(
         'experiment = "navigation"\nseed = 0\n[data]\nsource = "synthetic"\n'
-        "synthetic_frames = 40\n[hierarchy]\nc0 = 8\n"
+        "synthetic_frames = 80\n[hierarchy]\nc0 = 8\n"
     )
     from fxspace.viewer import load_nav_data
 
     d = load_nav_data(cfg)
-    assert d.hierarchy.sizes == (8, 16, 32, 40)
-    assert d.positions.shape[0] == 40 and len(d.marker_names) == d.positions.shape[1]
+    assert d.hierarchy.sizes == (8, 16, 32, 64, 80)
+    assert d.positions.shape[0] == 80 and len(d.marker_names) == d.positions.shape[1]
     ctl = NavigatorController(d)
     assert ctl.pick(0)
     bad = tmp_path / "other.toml"
