@@ -47,7 +47,6 @@ def _pick_block(n: int, parts: int) -> int:
 
 
 _BLOCKED_FROM = 256
-_SHARDED_FROM = 1024
 
 
 class Geodesics(NamedTuple):
@@ -140,7 +139,9 @@ def _floyd_sharded(W: Array, block: int) -> Array:
     broadcast (a masked ``psum``), every device closes the diagonal tile and updates the
     row panel redundantly, then updates its own slab. On a CPU started with
     ``--xla_force_host_platform_device_count=N`` (the ``fxspace`` command does this) each
-    device is one core, so the O(n³) work runs on all cores.
+    device is one core, so the O(n³) work runs on all cores. Opt-in (``method="sharded"``):
+    XLA:CPU aborts a collective whose participants arrive more than 40 s apart, so
+    nothing shards automatically.
     """
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as Ps
@@ -312,10 +313,7 @@ def _floyd_sharded_next(W: Array, block: int):
 def _geodesics_next(W: Array, method: str, block: int | None):
     n = W.shape[0]
     if method == "auto":
-        if n >= _SHARDED_FROM and jax.device_count() > 1:
-            method = "sharded"
-        else:
-            method = "blocked" if n >= _BLOCKED_FROM else "scan"
+        method = "blocked" if n >= _BLOCKED_FROM else "scan"
     if method == "scan":
         D, N = _floyd_scan_next(*_pad_with_next(W, n))
     elif method == "blocked":
@@ -336,9 +334,9 @@ def floyd_warshall(
     **Arguments:**
     - `graph`: ``(n, n)`` edge weights, ``inf`` for no edge, 0 on the diagonal.
     - `method`: ``"scan"`` (one pivot per ``lax.scan`` step), ``"blocked"`` (three-phase
-      tiled, cache-friendly), ``"sharded"`` (blocked, rows split over all local devices)
-      or ``"auto"`` (blocked from 256 vertices on; sharded from 1024 vertices on when
-      more than one device is visible).
+      tiled, cache-friendly), ``"sharded"`` (blocked, rows split over all local devices;
+      opt-in, the result stays sharded over the devices) or ``"auto"`` (blocked from 256
+      vertices on, else scan).
     - `block`: tile size of the blocked variants (default: 40–80, chosen to pad least).
 
     O(n³) work, O(n²) memory; jit/vmap/grad compatible (the gradient of a geodesic
@@ -346,10 +344,7 @@ def floyd_warshall(
     """
     W = jnp.asarray(graph)
     if method == "auto":
-        if W.shape[0] >= _SHARDED_FROM and jax.device_count() > 1:
-            method = "sharded"
-        else:
-            method = "blocked" if W.shape[0] >= _BLOCKED_FROM else "scan"
+        method = "blocked" if W.shape[0] >= _BLOCKED_FROM else "scan"
     if method == "scan":
         return _floyd_scan(W)
     if method == "blocked":

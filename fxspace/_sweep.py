@@ -70,13 +70,13 @@ def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str):
     )
 
 
-@partial(jax.jit, static_argnames=("dim", "batch_size", "method", "mds_method"))
-def _sweep(P, thresholds, dim, batch_size, method, mds_method):
+@partial(jax.jit, static_argnames=("dim", "batch_size", "method", "mds_method", "shard"))
+def _sweep(P, thresholds, dim, batch_size, method, mds_method, shard):
     if method == "auto" and P.shape[0] >= _BLOCKED_FROM:
         method = "blocked"  # one Floyd per threshold; devices share the thresholds instead
     f = partial(_one, P, dim=dim, method=method, mds_method=mds_method)
     nd = jax.device_count()
-    if nd == 1 or thresholds.shape[0] == 1:
+    if not shard or nd == 1 or thresholds.shape[0] == 1:
         return jax.lax.map(f, thresholds, batch_size=batch_size)
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as Ps
@@ -103,6 +103,7 @@ def threshold_sweep(
     batch_size: int | None = None,
     method: str = "auto",
     mds_method: str = "auto",
+    shard: bool = False,
 ) -> SweepResult:
     """Score every threshold: ε-graph → geodesics → classical MDS → Pearson r.
 
@@ -114,9 +115,10 @@ def threshold_sweep(
       (lowest memory, O(n²) each); ``S`` = a single ``vmap``.
     - `method`, `mds_method`: Floyd and eigensolver variants.
 
-    With several devices visible (GPUs, or CPU cores exposed as devices with
-    ``--xla_force_host_platform_device_count``, as the ``fxspace`` command does) the
-    thresholds are split across the devices with ``shard_map``.
+    - `shard`: split the thresholds across all local devices with ``shard_map`` (GPUs,
+      or CPU cores exposed as devices with ``--xla_force_host_platform_device_count``).
+      Keep the per-device work balanced: XLA:CPU aborts a collective whose participants
+      arrive more than 40 s apart.
 
     **Returns:** :class:`SweepResult`. Cost O(S·n³); the dense Floyd costs the same at every
     ε, while Dijkstra slows down as the graph densifies.
@@ -131,7 +133,7 @@ def threshold_sweep(
         raise FxspaceError("thresholds must be finite and positive")
     if batch_size is not None and batch_size < 1:
         raise FxspaceError(f"batch_size must be >= 1 or None, got {batch_size}")
-    r, conn, ncomp, deg, eig = _sweep(P, th, dim, batch_size, method, mds_method)
+    r, conn, ncomp, deg, eig = _sweep(P, th, dim, batch_size, method, mds_method, shard)
     return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]))
 
 

@@ -140,7 +140,7 @@ def use_all_cpu_cores() -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
-    if os.environ.get("FXSPACE_SINGLE_DEVICE") != "1":
+    if os.environ.get("FXSPACE_CPU_DEVICES") == "1":  # opt-in, for method="sharded"/shard=True
         use_all_cpu_cores()
     from .errors import FxspaceError
 

@@ -30,7 +30,7 @@ SCRIPT = textwrap.dedent(
     assert np.allclose(W[i, k] + D[k, j], D[i, j], rtol=1e-12)
     ref = shortest_path(np.where(np.isinf(W), 0, W), directed=False)
     th = np.array([0.8, 1.1, 1.5]) * t0
-    sw = fx.threshold_sweep(P, th)
+    sw = fx.threshold_sweep(P, th, shard=True)
     one = [float(fx.threshold_sweep(P, th[k:k + 1]).scores[0]) for k in range(3)]
     print(json.dumps({"fw_err": float(np.max(np.abs(D - ref))),
                       "sweep": np.asarray(sw.scores).tolist(), "loop": one,
