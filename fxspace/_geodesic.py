@@ -179,152 +179,6 @@ def _floyd_sharded(W: Array, block: int) -> Array:
     return D[:n, :n]
 
 
-# --- the same recurrences, carrying the next-hop matrix --------------------------------
-# When D[i,j] improves through pivot k, the first step of the new path is the first step
-# of the path i → k:  N[i,j] ← N[i,k]. Every update below is a select on the strict
-# improvement, so N costs one more select per entry and stays in cache with D.
-
-
-def _mp_next(D: Array, N: Array, C: Array, NC: Array, R: Array, rb: int):
-    """``D ← min(D, C ⊗ R)`` and ``N[i,j] ← NC[i,k*]`` where ``k*`` improved ``D[i,j]``."""
-    n, m = D.shape
-    b = C.shape[1]
-    rb = min(rb, n)
-
-    def blk(args):
-        d, nx, c, nc = args
-
-        def body(k, st):
-            d, nx = st
-            val = c[:, k, None] + R[k][None, :]
-            better = val < d
-            return jnp.where(better, val, d), jnp.where(better, nc[:, k, None], nx)
-
-        return jax.lax.fori_loop(0, b, body, (d, nx), unroll=8)
-
-    sh = (n // rb, rb)
-    d, nx = jax.lax.map(
-        blk, (D.reshape(*sh, m), N.reshape(*sh, m), C.reshape(*sh, b), NC.reshape(*sh, b))
-    )
-    return d.reshape(n, m), nx.reshape(n, m)
-
-
-def _floyd_scan_next(D: Array, N: Array):
-    def step(st, k):
-        D, N = st
-        row = jax.lax.dynamic_slice_in_dim(D, k, 1, axis=0)
-        col = jax.lax.dynamic_slice_in_dim(D, k, 1, axis=1)
-        ncol = jax.lax.dynamic_slice_in_dim(N, k, 1, axis=1)
-        val = col + row
-        better = val < D
-        return (jnp.where(better, val, D), jnp.where(better, ncol, N)), None
-
-    (D, N), _ = jax.lax.scan(step, (D, N), jnp.arange(D.shape[0]))
-    return D, N
-
-
-def _pad_with_next(W: Array, m: int):
-    n = W.shape[0]
-    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
-    idx = jnp.arange(m)
-    D = D.at[idx, idx].set(0)
-    N = jnp.where(jnp.isfinite(D), idx[None, :].astype(jnp.int32), -1)
-    return D, N.at[idx, idx].set(idx.astype(jnp.int32))
-
-
-def _pivot_phase(D_piv, N_piv, C, NC, s: Array, block: int):
-    """Close the pivot tile, then update the pivot row panel and the column panel."""
-    dkk, nkk = _floyd_scan_next(
-        jax.lax.dynamic_slice(D_piv, (0, s), (block, block)),
-        jax.lax.dynamic_slice(N_piv, (0, s), (block, block)),
-    )
-    R, NR = _mp_next(D_piv, N_piv, dkk, nkk, D_piv, block)
-    C, NC = _mp_next(C, NC, C, NC, dkk, block)
-    return R, NR, C, NC
-
-
-def _floyd_blocked_next(W: Array, block: int):
-    n = W.shape[0]
-    m = -(-n // block) * block
-    D, N = _pad_with_next(W, m)
-
-    def phase(kb, st):
-        D, N = st
-        s = kb * block
-        R, NR, C, NC = _pivot_phase(
-            jax.lax.dynamic_slice(D, (s, 0), (block, m)),
-            jax.lax.dynamic_slice(N, (s, 0), (block, m)),
-            jax.lax.dynamic_slice(D, (0, s), (m, block)),
-            jax.lax.dynamic_slice(N, (0, s), (m, block)),
-            s,
-            block,
-        )
-        return _mp_next(D, N, C, NC, R, block)
-
-    D, N = jax.lax.fori_loop(0, m // block, phase, (D, N))
-    return D[:n, :n], N[:n, :n]
-
-
-def _floyd_sharded_next(W: Array, block: int):
-    from jax.sharding import Mesh
-    from jax.sharding import PartitionSpec as Ps
-
-    devs = jax.devices()
-    nd = len(devs)
-    n = W.shape[0]
-    m = -(-n // (block * nd)) * block * nd
-    rows = m // nd
-    D, N = _pad_with_next(W, m)
-    mesh = Mesh(np.array(devs), ("rows",))
-
-    def slab(Dl, Nl):
-        me = jax.lax.axis_index("rows")
-
-        def phase(kb, st):
-            Dl, Nl = st
-            s = kb * block
-            owner = s // rows
-            lo = s - owner * rows
-            mine = me == owner
-            Rp = jax.lax.dynamic_slice(Dl, (lo, 0), (block, m))
-            NRp = jax.lax.dynamic_slice(Nl, (lo, 0), (block, m))
-            Rp = jax.lax.psum(jnp.where(mine, Rp, jnp.zeros_like(Rp)), "rows")
-            NRp = jax.lax.psum(jnp.where(mine, NRp, jnp.zeros_like(NRp)), "rows")
-            R, NR, C, NC = _pivot_phase(
-                Rp,
-                NRp,
-                jax.lax.dynamic_slice(Dl, (0, s), (rows, block)),
-                jax.lax.dynamic_slice(Nl, (0, s), (rows, block)),
-                s,
-                block,
-            )
-            return _mp_next(Dl, Nl, C, NC, R, block)
-
-        return jax.lax.fori_loop(0, m // block, phase, (Dl, Nl))
-
-    spec = Ps("rows", None)
-    D, N = jax.shard_map(
-        slab, mesh=mesh, in_specs=(spec, spec), out_specs=(spec, spec), check_vma=False
-    )(D, N)
-    return D[:n, :n], N[:n, :n]
-
-
-@partial(jax.jit, static_argnames=("method", "block"))
-def _geodesics_next(W: Array, method: str, block: int | None):
-    n = W.shape[0]
-    if method == "auto":
-        method = "blocked" if n >= _BLOCKED_FROM else "scan"
-    if method == "scan":
-        D, N = _floyd_scan_next(*_pad_with_next(W, n))
-    elif method == "blocked":
-        D, N = _floyd_blocked_next(W, block or _pick_block(n, 1))
-    elif method == "sharded":
-        D, N = _floyd_sharded_next(W, block or _pick_block(n, jax.device_count()))
-    else:
-        raise FxspaceError(f"method must be 'auto', 'scan', 'blocked' or 'sharded', got {method!r}")
-    return D, jnp.where(jnp.isfinite(D), N, -1)
-
-
 @partial(jax.jit, static_argnames=("method", "block"))
 def floyd_warshall(
     graph: Float[Array, "n n"], method: str = "auto", block: int | None = None
@@ -402,6 +256,15 @@ def next_hops(
     return jnp.where(jnp.eye(n, dtype=bool), jnp.arange(n, dtype=jnp.int32)[:, None], nxt)
 
 
+def _static_max_degree(W: Array) -> int | None:
+    """Largest vertex degree rounded up to a multiple of 32, when W is concrete."""
+    if isinstance(W, jax.core.Tracer):
+        return None
+    deg = int(np.max(np.sum(np.isfinite(np.asarray(W)), axis=1))) - 1
+    k = max(32, -(-deg // 32) * 32)
+    return k if k < W.shape[0] else None
+
+
 def geodesic_distances(
     graph: Float[Array, "n n"], method: str = "auto", block: int | None = None
 ) -> Geodesics:
@@ -414,14 +277,16 @@ def geodesic_distances(
 
     **Returns:** :class:`Geodesics`. Unreachable pairs keep ``inf`` distance and next hop
     ``-1`` — check with :func:`check_connected` before embedding. The next-hop matrix is
-    carried through the same (blocked) recurrence — ``N[i,j] ← N[i,k]`` whenever pivot
-    ``k`` improves ``D[i,j]`` — so it costs one select per update, not a second O(n³)
-    search. O(n³); jit/vmap compatible; ``jax.grad`` flows through the distances.
+    found from the distances by :func:`next_hops` (the Bellman equation over each
+    vertex's neighbours), which stays valid under float32 ties — carrying it through the
+    Floyd recurrence does not (rounding ties made next-hop cycles on real data).
+    O(n³); jit/vmap compatible; ``jax.grad`` flows through the distances.
     """
     W = jnp.asarray(graph)
     if W.ndim != 2 or W.shape[0] != W.shape[1]:
         raise FxspaceError(f"graph must be a square (n, n) matrix, got shape {W.shape}")
-    D, nxt = _geodesics_next(W, method, block)
+    D = floyd_warshall(W, method=method, block=block)
+    nxt = next_hops(W, jax.lax.stop_gradient(D), max_degree=_static_max_degree(W))
     return Geodesics(D, nxt)
 
 

@@ -47,13 +47,7 @@ class NavData:
 def load_nav_data(target: str | Path, *, restarts: int = 0) -> NavData:
     """Build :class:`NavData` from a navigation run folder (its ``config.toml``) or a config
     file (``experiment = "navigation"``)."""
-    import jax
-    import jax.numpy as jnp
 
-    from ._features import distance_features, pairwise_distances
-    from ._geodesic import connecting_threshold, epsilon_graph, geodesic_distances
-    from ._hierarchy import build_hierarchy
-    from ._mds import classical_mds
     from .config import config_from_dict, load_toml
     from .pipelines import navigation as pipe
     from .pipelines._face import load_face
@@ -71,23 +65,8 @@ def load_nav_data(target: str | Path, *, restarts: int = 0) -> NavData:
     body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name", "sweep")}
     cfg = config_from_dict(pipe.Config, body)
     face = load_face(cfg.data, seed)
-    P = pairwise_distances(distance_features(jnp.asarray(face.positions, jnp.float32)))
-    eps = cfg.graph.threshold or cfg.graph.threshold_factor * float(connecting_threshold(P))
-    geo = geodesic_distances(epsilon_graph(P, eps))
-    Y = np.asarray(classical_mds(geo.distances, 2).embedding)
-    hc = cfg.hierarchy
-    h = build_hierarchy(
-        Y,
-        geo,
-        c0=hc.c0,
-        m=hc.m,
-        key=jax.random.PRNGKey(seed),
-        tol=hc.tol,
-        max_steps=hc.max_steps,
-        restarts=restarts,
-        rho_scale=hc.rho_scale,
-        max_link_centres=hc.max_link_centres or None,
-    )
+    _, _, geo, mds, _, _ = pipe.build_space(cfg, face)
+    h = pipe.build_levels(cfg, np.asarray(mds.embedding), geo, seed, restarts=restarts)
     return NavData(h, geo, np.asarray(face.positions), tuple(face.marker_names), face.rate)
 
 

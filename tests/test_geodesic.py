@@ -165,3 +165,17 @@ def test_next_hop_from_recurrence_is_valid(rng, method):
     np.testing.assert_allclose(W[i, k] + D[k, j], D[i, j], rtol=1e-12)
     assert np.all(nxt[~np.isfinite(D)] == -1)
     assert np.all(np.diag(nxt) == np.arange(130))
+
+
+@pytest.mark.data
+def test_real_float32_paths_have_no_cycles(data_dir):
+    """float32 rounding ties must not create next-hop cycles (seen once on AnimFace)."""
+    seq = fx.io.read_markers(data_dir / "face" / "animface_cheeks.c3d")
+    pos, _ = fx.clean_frames(seq.positions[::3])
+    P = fx.pairwise_distances(fx.distance_features(jnp.asarray(pos, jnp.float32)))
+    geo = fx.geodesic_distances(fx.epsilon_graph(P, 1.25 * float(fx.connecting_threshold(P))))
+    n = len(pos)
+    for i in range(0, n, 25):
+        for j in range(0, n, 7):
+            path = fx.shortest_path(geo, i, j)
+            assert path[0] == i and path[-1] == j

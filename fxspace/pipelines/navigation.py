@@ -117,16 +117,13 @@ def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[in
     return seq
 
 
-def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    from ..plot import plot_level, plot_levels_grid, write_navigation_animation
+def build_space(cfg: Config, face):
+    """ε-graph, geodesics and 2-D MDS of the frames as the config says.
 
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    face = load_face(cfg.data, seed)
-    timings["load_s"] = time.perf_counter() - t0
+    Returns ``(P, W, geodesics, mds, connecting_threshold, ε)``; raises ``ConfigError``
+    when the configured ε leaves the graph disconnected. Shared with the viewer.
+    """
     dtype = jnp.float32 if cfg.graph.dtype == "float32" else jnp.float64
-
-    t0 = time.perf_counter()
     P = pairwise_distances(distance_features(jnp.asarray(face.positions, dtype)))
     t_conn = float(connecting_threshold(P))
     eps = cfg.graph.threshold or cfg.graph.threshold_factor * t_conn
@@ -137,14 +134,13 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         )
     W = epsilon_graph(P, eps)
     geo = jax.block_until_ready(geodesic_distances(W))
-    mds = classical_mds(geo.distances, 2)
-    r = float(pearson_score(geo.distances, mds.embedding))
-    timings["expression_space_s"] = time.perf_counter() - t0
-    Y = np.asarray(mds.embedding)
+    return P, W, geo, classical_mds(geo.distances, 2), t_conn, eps
 
+
+def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bool = False):
+    """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer)."""
     hc = cfg.hierarchy
-    t0 = time.perf_counter()
-    h = build_hierarchy(
+    return build_hierarchy(
         Y,
         geo,
         c0=hc.c0,
@@ -153,11 +149,30 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         tol=hc.tol,
         max_steps=hc.max_steps,
         warm_start=True,
-        restarts=hc.restarts,
-        compare_cold=hc.compare_cold,
+        restarts=restarts,
+        compare_cold=compare_cold,
         rho_scale=hc.rho_scale,
         max_link_centres=hc.max_link_centres or None,
     )
+
+
+def run(cfg: Config, run_dir: Path, seed: int) -> dict:
+    from ..plot import plot_level, plot_levels_grid, write_navigation_animation
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    face = load_face(cfg.data, seed)
+    timings["load_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    P, W, geo, mds, t_conn, eps = build_space(cfg, face)
+    r = float(pearson_score(geo.distances, mds.embedding))
+    timings["expression_space_s"] = time.perf_counter() - t0
+    Y = np.asarray(mds.embedding)
+
+    hc = cfg.hierarchy
+    t0 = time.perf_counter()
+    h = build_levels(cfg, Y, geo, seed, restarts=hc.restarts, compare_cold=hc.compare_cold)
     timings["hierarchy_s"] = time.perf_counter() - t0
 
     nc = cfg.navigation
