@@ -29,7 +29,7 @@ import numpy as np
 
 def _points(n: int, seed: int) -> tuple[np.ndarray, str]:
     from fxspace.data import data_root
-    from fxspace.pipelines._face import FaceData, load_face
+    from fxspace.datasets import FaceData, load_face
 
     src = "animface" if data_root() is not None else "synthetic"
     face = load_face(FaceData(source=src, max_frames=n, synthetic_frames=max(n, 10)), seed)

@@ -45,7 +45,7 @@ def _median_time(fn, repeats):
 
 
 def _frames(T: int, seed: int = 0) -> tuple[np.ndarray, str]:
-    from fxspace.pipelines._face import FaceData, load_face
+    from fxspace.datasets import FaceData, load_face
 
     try:
         face = load_face(FaceData(source="animface", target_frames=T), seed)

@@ -68,8 +68,8 @@ def main(argv: list[str] | None = None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     import fxspace as fx
-    from fxspace._ik import gradient_factored_from_forward, gradient_naive_from_forward
     from fxspace.data import data_path
+    from fxspace.mesh._ik import gradient_factored_from_forward, gradient_naive_from_forward
 
     mesh = fx.io.read_gltf(data_path("mesh", f"{args.mesh}.glb"))
     anim = mesh.animation_names[0]

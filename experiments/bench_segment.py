@@ -143,7 +143,7 @@ def bench_kernel_kmeans(n: int, c: int, repeats: int, gamma: float = 0.5) -> dic
     compile_s = time.perf_counter() - t
     ours_s, res = _median_time(lambda: f(X), repeats)
     # the same k-means++ initial labels for the numpy reference
-    from fxspace._kernel_kmeans import _plusplus
+    from fxspace.cluster._kernel_kmeans import _plusplus
 
     K = np.asarray(fx.gaussian_kernel(X, gamma))
     init = np.asarray(_plusplus(jnp.asarray(K), c, jax.random.split(key, 1)[0]))

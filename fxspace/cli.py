@@ -17,7 +17,7 @@ _DEMO = {
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from .pipelines import run_dict
+    from fxspace.pipelines import run_dict
 
     raw = dict(_DEMO)
     raw["seed"] = args.seed
@@ -33,7 +33,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .pipelines import run_config
+    from fxspace.pipelines import run_config
 
     run_config(args.config, args.out, force=args.force)
     return 0
@@ -41,7 +41,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_view(args: argparse.Namespace) -> int:
     try:
-        from .viewer import serve  # type: ignore[attr-defined]
+        from fxspace.studio._navigator import serve  # type: ignore[attr-defined]
     except ImportError as e:
         print(
             f"fxspace view needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
@@ -67,7 +67,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_data(args: argparse.Namespace) -> int:
-    from .data import ENV_VAR, data_root
+    from fxspace.data import ENV_VAR, data_root
 
     root = data_root()
     if root is None:
@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
     if os.environ.get("FXSPACE_CPU_DEVICES") == "1":  # opt-in, for method="sharded"/shard=True
         use_all_cpu_cores()
-    from .errors import FxspaceError
+    from fxspace.errors import FxspaceError
 
     try:
         return int(args.func(args) or 0)

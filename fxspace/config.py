@@ -27,7 +27,7 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
-from .errors import FxspaceError
+from fxspace.errors import FxspaceError
 
 __all__ = [
     "ConfigError",

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .errors import DataNotFoundError
+from fxspace.errors import DataNotFoundError
 
 __all__ = ["data_root", "data_path", "ENV_VAR"]
 

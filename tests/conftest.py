@@ -1,4 +1,8 @@
 import os
+import sys
+
+# tests/helpers.py is imported as `helpers` from every test folder (importlib import mode)
+sys.path.insert(0, os.path.dirname(__file__))
 
 os.environ.setdefault("FXSPACE_QUIET", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")

@@ -33,3 +33,27 @@ def check_grad(f, x, rng, n_dirs=3, eps=1e-6, rtol=1e-4, atol=1e-7):
         fd = float(finite_difference_jvp(f, x, v, eps))
         an = float(jnp.vdot(g, v))
         assert np.isclose(an, fd, rtol=rtol, atol=atol), (an, fd)
+
+
+def face_like(n=100, m=12, seed=1):
+    """2-D expression coordinates on three arms plus marker frames that follow them."""
+    rng = np.random.default_rng(seed)
+    arm = rng.integers(0, 3, n)
+    t = rng.uniform(0, 1, n)
+    ang = np.array([0.3, 2.4, 4.4])[arm]
+    xy = np.stack([t * 10 * np.cos(ang), t * 10 * np.sin(ang)], 1)
+    xy += rng.normal(scale=0.15, size=(n, 2))
+    base = (
+        np.stack(
+            [
+                np.cos(np.linspace(0, 2 * np.pi, m, endpoint=False)),
+                np.sin(np.linspace(0, 2 * np.pi, m, endpoint=False)),
+                0.1 * rng.normal(size=m),
+            ],
+            1,
+        )
+        * 50
+    )
+    modes = rng.normal(size=(2, m, 3))
+    pos = base[None] + xy[:, 0, None, None] * modes[0] + xy[:, 1, None, None] * modes[1]
+    return xy, pos

@@ -1,23 +1,61 @@
-"""Readers and writers: markers (C3D, TRC, NPZ), body motion (ASF/AMC, BVH), skinned glTF,
-and the seeded synthetic face (the embedded default data)."""
+"""Readers and writers only: markers (C3D, TRC, NPZ), body motion (ASF/AMC, BVH) and
+skinned glTF. The data types live with their system (:class:`fxspace.motion.Motion`,
+:class:`fxspace.mesh.SkinnedMesh`) or in ``io/_types`` (:class:`MarkerSequence`).
 
-from ._asfamc import read_amc as read_amc
-from ._asfamc import read_asf as read_asf
-from ._bvh import read_bvh as read_bvh
-from ._bvh import write_bvh as write_bvh
-from ._c3d import write_c3d as write_c3d
-from ._gltf import Animation as Animation
-from ._gltf import LocalPose as LocalPose
-from ._gltf import SkinnedMesh as SkinnedMesh
-from ._gltf import read_gltf as read_gltf
-from ._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
-from ._markers import MarkerSequence as MarkerSequence
-from ._markers import read_markers as read_markers
-from ._markers import write_npz as write_npz
-from ._motion import Motion as Motion
-from ._synthetic import EXPRESSION_MODES as EXPRESSION_MODES
-from ._synthetic import SyntheticFace as SyntheticFace
-from ._synthetic import expression_displacement as expression_displacement
-from ._synthetic import face_layout as face_layout
-from ._synthetic import synthetic_face as synthetic_face
-from ._trc import write_trc as write_trc
+The seeded synthetic face lives in :mod:`fxspace.synthetic`; ``fx.io.synthetic_face`` and
+its companions stay reachable here as aliases (resolved lazily, so there is no cycle).
+"""
+
+from fxspace.io._asfamc import read_amc as read_amc
+from fxspace.io._asfamc import read_asf as read_asf
+from fxspace.io._bvh import read_bvh as read_bvh
+from fxspace.io._bvh import write_bvh as write_bvh
+from fxspace.io._c3d import write_c3d as write_c3d
+from fxspace.io._gltf import read_gltf as read_gltf
+from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
+from fxspace.io._markers import read_markers as read_markers
+from fxspace.io._markers import write_npz as write_npz
+from fxspace.io._trc import write_trc as write_trc
+from fxspace.io._types import UNIT_SCALES as UNIT_SCALES
+from fxspace.io._types import MarkerSequence as MarkerSequence
+from fxspace.mesh._types import Animation as Animation
+from fxspace.mesh._types import LocalPose as LocalPose
+from fxspace.mesh._types import SkinnedMesh as SkinnedMesh
+from fxspace.motion._types import Motion as Motion
+
+_SYNTHETIC_ALIASES = (
+    "EXPRESSION_MODES",
+    "SyntheticFace",
+    "expression_displacement",
+    "face_layout",
+    "synthetic_face",
+)
+
+__all__ = [
+    "read_amc",
+    "read_asf",
+    "read_bvh",
+    "write_bvh",
+    "write_c3d",
+    "read_gltf",
+    "SUPPORTED_EXTENSIONS",
+    "read_markers",
+    "write_npz",
+    "write_trc",
+    "UNIT_SCALES",
+    "MarkerSequence",
+    "Animation",
+    "LocalPose",
+    "SkinnedMesh",
+    "Motion",
+    *_SYNTHETIC_ALIASES,
+]
+
+
+def __getattr__(name: str):
+    # Aliases kept from before fxspace.synthetic existed (moves, not renames).
+    if name in _SYNTHETIC_ALIASES:
+        import fxspace.synthetic as _synthetic
+
+        return getattr(_synthetic, name)
+    raise AttributeError(f"module 'fxspace.io' has no attribute {name!r}")

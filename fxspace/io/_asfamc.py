@@ -27,10 +27,10 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..errors import CorruptFileError
-from ..motion._quat import euler_to_quat, quat_conj, quat_mul
-from ._bvh import _open_text
-from ._motion import Motion
+from fxspace.errors import CorruptFileError
+from fxspace.io._bvh import _open_text
+from fxspace.motion._types import Motion
+from fxspace.rotations import euler_to_quat, quat_conj, quat_mul
 
 __all__ = ["read_amc", "read_asf", "AsfSkeleton"]
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ..errors import CorruptFileError
-from ..motion._quat import euler_to_quat, quat_to_euler
-from ._motion import Motion
+from fxspace.errors import CorruptFileError
+from fxspace.motion._types import Motion
+from fxspace.rotations import euler_to_quat, quat_to_euler
 
 __all__ = ["read_bvh", "write_bvh"]
 
@@ -224,7 +224,7 @@ def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
     Lengths are divided by ``scale`` (metres per file unit). Written atomically; ``.gz``
     paths are compressed.
     """
-    from ..runs import write_bytes_atomic
+    from fxspace.runs import write_bytes_atomic
 
     path = Path(path)
     J = motion.num_joints

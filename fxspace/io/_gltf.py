@@ -22,13 +22,13 @@ Animation channels on nodes that are not joints of the skin (and morph-target
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import CorruptFileError, FxspaceError
+from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.mesh._types import Animation, AnimationChannel, LocalPose, SkinnedMesh
+from fxspace.rotations import matrix_to_quat, quat_normalize, quat_to_matrix
 
 __all__ = ["SkinnedMesh", "Animation", "AnimationChannel", "LocalPose", "read_gltf"]
 
@@ -43,210 +43,7 @@ _COMPONENT = {
 _NCOMP = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 
 
-class AnimationChannel(NamedTuple):
-    """One animated property of one joint (times in seconds, values per key)."""
-
-    joint: int  # index into SkinnedMesh's joint order
-    path: str  # "translation" | "rotation" | "scale"
-    times: np.ndarray  # (n,) increasing
-    values: np.ndarray  # (n, c) or, for CUBICSPLINE, (n, 3, c): in-tangent, value, out-tangent
-    interpolation: str  # "LINEAR" | "STEP" | "CUBICSPLINE"
-
-
-class Animation(NamedTuple):
-    name: str
-    channels: tuple[AnimationChannel, ...]
-
-    @property
-    def start(self) -> float:
-        return float(min(c.times[0] for c in self.channels)) if self.channels else 0.0
-
-    @property
-    def end(self) -> float:
-        return float(max(c.times[-1] for c in self.channels)) if self.channels else 0.0
-
-
-class LocalPose(NamedTuple):
-    """Local joint transforms ``(..., J, ·)``: translation, quaternion (x, y, z, w), scale."""
-
-    translations: np.ndarray  # (..., J, 3)
-    rotations: np.ndarray  # (..., J, 4) unit quaternions, glTF order (x, y, z, w)
-    scales: np.ndarray  # (..., J, 3)
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class SkinnedMesh:
-    """A skinned triangle mesh with its skeleton and animations (float64 numpy arrays).
-
-    Joints are ordered so that ``parents[j] < j`` (parents first); ``joint_nodes`` gives
-    each joint's glTF node index. ``base_transforms[j]`` is the fixed global transform of
-    the (non-joint) nodes above a root joint (identity for the other joints).
-    ``skin_joints``/``skin_weights`` hold ``I = 4 × (number of JOINTS_n sets)``
-    influences per vertex, weights normalised to sum to 1.
-    """
-
-    name: str
-    vertices: np.ndarray  # (V, 3) bind pose
-    faces: np.ndarray  # (F, 3) int32, counter-clockwise = front
-    joint_names: tuple[str, ...]
-    joint_nodes: tuple[int, ...]
-    parents: np.ndarray  # (J,) int32, -1 for a root
-    rest_translations: np.ndarray  # (J, 3)
-    rest_rotations: np.ndarray  # (J, 4) quaternions (x, y, z, w)
-    rest_scales: np.ndarray  # (J, 3)
-    base_transforms: np.ndarray  # (J, 4, 4)
-    inverse_bind: np.ndarray  # (J, 4, 4)
-    skin_joints: np.ndarray  # (V, I) int32
-    skin_weights: np.ndarray  # (V, I)
-    animations: dict[str, Animation]
-
-    @property
-    def num_joints(self) -> int:
-        return len(self.joint_names)
-
-    @property
-    def num_vertices(self) -> int:
-        return int(self.vertices.shape[0])
-
-    @property
-    def animation_names(self) -> tuple[str, ...]:
-        return tuple(self.animations)
-
-    def rest_pose(self) -> LocalPose:
-        """The joints' rest (node) transforms as a :class:`LocalPose` of shape (J, ·)."""
-        return LocalPose(self.rest_translations, self.rest_rotations, self.rest_scales)
-
-    def _animation(self, name: str | int) -> Animation:
-        if isinstance(name, int) and not isinstance(name, bool):
-            names = self.animation_names
-            if not 0 <= name < len(names):
-                raise FxspaceError(f"animation index {name} out of range; {self.name} has {names}")
-            name = names[name]
-        if name not in self.animations:
-            raise FxspaceError(
-                f"animation {name!r} not in {self.name}; choose one of {list(self.animations)}"
-            )
-        return self.animations[name]
-
-    def animation_range(self, name: str | int) -> tuple[float, float]:
-        """(start, end) time in seconds of animation ``name``."""
-        a = self._animation(name)
-        return a.start, a.end
-
-    def sample_animation(self, name: str | int, times: np.ndarray | float) -> LocalPose:
-        """Local joint transforms of animation ``name`` at ``times`` (seconds, clamped to range).
-
-        Joints without a channel keep their rest transform. ``LINEAR`` rotations use
-        spherical linear interpolation (shortest arc), ``CUBICSPLINE`` the Hermite form
-        of the glTF specification (Appendix C), ``STEP`` the previous key.
-
-        **Returns:** a :class:`LocalPose` with leading shape ``(T, J)`` (``(J,)`` for a scalar).
-        """
-        anim = self._animation(name)
-        t = np.asarray(times, dtype=np.float64)
-        scalar = t.ndim == 0
-        t = np.atleast_1d(t)
-        if t.ndim != 1 or not np.all(np.isfinite(t)):
-            raise FxspaceError(f"times must be a finite scalar or 1-D array, got shape {t.shape}")
-        n = t.shape[0]
-        out = {
-            "translation": np.broadcast_to(self.rest_translations, (n, self.num_joints, 3)).copy(),
-            "rotation": np.broadcast_to(self.rest_rotations, (n, self.num_joints, 4)).copy(),
-            "scale": np.broadcast_to(self.rest_scales, (n, self.num_joints, 3)).copy(),
-        }
-        for ch in anim.channels:
-            out[ch.path][:, ch.joint] = sample_channel(ch, t)
-        pose = LocalPose(out["translation"], out["rotation"], out["scale"])
-        if scalar:
-            pose = LocalPose(*(a[0] for a in pose))
-        return pose
-
-    def animation_vertices(self, name: str | int, times: np.ndarray | float) -> np.ndarray:
-        """Posed (skinned) vertices of animation ``name`` at ``times``: ``(T, V, 3)`` float64.
-
-        The stable way to get dense vertex sequences from a glTF animation: samples
-        :meth:`sample_animation` and applies linear blend skinning
-        (:func:`fxspace.skin_local_pose`, jitted and vmapped over the times). Uses float64
-        when ``jax_enable_x64`` is on, else float32 (returned as float64).
-        """
-        from .._skinning import skin_local_pose
-
-        pose = self.sample_animation(name, times)
-        return np.asarray(skin_local_pose(self, pose), dtype=np.float64)
-
-    def rest_vertices(self) -> np.ndarray:
-        """Vertices skinned at the rest pose (equal to the bind pose for consistent files)."""
-        from .._skinning import skin_local_pose
-
-        return np.asarray(skin_local_pose(self, self.rest_pose()), dtype=np.float64)
-
-
-# ----------------------------------------------------------------------------- sampling
-
-
-def _quat_normalize(q: np.ndarray) -> np.ndarray:
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    u = u[:, None]
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    small = theta < 1e-8
-    s = np.where(small, 1.0, np.sin(theta))
-    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / s)
-    w1 = np.where(small, u, np.sin(u * theta) / s)
-    return _quat_normalize(w0 * q0 + w1 * q1)
-
-
-def sample_channel(ch: AnimationChannel, t: np.ndarray) -> np.ndarray:
-    """Value of one channel at times ``t`` (clamped to the keyframe range), shape (n, c)."""
-    keys = ch.times
-    tc = np.clip(t, keys[0], keys[-1])
-    if keys.shape[0] == 1:
-        v = ch.values[0, 1] if ch.interpolation == "CUBICSPLINE" else ch.values[0]
-        return np.broadcast_to(v, (t.shape[0], v.shape[-1])).copy()
-    i = np.clip(np.searchsorted(keys, tc, side="right") - 1, 0, keys.shape[0] - 2)
-    t0, t1 = keys[i], keys[i + 1]
-    dt = t1 - t0
-    u = np.where(dt > 0, (tc - t0) / np.where(dt > 0, dt, 1.0), 0.0)
-    if ch.interpolation == "STEP":
-        v = np.where((u >= 1.0)[:, None], ch.values[i + 1], ch.values[i])
-    elif ch.interpolation == "CUBICSPLINE":
-        p0, m0 = ch.values[i, 1], ch.values[i, 2] * dt[:, None]
-        p1, m1 = ch.values[i + 1, 1], ch.values[i + 1, 0] * dt[:, None]
-        u_ = u[:, None]
-        u2, u3 = u_**2, u_**3
-        v = (
-            (2 * u3 - 3 * u2 + 1) * p0
-            + (u3 - 2 * u2 + u_) * m0
-            + (-2 * u3 + 3 * u2) * p1
-            + (u3 - u2) * m1
-        )
-        if ch.path == "rotation":
-            v = _quat_normalize(v)
-    elif ch.path == "rotation":
-        v = _slerp(ch.values[i], ch.values[i + 1], u)
-    else:
-        u_ = u[:, None]
-        v = (1.0 - u_) * ch.values[i] + u_ * ch.values[i + 1]
-    return v
-
-
 # ----------------------------------------------------------------------------- reading
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    x, y, z, w = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def _node_trs(node) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -259,16 +56,14 @@ def _node_trs(node) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         if np.linalg.det(lin) < 0:
             s[0] = -s[0]
         r = lin / np.where(s == 0, 1.0, s)
-        from scipy.spatial.transform import Rotation
-
-        q = Rotation.from_matrix(r).as_quat()
+        q = matrix_to_quat(r, order="xyzw")
         return t, q, s, m
     t = np.asarray(node.translation if node.translation else (0.0, 0.0, 0.0), dtype=np.float64)
     q = np.asarray(node.rotation if node.rotation else (0.0, 0.0, 0.0, 1.0), dtype=np.float64)
-    q = _quat_normalize(q)
+    q = quat_normalize(q)
     s = np.asarray(node.scale if node.scale else (1.0, 1.0, 1.0), dtype=np.float64)
     m = np.eye(4)
-    m[:3, :3] = _quat_to_matrix(q) * s[None, :]
+    m[:3, :3] = quat_to_matrix(q, order="xyzw") * s[None, :]
     m[:3, 3] = t
     return t, q, s, m
 
@@ -581,7 +376,7 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
                     f"{path}: animation {a.name or ai!r} has empty or decreasing key times"
                 )
             if tgt.path == "rotation" and interp != "CUBICSPLINE":
-                vals = _quat_normalize(vals)
+                vals = quat_normalize(vals)
             chans.append(AnimationChannel(node_to_joint[tgt.node], tgt.path, times, vals, interp))
         name = a.name or f"animation_{ai}"
         if name in anims:

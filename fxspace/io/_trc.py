@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CorruptFileError, FxspaceError
-from ..runs import write_bytes_atomic
-from ._markers import MarkerSequence, _check_seq
+from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.io._types import MarkerSequence, _check_seq
+from fxspace.runs import write_bytes_atomic
 
 __all__ = ["write_trc"]
 

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ._quat import quat_nlerp, quat_normalize
+from fxspace.rotations import quat_nlerp, quat_normalize
 
 __all__ = [
     "ExampleSet",

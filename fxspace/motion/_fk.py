@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._quat import _xp, quat_to_matrix
+from fxspace.rotations import _xp, quat_to_matrix
 
 __all__ = ["forward_kinematics", "fk_arrays"]
 

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._quat import quat_to_matrix
+from fxspace.rotations import quat_to_matrix
 
 __all__ = ["absolute_orientation", "RigidTransform", "apply_rigid"]
 

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._blend import ExampleSet
+from fxspace.motion._blend import ExampleSet
 
 __all__ = ["stack_examples", "find_key_times", "extract_window"]
 

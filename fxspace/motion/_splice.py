@@ -7,7 +7,14 @@ import dataclasses
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._quat import _xp, quat_conj, quat_from_axis_angle, quat_mul, quat_normalize, quat_rotate
+from fxspace.rotations import (
+    _xp,
+    quat_conj,
+    quat_from_axis_angle,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+)
 
 __all__ = ["heading_quat", "align_start", "upper_body_mask", "splice_pose"]
 

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._blend import warp_times
+from fxspace.motion._blend import warp_times
 
 __all__ = ["keytime_warp", "warp_slopes", "advance_clock", "Clocks", "sync_clocks", "interp_curve"]
 

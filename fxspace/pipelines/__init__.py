@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..config import (
+from fxspace.config import (
     ConfigError,
     config_from_dict,
     config_to_dict,
@@ -25,7 +25,7 @@ from ..config import (
     expand_sweep,
     load_toml,
 )
-from ..runs import write_json_atomic, write_meta, write_text_atomic
+from fxspace.runs import write_json_atomic, write_meta, write_text_atomic
 
 __all__ = ["run_config", "run_dict", "load_pipeline", "available"]
 

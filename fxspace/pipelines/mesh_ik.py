@@ -21,14 +21,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._ik import GRADIENTS, ik_gradient_factored, ik_gradient_naive, ik_model, solve_ik, track_ik
-from .._ik import ik_gradient_autodiff as _autodiff
-from .._markers_mesh import marker_positions, place_markers
-from .._progress import progress
-from .._skinning import Pose, pose_vertices
-from ..config import ConfigError
-from ..data import data_path
-from ..runs import save_figure_atomic, save_npz_atomic
+from fxspace._progress import progress
+from fxspace.config import ConfigError
+from fxspace.data import data_path
+from fxspace.mesh._ik import (
+    GRADIENTS,
+    ik_gradient_factored,
+    ik_gradient_naive,
+    ik_model,
+    solve_ik,
+    track_ik,
+)
+from fxspace.mesh._ik import ik_gradient_autodiff as _autodiff
+from fxspace.mesh._markers import marker_positions, place_markers
+from fxspace.mesh._skinning import Pose, pose_vertices
+from fxspace.runs import save_figure_atomic, save_npz_atomic
 
 __all__ = ["Config", "run", "median_time"]
 
@@ -92,7 +99,7 @@ def _per_frame_times(model, targets, n, **kw) -> np.ndarray:
 
 
 def _run_mesh(cfg: Config, spec: str, run_dir: Path, seed: int) -> dict:
-    from ..io import read_gltf
+    from fxspace.io import read_gltf
 
     stem, _, anim = spec.partition(":")
     mesh = read_gltf(data_path("mesh", f"{stem}.glb"))
@@ -193,7 +200,7 @@ def _run_mesh(cfg: Config, spec: str, run_dir: Path, seed: int) -> dict:
             barycentric=np.asarray(ms.barycentric),
         )
 
-    from ..plot import plot_ik_poses, plot_time_per_frame, plot_vs_markers
+    from fxspace.plot import plot_ik_poses, plot_time_per_frame, plot_vs_markers
 
     counts = list(cfg.marker_counts)
     rows = [out["per_markers"][str(k)] for k in counts]

@@ -16,18 +16,17 @@ from pathlib import Path
 from typing import Literal
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from .._features import distance_features, pairwise_distances
-from .._geodesic import connecting_threshold, epsilon_graph, geodesic_distances
-from .._hierarchy import Hierarchy, build_hierarchy, link_graph_connected
-from .._mds import classical_mds, pearson_score
-from .._navigate import is_graph_walk, navigate
-from .._playback import playback
-from ..config import ConfigError
-from ..runs import save_figure_atomic, save_npz_atomic, write_json_atomic
-from ._face import FaceData, load_face
+from fxspace.config import ConfigError
+from fxspace.datasets import FaceData, load_face
+from fxspace.errors import FxspaceError
+from fxspace.expression import pearson_score
+from fxspace.navigation import navigation_space
+from fxspace.navigation._hierarchy import Hierarchy, build_hierarchy, link_graph_connected
+from fxspace.navigation._playback import playback
+from fxspace.navigation._routes import is_graph_walk, navigate
+from fxspace.runs import save_figure_atomic, save_npz_atomic, write_json_atomic
 
 __all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "run", "auto_key_centres"]
 
@@ -118,23 +117,23 @@ def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[in
 
 
 def build_space(cfg: Config, face):
-    """ε-graph, geodesics and 2-D MDS of the frames as the config says.
+    """ε-graph, geodesics and 2-D MDS of the frames as the config says (library wiring).
 
     Returns ``(P, W, geodesics, mds, connecting_threshold, ε)``; raises ``ConfigError``
-    when the configured ε leaves the graph disconnected. Shared with the viewer.
+    when the configured ε leaves the graph disconnected.
     """
-    dtype = jnp.float32 if cfg.graph.dtype == "float32" else jnp.float64
-    P = pairwise_distances(distance_features(jnp.asarray(face.positions, dtype)))
-    t_conn = float(connecting_threshold(P))
-    eps = cfg.graph.threshold or cfg.graph.threshold_factor * t_conn
-    if eps < t_conn:
-        raise ConfigError(
-            f"graph.threshold = {eps:.4g} leaves the graph disconnected; the "
-            f"smallest connecting threshold is {t_conn:.4g}"
+    try:
+        ns = navigation_space(
+            face.positions,
+            cfg.graph.threshold or None,
+            threshold_factor=cfg.graph.threshold_factor,
+            dtype=cfg.graph.dtype,
+            hierarchy=None,
         )
-    W = epsilon_graph(P, eps)
-    geo = jax.block_until_ready(geodesic_distances(W))
-    return P, W, geo, classical_mds(geo.distances, 2), t_conn, eps
+    except FxspaceError as e:
+        raise ConfigError(f"graph: {e}") from e
+    es = ns.space
+    return es.pairwise, es.graph, es.geodesics, es.mds, ns.connecting_threshold, ns.threshold
 
 
 def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bool = False):
@@ -157,7 +156,7 @@ def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bo
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    from ..plot import plot_level, plot_levels_grid, write_navigation_animation
+    from fxspace.plot import plot_level, plot_levels_grid, write_navigation_animation
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

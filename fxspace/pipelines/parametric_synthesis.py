@@ -28,11 +28,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import motion as M
-from ..config import ConfigError
-from ..data import data_path
-from ..io import Motion, read_amc, write_bvh
-from ..runs import save_figure_atomic, write_json_atomic
+from fxspace import motion as M
+from fxspace.config import ConfigError
+from fxspace.data import data_path
+from fxspace.io import Motion, read_amc, write_bvh
+from fxspace.runs import save_figure_atomic, write_json_atomic
 
 __all__ = ["Config", "run"]
 
@@ -393,7 +393,7 @@ def _timeit(f, *args, repeats=5):
 
 
 def _run_setup(name: str, cfg: Config, run_dir: Path, key) -> dict:
-    from .. import plot as P
+    from fxspace import plot as P
 
     d, sc, sy = cfg.data, cfg.space, cfg.synth
     t_pre = time.perf_counter()

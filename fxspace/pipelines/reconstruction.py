@@ -28,7 +28,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._controlpoints import (
+from fxspace.config import ConfigError
+from fxspace.controlpoints._fitting import refine_control_points
+from fxspace.controlpoints._model import (
     compression_ratio,
     edit_control_point,
     fit_control_points,
@@ -37,12 +39,10 @@ from .._controlpoints import (
     reconstruction_error,
     storage_size,
 )
-from .._fitting import refine_control_points
-from .._rbf import face_surface, rbf_deform
-from .._segment import segment_motion, segments_from_boundaries
-from ..config import ConfigError
-from ..data import data_path
-from ..runs import save_figure_atomic, save_npz_atomic
+from fxspace.controlpoints._rbf import face_surface, rbf_deform
+from fxspace.controlpoints._segment import segment_motion, segments_from_boundaries
+from fxspace.data import data_path
+from fxspace.runs import save_figure_atomic, save_npz_atomic
 
 __all__ = ["Config", "run", "PAPER"]
 
@@ -135,7 +135,7 @@ def _sweep(S, cfg: Config, key) -> list[dict]:
 
 def _gltf_source(cfg: Config, key) -> dict:
     """The same pipeline on the vertex sequence of a skinned glTF animation."""
-    from ..io import read_gltf
+    from fxspace.io import read_gltf
 
     mesh = read_gltf(data_path("mesh", f"{cfg.gltf_mesh}.glb"))
     t0, t1 = mesh.animation_range(0)
@@ -160,8 +160,8 @@ def _gltf_source(cfg: Config, key) -> dict:
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    from ..io import read_markers, write_trc
-    from ..plot import plot_control_points, plot_reconstruction_frames, plot_segmentation
+    from fxspace.io import read_markers, write_trc
+    from fxspace.plot import plot_control_points, plot_reconstruction_frames, plot_segmentation
 
     if cfg.n_frames < 3 * cfg.n_segments:
         raise ConfigError(f"n_frames={cfg.n_frames} too short for n_segments={cfg.n_segments}")

@@ -16,14 +16,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._features import distance_features, pairwise_distances
-from .._geodesic import connecting_threshold, epsilon_graph, floyd_warshall
-from .._mds import classical_mds, pearson_score
-from .._progress import progress
-from .._sweep import SweepResult, choose_threshold, sweep_message, threshold_grid, threshold_sweep
-from ..config import ConfigError
-from ..runs import cached, save_figure_atomic, save_npz_atomic
-from ._face import FaceData, load_face
+from fxspace._progress import progress
+from fxspace.config import ConfigError
+from fxspace.datasets import FaceData, load_face
+from fxspace.expression import connecting_threshold, expression_space
+from fxspace.expression._features import distance_features, pairwise_distances
+from fxspace.expression._sweep import (
+    SweepResult,
+    choose_threshold,
+    sweep_message,
+    threshold_grid,
+    threshold_sweep,
+)
+from fxspace.runs import cached, save_figure_atomic, save_npz_atomic
 
 __all__ = ["Config", "GraphConfig", "SelectConfig", "run", "SEED_PAPER_R"]
 
@@ -72,7 +77,9 @@ class Config:
             raise ConfigError("dim must be >= 1")
 
 
-def _sweep_chunks(P, thresholds, cfg: GraphConfig, run_dir: Path) -> tuple[SweepResult, float]:
+def _sweep_chunks(
+    P, thresholds, cfg: GraphConfig, run_dir: Path, dim: int = 2
+) -> tuple[SweepResult, float]:
     """Sweep in chunks; each finished chunk is cached in the run folder (resume)."""
     bs = cfg.batch_size
     chunks = [thresholds[i : i + bs] for i in range(0, len(thresholds), bs)]
@@ -84,7 +91,7 @@ def _sweep_chunks(P, thresholds, cfg: GraphConfig, run_dir: Path) -> tuple[Sweep
         def compute(th=th):
             nonlocal t_compute
             t0 = time.perf_counter()
-            sw = threshold_sweep(P, np.asarray(th), batch_size=None if bs == 1 else bs)
+            sw = threshold_sweep(P, np.asarray(th), dim=dim, batch_size=None if bs == 1 else bs)
             jax.block_until_ready(sw.scores)
             t_compute += time.perf_counter() - t0
             return {f: np.asarray(v) for f, v in sw._asdict().items() if f != "num_frames"}
@@ -100,7 +107,7 @@ def _sweep_chunks(P, thresholds, cfg: GraphConfig, run_dir: Path) -> tuple[Sweep
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    from ..plot import plot_embedding_panels, plot_sweep
+    from fxspace.plot import plot_embedding_panels, plot_sweep
 
     timings = {}
     t0 = time.perf_counter()
@@ -122,7 +129,7 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         )
 
     t0 = time.perf_counter()
-    sw, t_compute = _sweep_chunks(P, th, cfg.graph, run_dir)
+    sw, t_compute = _sweep_chunks(P, th, cfg.graph, run_dir, cfg.dim)
     timings["sweep_s"] = time.perf_counter() - t0
     timings["sweep_compute_s"] = t_compute
 
@@ -137,9 +144,8 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         raise ConfigError(chosen["error"] + f" ({sweep_message(sw, P)})")
 
     t0 = time.perf_counter()
-    D = floyd_warshall(epsilon_graph(P, chosen["threshold"]))
-    mds = classical_mds(D, cfg.dim)
-    r = float(pearson_score(D, mds.embedding))
+    es = expression_space(None, chosen["threshold"], cfg.dim, pairwise=P, paths=False)
+    D, mds, r = es.geodesics.distances, es.mds, float(es.score)
     timings["final_space_s"] = time.perf_counter() - t0
 
     Y = np.asarray(mds.embedding)
@@ -177,8 +183,8 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     for crit, ch in choices.items():
         if crit == cfg.select.criterion or "threshold" not in ch:
             continue
-        D_c = floyd_warshall(epsilon_graph(P, ch["threshold"]))
-        Yc = np.asarray(classical_mds(D_c, cfg.dim).embedding)
+        es_c = expression_space(None, ch["threshold"], cfg.dim, pairwise=P, paths=False)
+        Yc = np.asarray(es_c.embedding)
         save_figure_atomic(
             plot_embedding_panels(
                 Yc,

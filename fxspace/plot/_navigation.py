@@ -188,7 +188,7 @@ def write_navigation_animation(
     from matplotlib import animation
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-    from ..runs import write_bytes_atomic
+    from fxspace.runs import write_bytes_atomic
 
     path = Path(path)
     if path.suffix == ".mp4" and shutil.which("ffmpeg") is None:

@@ -1,0 +1,363 @@
+"""Fused lasso signal approximator (FLSA) along time, vmapped over channels.
+
+For each channel ``y ∈ R^T`` the FLSA is
+
+    b* = argmin_b ½‖y − b‖² + λ₁‖b‖₁ + λ₂ Σ_t |b_t − b_{t−1}|        (Tibshirani et al. 2005)
+
+and, by Friedman, Hastie, Höfling & Tibshirani (2007, Prop. 1), ``b* = soft(TV_λ₂(y), λ₁)``:
+the 1-D total-variation prox followed by soft-thresholding. Two solvers of the TV prox:
+
+* ``method="direct"`` (default): Condat's direct algorithm (L. Condat, "A direct algorithm
+  for 1D total variation denoising", IEEE SPL 2013): exact in a finite number of steps
+  (O(T) typically, O(T²) worst case), run as one ``lax.while_loop`` whose body is written
+  for a batch of channels (every channel advances one event per step), so vmapping over
+  channels never pays the batched-``while_loop`` ``select`` over the whole output.
+* ``method="dual"``: the box-constrained dual solved by jaxopt's accelerated
+  ``ProjectedGradient`` (behind ``fxspace/controlpoints/_jaxopt_adapter.py``).
+  Converges at O(1/k²); it
+  needs thousands of steps for a 1e-6 objective gap at T=150 and is kept as the
+  jaxopt-based alternative the issue asked for (and to cross-check the direct solver).
+
+Differentiation (w.r.t. ``y``, ``λ₁``, ``λ₂``): the FLSA solution is piecewise linear in
+its inputs. With the fused groups ``G`` (maximal runs of equal TV values) fixed, the TV
+value of group ``G`` is ``mean_G(y) + λ₂ a_G/|G|`` (``a_G`` from the jump signs at its
+ends), and soft-thresholding is linear off its kink. So the Jacobian is "average over the
+fused group, then mask by ``|b| > λ₁``" — exact almost everywhere and O(T) to apply; it is
+implemented as a ``jax.custom_vjp`` (no unrolling of the solver).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Literal, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from fxspace.errors import FxspaceError
+
+__all__ = ["fused_lasso", "fused_lasso_solve", "flsa_objective", "tv_denoise", "FusedLassoResult"]
+
+
+class FusedLassoResult(NamedTuple):
+    """Result of :func:`fused_lasso_solve`.
+
+    **Fields:** ``solution`` (same shape as ``Y``), ``objective`` (per channel, the FLSA
+    objective at the solution), ``num_steps`` (solver steps: events of the direct
+    algorithm, or dual iterations), ``converged`` (bool).
+    """
+
+    solution: Float[Array, "T ..."]
+    objective: Float[Array, ...]
+    num_steps: Array
+    converged: Array
+
+
+# ----------------------------------------------------------------------------------------
+# Condat's direct algorithm, batched over channels
+
+
+def _condat_batched(
+    y: Float[Array, "C T"], lam: Float[Array, " C"], max_steps: int
+) -> tuple[Float[Array, "C T"], Bool[Array, "C T"], Array, Array]:
+    """TV prox of each row of ``y``; returns (x, group starts, num_steps, converged)."""
+    C, T = y.shape
+    dtype = y.dtype
+    rows = jnp.arange(C)
+    izero = jnp.zeros((C,), jnp.int32)
+    lam = lam.astype(dtype)
+    y0 = y[:, 0]
+
+    yflat = y.reshape(-1)
+    base = rows * T
+
+    def gather(idx):  # y[c, idx[c]] as a 1-D gather (cheaper than a 2-D one on CPU)
+        return yflat[base + jnp.clip(idx, 0, T - 1)]
+
+    state = dict(
+        k=izero, k0=izero, km=izero, kp=izero,
+        umin=lam, umax=-lam, vmin=y0 - lam, vmax=y0 + lam,
+        done=jnp.zeros((C,), bool),
+        # value of each finalised run at its first index, NaN elsewhere (one flat array,
+        # one scatter per step; index C*T is a dump slot for channels that write nothing)
+        vals=jnp.full((C * T + 1,), jnp.nan, dtype),
+        step=jnp.int32(0),
+    )  # fmt: skip
+
+    def cond(s):
+        return jnp.logical_and(~jnp.all(s["done"]), s["step"] < max_steps)
+
+    def body(s):
+        k, k0, km, kp = s["k"], s["k0"], s["km"], s["kp"]
+        umin, umax, vmin, vmax = s["umin"], s["umax"], s["vmin"], s["vmax"]
+        done = s["done"]
+        at_end = k == T - 1
+
+        # --- branch A: k == T-1 (the `while (k == width-1)` block of Condat's code)
+        a1 = at_end & (umin < 0)
+        a2 = at_end & ~a1 & (umax > 0)
+        a3 = at_end & ~a1 & ~a2
+        # --- branch B: look at y[k+1]
+        yk1 = gather(k + 1)
+        umin_t = umin + yk1 - vmin
+        umax_t = umax + yk1 - vmax
+        b1 = ~at_end & (umin_t < -lam)
+        b2 = ~at_end & ~b1 & (umax_t > lam)
+        b3 = ~at_end & ~b1 & ~b2
+
+        neg = a1 | b1  # finalise [k0, km] at vmin
+        pos = a2 | b2  # finalise [k0, kp] at vmax
+        # value written for the finalised run (a3: the last run)
+        v_last = vmin + umin / (k - k0 + 1).astype(dtype)
+        val = jnp.where(neg, vmin, jnp.where(pos, vmax, v_last))
+        write = (neg | pos | a3) & ~done
+        vals = s["vals"].at[jnp.where(write, base + k0, C * T)].set(val)
+
+        new_k0 = jnp.where(neg, km + 1, jnp.where(pos, kp + 1, k0))
+        y_new = gather(new_k0)
+
+        # neg jump
+        n_vmin_a, n_umin_a = y_new, lam
+        n_umax_a = y_new + lam - vmax
+        n_vmin_b, n_vmax_b = y_new, y_new + 2 * lam
+        # pos jump
+        p_vmax_a, p_umax_a = y_new, -lam
+        p_umin_a = y_new - lam - vmin
+        p_vmax_b, p_vmin_b = y_new, y_new - 2 * lam
+        # no jump (b3)
+        k_b3 = k + 1
+        n_b3 = (k_b3 - k0 + 1).astype(dtype)
+        upd_min = umin_t >= lam
+        upd_max = umax_t <= -lam
+        vmin_b3 = jnp.where(upd_min, vmin + (umin_t - lam) / n_b3, vmin)
+        umin_b3 = jnp.where(upd_min, lam, umin_t)
+        km_b3 = jnp.where(upd_min, k_b3, km)
+        vmax_b3 = jnp.where(upd_max, vmax + (umax_t + lam) / n_b3, vmax)
+        umax_b3 = jnp.where(upd_max, -lam, umax_t)
+        kp_b3 = jnp.where(upd_max, k_b3, kp)
+
+        def pick(a1v, a2v, a3v, b1v, b2v, b3v):
+            out = jnp.where(a1, a1v, jnp.where(a2, a2v, a3v))
+            out = jnp.where(b1, b1v, out)
+            out = jnp.where(b2, b2v, out)
+            out = jnp.where(b3, b3v, out)
+            return out
+
+        nk = pick(new_k0, new_k0, k, new_k0, new_k0, k_b3)
+        nkm = pick(new_k0, km, km, new_k0, new_k0, km_b3)
+        nkp = pick(kp, new_k0, kp, new_k0, new_k0, kp_b3)
+        nvmin = pick(n_vmin_a, vmin, vmin, n_vmin_b, p_vmin_b, vmin_b3)
+        nvmax = pick(vmax, p_vmax_a, vmax, n_vmax_b, p_vmax_b, vmax_b3)
+        numin = pick(n_umin_a, p_umin_a, umin, lam, lam, umin_b3)
+        numax = pick(n_umax_a, p_umax_a, umax, -lam, -lam, umax_b3)
+
+        def keep(new, old):
+            return jnp.where(done, old, new)
+
+        return dict(
+            k=keep(nk, k), k0=keep(new_k0, k0), km=keep(nkm, km), kp=keep(nkp, kp),
+            umin=keep(numin, umin), umax=keep(numax, umax),
+            vmin=keep(nvmin, vmin), vmax=keep(nvmax, vmax),
+            done=done | a3, vals=vals, step=s["step"] + 1,
+        )  # fmt: skip
+
+    s = lax.while_loop(cond, body, state)
+    vals = s["vals"][: C * T].reshape(C, T)
+    starts = ~jnp.isnan(vals)
+    idx = jnp.arange(T, dtype=jnp.int32)
+    last = lax.cummax(jnp.where(starts, idx, 0), axis=1)
+    x = jnp.take_along_axis(vals, last, axis=1)
+    return x, starts, s["step"], jnp.all(s["done"])
+
+
+# ----------------------------------------------------------------------------------------
+# Differentiable TV prox on (T, C) arrays
+
+
+def _group_mean(g: Float[Array, "T C"], starts: Bool[Array, "T C"]) -> Float[Array, "T C"]:
+    """Mean of ``g`` over each fused group (maximal run starting at a True of ``starts``)."""
+    T = g.shape[0]
+    idx = jnp.arange(T, dtype=jnp.int32)[:, None]
+    s = lax.cummax(jnp.where(starts, idx, 0), axis=0)  # first index of the group
+    nxt = jnp.concatenate([starts[1:], jnp.ones_like(starts[:1])], axis=0)  # t is a group end
+    e = lax.cummin(jnp.where(nxt, idx, T - 1), axis=0, reverse=True)  # last index
+    cs = jnp.concatenate([jnp.zeros_like(g[:1]), jnp.cumsum(g, axis=0)], axis=0)
+    tot = jnp.take_along_axis(cs, e + 1, axis=0) - jnp.take_along_axis(cs, s, axis=0)
+    return tot / (e - s + 1).astype(g.dtype)
+
+
+_CHUNK = 256  # channels per while_loop: keeps the loop state in cache (measured ~2x faster)
+
+
+def _condat_chunked(y: Float[Array, "C T"], lam: Float[Array, " C"], max_steps: int):
+    C, T = y.shape
+    if C <= _CHUNK:
+        return _condat_batched(y, lam, max_steps)
+    n = -(-C // _CHUNK)
+    pad = n * _CHUNK - C
+    yp = jnp.pad(y, ((0, pad), (0, 0))).reshape(n, _CHUNK, T)
+    lp = jnp.pad(lam, (0, pad)).reshape(n, _CHUNK)
+    x, starts, steps, conv = lax.map(lambda a: _condat_batched(a[0], a[1], max_steps), (yp, lp))
+    x = x.reshape(n * _CHUNK, T)[:C]
+    starts = starts.reshape(n * _CHUNK, T)[:C]
+    return x, starts, jnp.max(steps), jnp.all(conv)
+
+
+def _tv_solve(y, lam, method, max_steps):
+    if method == "direct":
+        x, starts, steps, conv = _condat_chunked(y.T, lam, max_steps)
+        return x.T, starts.T, steps, conv
+    from fxspace.controlpoints._jaxopt_adapter import tv_dual_projected_gradient
+
+    sol = tv_dual_projected_gradient(y, lam, maxiter=max_steps)
+    x = sol.primal
+    scale = jnp.maximum(jnp.max(jnp.abs(y), axis=0), 1.0)
+    jump = jnp.abs(jnp.diff(x, axis=0)) > 1e-7 * scale[None, :]
+    starts = jnp.concatenate([jnp.ones_like(jump[:1]), jump], axis=0)
+    return x, starts, sol.num_steps, sol.error < 1e-8
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def _tv(y, lam, method, max_steps):
+    x, _, steps, conv = _tv_solve(y, lam, method, max_steps)
+    return x, steps, conv
+
+
+def _tv_fwd(y, lam, method, max_steps):
+    x, starts, steps, conv = _tv_solve(y, lam, method, max_steps)
+    return (x, steps, conv), (x, starts, y, lam)
+
+
+def _tv_bwd(method, max_steps, res, cts):
+    x, starts, y, lam = res
+    gx = cts[0]
+    gy = _group_mean(gx, starts)
+    # x_G = mean_G(y) + λ a_G/|G|  ⇒  ∂x_t/∂λ = (x_t − mean_G(y)) / λ
+    lb = lam[None, :]
+    dxdl = jnp.where(lb > 0, (x - _group_mean(y, starts)) / jnp.where(lb > 0, lb, 1.0), 0.0)
+    glam = jnp.sum(gx * dxdl, axis=0)
+    return gy, glam
+
+
+_tv.defvjp(_tv_fwd, _tv_bwd)
+
+
+def _soft(x, t):
+    return jnp.sign(x) * jnp.maximum(jnp.abs(x) - t, 0.0)
+
+
+@partial(jax.jit, static_argnums=(3, 4))
+def _flsa_core(y2, l1, l2, method, max_steps):
+    if y2.shape[0] == 1:
+        x, steps, conv = y2, jnp.int32(0), jnp.bool_(True)
+    else:
+        x, steps, conv = _tv(y2, l2, method, max_steps)
+    b = _soft(x, l1[None, :])
+    return b, flsa_objective(y2, b, l1, l2), steps, conv
+
+
+# ----------------------------------------------------------------------------------------
+# Public API
+
+
+def _prepare(Y, lam_l1, lam_tv):
+    Y = jnp.asarray(Y)
+    if Y.ndim < 1:
+        raise FxspaceError(f"Y must have a time axis (axis 0); got a scalar of shape {Y.shape}")
+    if not jnp.issubdtype(Y.dtype, jnp.floating):
+        Y = Y.astype(jnp.result_type(float))
+    if Y.shape[0] < 1:
+        raise FxspaceError("Y has no frames (axis 0 has length 0)")
+    chan = Y.shape[1:]
+    try:
+        l1 = jnp.broadcast_to(jnp.asarray(lam_l1, Y.dtype), chan)
+        l2 = jnp.broadcast_to(jnp.asarray(lam_tv, Y.dtype), chan)
+    except ValueError as e:
+        raise FxspaceError(
+            f"lam_l1 (shape {jnp.shape(lam_l1)}) and lam_tv (shape {jnp.shape(lam_tv)}) must "
+            f"broadcast to the channel shape Y.shape[1:] = {chan}"
+        ) from e
+    try:
+        y_np, l1_np, l2_np = np.asarray(Y), np.asarray(l1), np.asarray(l2)
+    except jax.errors.TracerArrayConversionError:
+        pass  # under jit/vmap: values are not checked (kernels assume)
+    else:
+        if not np.all(np.isfinite(y_np)):
+            raise FxspaceError("Y contains NaN/inf; fill or drop missing samples first")
+        if np.any(l1_np < 0) or np.any(l2_np < 0):
+            raise FxspaceError("lam_l1 and lam_tv must be >= 0")
+    T = Y.shape[0]
+    return Y.reshape(T, -1), l1.reshape(-1), l2.reshape(-1), chan
+
+
+def flsa_objective(
+    Y: Float[ArrayLike, "T ..."], B: Float[ArrayLike, "T ..."], lam_l1, lam_tv
+) -> Float[Array, ...]:
+    """FLSA objective ``½‖y − b‖² + λ₁‖b‖₁ + λ₂ Σ|b_t − b_{t−1}|`` per channel."""
+    Y, B = jnp.asarray(Y), jnp.asarray(B)
+    return (
+        0.5 * jnp.sum((Y - B) ** 2, axis=0)
+        + lam_l1 * jnp.sum(jnp.abs(B), axis=0)
+        + lam_tv * jnp.sum(jnp.abs(jnp.diff(B, axis=0)), axis=0)
+    )
+
+
+def fused_lasso_solve(
+    Y: Float[ArrayLike, "T ..."],
+    lam_l1: Float[ArrayLike, ...] = 0.0,
+    lam_tv: Float[ArrayLike, ...] = 1.0,
+    *,
+    method: Literal["direct", "dual"] = "direct",
+    max_steps: int | None = None,
+) -> FusedLassoResult:
+    """Fused lasso signal approximator along axis 0, with solver diagnostics.
+
+    Solves, independently for every channel (all axes but the first),
+    ``min_b ½‖y − b‖² + λ₁‖b‖₁ + λ₂ Σ_t |b_t − b_{t−1}|`` as ``soft(TV_λ₂(y), λ₁)``
+    (Friedman et al. 2007). See the module docstring for the solvers and the derivative.
+
+    **Arguments:**
+
+    - `Y`: ``(T, ...)`` signals, time first; finite values only.
+    - `lam_l1`, `lam_tv`: λ₁ ≥ 0 and λ₂ ≥ 0, scalars or broadcastable to ``Y.shape[1:]``
+      (so a λ grid can be solved in one call by stacking channels).
+    - `method`: ``"direct"`` (exact, default) or ``"dual"`` (jaxopt projected gradient).
+    - `max_steps`: bound on solver steps (default ``4T² + 64`` for ``direct``, which is
+      never reached in practice, ``20000`` for ``dual``).
+
+    **Returns:** :class:`FusedLassoResult`. Cost: O(C·T) per step, typically O(T) steps for
+    the direct solver; memory O(C·T).
+    """
+    if method not in ("direct", "dual"):
+        raise FxspaceError(f"method must be 'direct' or 'dual', got {method!r}")
+    y2, l1, l2, chan = _prepare(Y, lam_l1, lam_tv)
+    T = y2.shape[0]
+    if max_steps is None:
+        max_steps = 4 * T * T + 64 if method == "direct" else 20000
+    b, obj, steps, conv = _flsa_core(y2, l1, l2, method, int(max_steps))
+    return FusedLassoResult(b.reshape((T, *chan)), obj.reshape(chan), steps, conv)
+
+
+def fused_lasso(
+    Y: Float[ArrayLike, "T ..."],
+    lam_l1: Float[ArrayLike, ...] = 0.0,
+    lam_tv: Float[ArrayLike, ...] = 1.0,
+    *,
+    method: Literal["direct", "dual"] = "direct",
+) -> Float[Array, "T ..."]:
+    """Fused lasso along time (axis 0), vmapped over the other axes; returns the fit ``b*``.
+
+    ``b* = argmin_b ½‖y − b‖² + λ₁‖b‖₁ + λ₂ Σ_t |b_t − b_{t−1}|`` per channel. Exact
+    (Condat's direct TV algorithm + soft-threshold) by default; differentiable w.r.t.
+    ``Y``, ``lam_l1`` and ``lam_tv`` through the fused-group Jacobian (custom VJP). See
+    :func:`fused_lasso_solve` for the arguments and diagnostics.
+    """
+    return fused_lasso_solve(Y, lam_l1, lam_tv, method=method).solution
+
+
+def tv_denoise(Y: Float[ArrayLike, "T ..."], lam: Float[ArrayLike, ...]) -> Float[Array, "T ..."]:
+    """1-D total-variation denoising along axis 0 (the FLSA with λ₁ = 0)."""
+    return fused_lasso(Y, 0.0, lam)

@@ -1,0 +1,49 @@
+"""Expression space (Kim & Jung): marker features → ε-graph → geodesics → classical MDS →
+Pearson r, and threshold sweeps over that one chain.
+"""
+
+from fxspace.expression._features import clean_frames as clean_frames
+from fxspace.expression._features import distance_features as distance_features
+from fxspace.expression._features import pairwise_distances as pairwise_distances
+from fxspace.expression._geodesic import Geodesics as Geodesics
+from fxspace.expression._geodesic import check_connected as check_connected
+from fxspace.expression._geodesic import connected_components as connected_components
+from fxspace.expression._geodesic import connecting_threshold as connecting_threshold
+from fxspace.expression._geodesic import epsilon_graph as epsilon_graph
+from fxspace.expression._geodesic import floyd_warshall as floyd_warshall
+from fxspace.expression._geodesic import geodesic_distances as geodesic_distances
+from fxspace.expression._geodesic import next_hops as next_hops
+from fxspace.expression._geodesic import shortest_path as shortest_path
+from fxspace.expression._mds import MDSResult as MDSResult
+from fxspace.expression._mds import classical_mds as classical_mds
+from fxspace.expression._mds import pearson_score as pearson_score
+from fxspace.expression._space import ExpressionSpace as ExpressionSpace
+from fxspace.expression._space import expression_space as expression_space
+from fxspace.expression._sweep import SweepResult as SweepResult
+from fxspace.expression._sweep import choose_threshold as choose_threshold
+from fxspace.expression._sweep import threshold_grid as threshold_grid
+from fxspace.expression._sweep import threshold_sweep as threshold_sweep
+
+__all__ = [
+    "ExpressionSpace",
+    "expression_space",
+    "clean_frames",
+    "distance_features",
+    "pairwise_distances",
+    "Geodesics",
+    "check_connected",
+    "connected_components",
+    "connecting_threshold",
+    "epsilon_graph",
+    "floyd_warshall",
+    "geodesic_distances",
+    "next_hops",
+    "shortest_path",
+    "MDSResult",
+    "classical_mds",
+    "pearson_score",
+    "SweepResult",
+    "choose_threshold",
+    "threshold_grid",
+    "threshold_sweep",
+]

@@ -1,0 +1,379 @@
+"""Neighbourhood graph and geodesic distances (Kim & Jung, §3.2; Floyd 1962).
+
+The ε-graph links two frames when their state distance is at most ε. Geodesic
+distances are the all-pairs shortest paths of that graph, computed with the min-plus
+Floyd–Warshall recurrence
+
+    D⁽ᵏ⁾[i, j] = min(D⁽ᵏ⁻¹⁾[i, j], D⁽ᵏ⁻¹⁾[i, k] + D⁽ᵏ⁻¹⁾[k, j]),
+
+either one pivot at a time (``lax.scan``, memory-bound past ~1000 frames) or in the
+three-phase blocked form (Venkataraman et al. 2003): close the diagonal tile, update its
+row and column panels, then update the whole matrix with one min-plus product of the
+panels. Both are O(T³) work and branch-free, so a whole threshold sweep is one ``vmap``.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from fxspace.errors import DisconnectedGraphError, FxspaceError
+
+__all__ = [
+    "Geodesics",
+    "epsilon_graph",
+    "floyd_warshall",
+    "geodesic_distances",
+    "next_hops",
+    "shortest_path",
+    "connected_components",
+    "connecting_threshold",
+    "check_connected",
+]
+
+_BLOCK = 64
+
+
+def _pick_block(n: int, parts: int) -> int:
+    """Tile size in 40…80 (multiples of 8) that pads ``n`` least for ``parts`` row slabs;
+    ties go to the size nearest 64 (padding is pure waste in an O(n³) loop)."""
+    cands = range(40, 81, 8)
+    return min(cands, key=lambda b: (-(-n // (b * parts)) * b * parts, abs(b - _BLOCK), b))
+
+
+_BLOCKED_FROM = 256
+
+
+class Geodesics(NamedTuple):
+    """All-pairs shortest paths.
+
+    - `distances`: ``(T, T)`` geodesic distances, ``inf`` between unreachable frames.
+    - `next_hop`: ``(T, T)`` int32; ``next_hop[i, j]`` is the frame after ``i`` on a
+      shortest path to ``j`` (``next_hop[i, i] = i``; ``-1`` when ``j`` is unreachable).
+    """
+
+    distances: Float[Array, "n n"]
+    next_hop: Int[Array, "n n"]
+
+
+def epsilon_graph(pairwise: Float[Array, "n n"], threshold: float | Array) -> Float[Array, "n n"]:
+    """ε-neighbour graph: ``W[i,j] = P[i,j]`` if ``P[i,j] ≤ ε`` else ``inf``; ``W[i,i] = 0``."""
+    P = jnp.asarray(pairwise)
+    if P.ndim != 2 or P.shape[0] != P.shape[1]:
+        raise FxspaceError(f"pairwise must be a square (n, n) matrix, got shape {P.shape}")
+    W = jnp.where(P <= threshold, P, jnp.inf)
+    return jnp.where(jnp.eye(P.shape[0], dtype=bool), jnp.zeros((), P.dtype), W)
+
+
+def _minplus(A: Array, B: Array) -> Array:
+    """Min-plus product ``C[i,j] = min_k A[i,k] + B[k,j]``.
+
+    XLA fuses the broadcast add into one reduction, vectorised along ``j`` (reducing
+    over the middle axis measured ~25 % less CPU time than over the last one).
+    """
+    return jnp.min(A[:, :, None] + B[None, :, :], axis=1)
+
+
+def _minplus_update(D: Array, C: Array, R: Array, rb: int) -> Array:
+    """``min(D, C ⊗ R)`` for a tall ``D`` (rows a multiple of ``rb``), cache-friendly.
+
+    Streams the ``k`` index over blocks of ``rb`` rows, so each row block of ``D`` stays
+    in cache while the pivot rows ``R[k]`` are broadcast-added — plain vector code,
+    ~20–30 % less CPU time than one fused ``(n, b, n)`` reduction.
+    """
+    n, m = D.shape
+    b = C.shape[1]
+
+    def blk(args):
+        d, c = args
+
+        def body(k, d):
+            return jnp.minimum(d, c[:, k, None] + R[k][None, :])
+
+        return jax.lax.fori_loop(0, b, body, d, unroll=8)
+
+    out = jax.lax.map(blk, (D.reshape(n // rb, rb, m), C.reshape(n // rb, rb, b)))
+    return out.reshape(n, m)
+
+
+def _floyd_scan(W: Array) -> Array:
+    def step(D, k):
+        row = jax.lax.dynamic_slice_in_dim(D, k, 1, axis=0)
+        col = jax.lax.dynamic_slice_in_dim(D, k, 1, axis=1)
+        return jnp.minimum(D, col + row), None
+
+    D, _ = jax.lax.scan(step, W, jnp.arange(W.shape[0]))
+    return D
+
+
+def _floyd_blocked(W: Array, block: int) -> Array:
+    n = W.shape[0]
+    nb = -(-n // block)
+    m = nb * block
+    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
+    idx = jnp.arange(n, m)
+    D = D.at[idx, idx].set(0)
+
+    def phase(kb, D):
+        s = kb * block
+        dkk = _floyd_scan(jax.lax.dynamic_slice(D, (s, s), (block, block)))
+        R = jax.lax.dynamic_slice(D, (s, 0), (block, m))
+        C = jax.lax.dynamic_slice(D, (0, s), (m, block))
+        R = jnp.minimum(R, _minplus(dkk, R))
+        C = jnp.minimum(C, _minplus(C, dkk))
+        return _minplus_update(D, C, R, block)
+
+    D = jax.lax.fori_loop(0, nb, phase, D)
+    return D[:n, :n]
+
+
+def _floyd_sharded(W: Array, block: int) -> Array:
+    """Blocked Floyd with the rows split across all local devices (``shard_map``).
+
+    Each device owns a slab of rows; per pivot block the ``block`` pivot rows are
+    broadcast (a masked ``psum``), every device closes the diagonal tile and updates the
+    row panel redundantly, then updates its own slab. On a CPU started with
+    ``--xla_force_host_platform_device_count=N`` (the ``fxspace`` command does this) each
+    device is one core, so the O(n³) work runs on all cores. Opt-in (``method="sharded"``):
+    XLA:CPU aborts a collective whose participants arrive more than 40 s apart, so
+    nothing shards automatically.
+    """
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as Ps
+
+    devs = jax.devices()
+    nd = len(devs)
+    n = W.shape[0]
+    unit = block * nd
+    m = -(-n // unit) * unit
+    rows = m // nd
+    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
+    idx = jnp.arange(n, m)
+    D = D.at[idx, idx].set(0)
+    mesh = Mesh(np.array(devs), ("rows",))
+
+    def slab(Dl):
+        me = jax.lax.axis_index("rows")
+
+        def phase(kb, Dl):
+            s = kb * block
+            owner = s // rows
+            mine = jax.lax.dynamic_slice(Dl, (s - owner * rows, 0), (block, m))
+            R = jax.lax.psum(jnp.where(me == owner, mine, jnp.zeros_like(mine)), "rows")
+            dkk = _floyd_scan(jax.lax.dynamic_slice(R, (0, s), (block, block)))
+            R = jnp.minimum(R, _minplus(dkk, R))
+            C = jax.lax.dynamic_slice(Dl, (0, s), (rows, block))
+            C = jnp.minimum(C, _minplus(C, dkk))
+            return _minplus_update(Dl, C, R, block)
+
+        return jax.lax.fori_loop(0, m // block, phase, Dl)
+
+    D = jax.shard_map(
+        slab, mesh=mesh, in_specs=Ps("rows", None), out_specs=Ps("rows", None), check_vma=False
+    )(D)
+    return D[:n, :n]
+
+
+@partial(jax.jit, static_argnames=("method", "block"))
+def floyd_warshall(
+    graph: Float[Array, "n n"], method: str = "auto", block: int | None = None
+) -> Float[Array, "n n"]:
+    """Geodesic distances only (no next-hop matrix): min-plus Floyd–Warshall.
+
+    **Arguments:**
+    - `graph`: ``(n, n)`` edge weights, ``inf`` for no edge, 0 on the diagonal.
+    - `method`: ``"scan"`` (one pivot per ``lax.scan`` step), ``"blocked"`` (three-phase
+      tiled, cache-friendly), ``"sharded"`` (blocked, rows split over all local devices;
+      opt-in, the result stays sharded over the devices) or ``"auto"`` (blocked from 256
+      vertices on, else scan).
+    - `block`: tile size of the blocked variants (default: 40–80, chosen to pad least).
+
+    O(n³) work, O(n²) memory; jit/vmap/grad compatible (the gradient of a geodesic
+    distance is the indicator of the edges on its shortest path).
+    """
+    W = jnp.asarray(graph)
+    if method == "auto":
+        method = "blocked" if W.shape[0] >= _BLOCKED_FROM else "scan"
+    if method == "scan":
+        return _floyd_scan(W)
+    if method == "blocked":
+        return _floyd_blocked(W, block or _pick_block(W.shape[0], 1))
+    if method == "sharded":
+        return _floyd_sharded(W, block or _pick_block(W.shape[0], jax.device_count()))
+    raise FxspaceError(f"method must be 'auto', 'scan', 'blocked' or 'sharded', got {method!r}")
+
+
+@partial(jax.jit, static_argnames=("max_degree", "chunk"))
+def next_hops(
+    graph: Float[Array, "n n"],
+    distances: Float[Array, "n n"],
+    max_degree: int | None = None,
+    chunk: int = 64,
+) -> Int[Array, "n n"]:
+    """Next-hop matrix from geodesic distances: ``nxt[i, j] = argmin_k W[i,k] + D[k,j]``.
+
+    The first step of a shortest path ``i → j`` is a neighbour ``k`` of ``i`` attaining the
+    Bellman equation ``D[i,j] = min_k W[i,k] + D[k,j]`` (k ≠ i). The search streams over
+    candidate neighbours ``k`` (a ``fori_loop`` keeping the running minimum and its index
+    for a block of ``chunk`` rows, cache-resident), O(n²·K) for ``K = max_degree`` nearest
+    neighbours per vertex, or O(n³) over all vertices when ``max_degree`` is ``None``.
+    """
+    W = jnp.asarray(graph)
+    D = jnp.asarray(distances)
+    n = W.shape[0]
+    Woff = jnp.where(jnp.eye(n, dtype=bool), jnp.inf, W)
+    K = n if max_degree is None else min(max_degree, n)
+    if K < n:
+        nbr = jnp.argsort(Woff, axis=1)[:, :K].astype(jnp.int32)
+    else:
+        nbr = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (n, n))
+    wn = jnp.take_along_axis(Woff, nbr, axis=1)
+    chunk = min(chunk, n)
+    pad = (-n) % chunk
+    nbr_p = jnp.pad(nbr, ((0, pad), (0, 0)))
+    wn_p = jnp.pad(wn, ((0, pad), (0, 0)), constant_values=jnp.inf)
+
+    def rows(args):
+        nb, w = args  # (chunk, K)
+
+        def body(k, st):
+            best, arg = st
+            val = w[:, k, None] + D[nb[:, k]]  # (chunk, n)
+            better = val < best
+            return jnp.where(better, val, best), jnp.where(better, nb[:, k, None], arg)
+
+        init = (jnp.full((chunk, n), jnp.inf, D.dtype), jnp.full((chunk, n), -1, jnp.int32))
+        return jax.lax.fori_loop(0, K, body, init)[1]
+
+    out = jax.lax.map(rows, (nbr_p.reshape(-1, chunk, K), wn_p.reshape(-1, chunk, K)))
+    nxt = out.reshape(-1, n)[:n]
+    nxt = jnp.where(jnp.isfinite(D), nxt, -1)
+    return jnp.where(jnp.eye(n, dtype=bool), jnp.arange(n, dtype=jnp.int32)[:, None], nxt)
+
+
+def _static_max_degree(W: Array) -> int | None:
+    """Largest vertex degree rounded up to a multiple of 32, when W is concrete."""
+    if isinstance(W, jax.core.Tracer):
+        return None
+    deg = int(np.max(np.sum(np.isfinite(np.asarray(W)), axis=1))) - 1
+    k = max(32, -(-deg // 32) * 32)
+    return k if k < W.shape[0] else None
+
+
+def geodesic_distances(
+    graph: Float[Array, "n n"], method: str = "auto", block: int | None = None
+) -> Geodesics:
+    """All-pairs geodesic distances and the next-hop matrix that rebuilds paths.
+
+    **Arguments:**
+    - `graph`: ``(n, n)`` symmetric or directed edge weights (``inf`` = no edge, 0 diagonal),
+      e.g. from :func:`epsilon_graph`.
+    - `method`, `block`: see :func:`floyd_warshall`.
+
+    **Returns:** :class:`Geodesics`. Unreachable pairs keep ``inf`` distance and next hop
+    ``-1`` — check with :func:`check_connected` before embedding. The next-hop matrix is
+    found from the distances by :func:`next_hops` (the Bellman equation over each
+    vertex's neighbours), which stays valid under float32 ties — carrying it through the
+    Floyd recurrence does not (rounding ties made next-hop cycles on real data).
+    O(n³); jit/vmap compatible; ``jax.grad`` flows through the distances.
+    """
+    W = jnp.asarray(graph)
+    if W.ndim != 2 or W.shape[0] != W.shape[1]:
+        raise FxspaceError(f"graph must be a square (n, n) matrix, got shape {W.shape}")
+    D = floyd_warshall(W, method=method, block=block)
+    nxt = next_hops(W, jax.lax.stop_gradient(D), max_degree=_static_max_degree(W))
+    return Geodesics(D, nxt)
+
+
+def shortest_path(geo: Geodesics, i: int, j: int) -> np.ndarray:
+    """Frames of a shortest path from ``i`` to ``j`` inclusive (host-side walk of next hops)."""
+    nxt = np.asarray(geo.next_hop)
+    n = nxt.shape[0]
+    for name, v in (("i", i), ("j", j)):
+        if not (0 <= int(v) < n):
+            raise FxspaceError(f"{name}={v} is out of range for a graph of {n} frames")
+    i, j = int(i), int(j)
+    if nxt[i, j] < 0:
+        raise DisconnectedGraphError(
+            f"frame {j} is not reachable from frame {i}: the graph is disconnected at this "
+            "threshold; raise it (see connecting_threshold)"
+        )
+    path = [i]
+    while path[-1] != j:
+        path.append(int(nxt[path[-1], j]))
+        if len(path) > n:
+            raise FxspaceError(f"next-hop matrix has a cycle on the way {i} → {j}")
+    return np.asarray(path, dtype=np.int64)
+
+
+@jax.jit
+def connected_components(graph: Float[Array, "n n"]) -> tuple[Array, Int[Array, " n"]]:
+    """Connected components of an undirected graph (finite off-diagonal = edge).
+
+    Label propagation (each vertex takes the smallest label among its neighbours) until
+    nothing changes; returns ``(n_components, labels)`` with labels the smallest vertex
+    index of each component. O(n² · diameter).
+    """
+    A = jnp.isfinite(jnp.asarray(graph))
+    A = A | A.T
+    n = A.shape[0]
+    big = jnp.int32(n)
+
+    def body(state):
+        lab, _ = state
+        new = jnp.min(jnp.where(A, lab[None, :], big), axis=1)
+        new = jnp.minimum(new, lab)
+        return new, jnp.any(new != lab)
+
+    lab, _ = jax.lax.while_loop(lambda s: s[1], body, (jnp.arange(n, dtype=jnp.int32), True))
+    n_comp = jnp.sum(lab == jnp.arange(n))
+    return n_comp, lab
+
+
+@jax.jit
+def connecting_threshold(pairwise: Float[Array, "n n"]) -> Array:
+    """Smallest ε for which the ε-graph of ``pairwise`` is connected.
+
+    It is the largest edge of a minimum spanning tree (the minimax path bound), found
+    with Prim's algorithm in O(n²).
+    """
+    P = jnp.asarray(pairwise)
+    n = P.shape[0]
+    in_tree = jnp.zeros(n, bool).at[0].set(True)
+    best = P[0]
+
+    def body(_, state):
+        in_tree, best, worst = state
+        cand = jnp.where(in_tree, jnp.inf, best)
+        k = jnp.argmin(cand)
+        worst = jnp.maximum(worst, cand[k])
+        in_tree = in_tree.at[k].set(True)
+        best = jnp.minimum(best, P[k])
+        return in_tree, best, worst
+
+    _, _, worst = jax.lax.fori_loop(1, n, body, (in_tree, best, jnp.zeros((), P.dtype)))
+    return worst
+
+
+def check_connected(graph: Array, pairwise: Array | None = None) -> None:
+    """Raise :class:`DisconnectedGraphError` naming the components and the fix."""
+    n_comp, labels = connected_components(graph)
+    n_comp = int(n_comp)
+    if n_comp == 1:
+        return
+    sizes = np.bincount(np.unique(np.asarray(labels), return_inverse=True)[1])
+    msg = (
+        f"the neighbourhood graph has {n_comp} connected components "
+        f"(sizes {sorted(sizes.tolist(), reverse=True)[:10]})"
+    )
+    if pairwise is not None:
+        msg += (
+            f"; the smallest threshold that connects it is "
+            f"{float(connecting_threshold(pairwise)):.6g}"
+        )
+    raise DisconnectedGraphError(msg + ": raise the threshold or drop the isolated frames")

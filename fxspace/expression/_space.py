@@ -1,0 +1,131 @@
+"""The expression space in one call: markers → features → graph → geodesics → 2-D (Kim & Jung §3).
+
+This module is the one home of the chain; the threshold sweep maps its kernel
+:func:`embed_graph` over thresholds, and every pipeline and app builds its space through
+:func:`expression_space`.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from fxspace.expression._features import distance_features, pairwise_distances
+from fxspace.expression._geodesic import (
+    Geodesics,
+    _static_max_degree,
+    check_connected,
+    epsilon_graph,
+    floyd_warshall,
+    next_hops,
+)
+from fxspace.expression._mds import MDSResult, classical_mds, pearson_score
+
+__all__ = ["ExpressionSpace", "expression_space", "embed_graph", "GraphEmbedding"]
+
+
+class GraphEmbedding(NamedTuple):
+    """Output of :func:`embed_graph`: geodesic distances, the MDS, Pearson r, connectivity."""
+
+    distances: Float[Array, "n n"]
+    mds: MDSResult
+    score: Float[Array, ""]
+    connected: Bool[Array, ""]
+
+
+def embed_graph(
+    graph: Float[Array, "n n"],
+    dim: int = 2,
+    method: Literal["auto", "scan", "blocked", "sharded"] = "auto",
+    mds_method: Literal["auto", "eigh", "lobpcg"] = "auto",
+) -> GraphEmbedding:
+    """Geodesics (min-plus Floyd) → classical MDS → Pearson r of one ε-graph, branch-free.
+
+    The kernel of the chain, shared by :func:`expression_space` and
+    :func:`fxspace.threshold_sweep`. A disconnected graph is reported by ``connected =
+    False`` and ``score = nan`` (the MDS then runs on the finite part only, so no ``inf``
+    reaches the eigensolver). jit/vmap compatible; differentiable through the distances.
+    """
+    D = floyd_warshall(graph, method=method)
+    connected = jnp.all(jnp.isfinite(D))
+    Dc = jnp.where(jnp.isfinite(D), D, 0.0)
+    mds = classical_mds(Dc, dim=dim, method=mds_method)
+    r = pearson_score(Dc, mds.embedding)
+    nan = jnp.asarray(jnp.nan, r.dtype)
+    return GraphEmbedding(D, mds, jnp.where(connected, r, nan), connected)
+
+
+class ExpressionSpace(NamedTuple):
+    """Every stage of the expression space of one threshold.
+
+    ``geodesics.next_hop`` is ``None`` when the space was built with ``paths=False``.
+    """
+
+    features: Float[Array, "n p"] | None
+    pairwise: Float[Array, "n n"]
+    graph: Float[Array, "n n"]
+    geodesics: Geodesics
+    mds: MDSResult
+    score: Array
+    threshold: float
+
+    @property
+    def embedding(self) -> Float[Array, "n dim"]:
+        return self.mds.embedding
+
+
+def expression_space(
+    positions: Float[Array, "n markers 3"] | None,
+    threshold: float,
+    dim: int = 2,
+    features: Float[Array, "n p"] | None = None,
+    *,
+    pairwise: Float[Array, "n n"] | None = None,
+    paths: bool = True,
+    method: Literal["auto", "scan", "blocked", "sharded"] = "auto",
+    mds_method: Literal["auto", "eigh", "lobpcg"] = "auto",
+) -> ExpressionSpace:
+    """Build the expression space of marker frames at threshold ε (Kim & Jung §3).
+
+    **Arguments:**
+
+    - `positions`: ``(n, M, 3)`` marker frames (no NaN: see :func:`fxspace.clean_frames`),
+      or ``None`` when `features` or `pairwise` is given.
+    - `threshold`: ε, in the units of the state distance (mm for marker data).
+    - `dim`: embedding dimension (2 in the paper).
+    - `features`: precomputed ``(n, P)`` distance features.
+    - `pairwise`: precomputed ``(n, n)`` state distances (e.g. shared with a sweep).
+    - `paths`: also compute the next-hop matrix (needed for :func:`fxspace.shortest_path`
+      and navigation; skip it for a score or a figure).
+    - `method`, `mds_method`: Floyd and eigensolver variants.
+
+    **Returns:** an :class:`ExpressionSpace`.
+
+    **Raises:** :class:`~fxspace.errors.DisconnectedGraphError` (with the component count
+    and the smallest connecting ε) when the ε-graph is disconnected.
+
+    **Example:**
+
+    ```python
+    es = fx.expression_space(positions, 50.0)
+    es.embedding, es.score
+    ```
+    """
+    if pairwise is None:
+        F = distance_features(positions) if features is None else jnp.asarray(features)
+        P = pairwise_distances(F)
+    else:
+        F = None if features is None else jnp.asarray(features)
+        P = jnp.asarray(pairwise)
+    W = epsilon_graph(P, threshold)
+    check_connected(W, P)
+    emb = embed_graph(W, dim, method=method, mds_method=mds_method)
+    nxt = None
+    if paths:
+        D = jax.lax.stop_gradient(emb.distances)
+        nxt = next_hops(W, D, max_degree=_static_max_degree(W))
+    geo = Geodesics(emb.distances, nxt)
+    return ExpressionSpace(F, P, W, geo, emb.mds, emb.score, float(threshold))

@@ -1,0 +1,53 @@
+"""Hierarchical navigation of an expression space (Kim & Jung §3.4–3.6): fuzzy c-means
+levels, links between centres, routes refined level by level, playback.
+"""
+
+from fxspace.navigation._hierarchy import Hierarchy as Hierarchy
+from fxspace.navigation._hierarchy import Level as Level
+from fxspace.navigation._hierarchy import build_hierarchy as build_hierarchy
+from fxspace.navigation._hierarchy import center_links as center_links
+from fxspace.navigation._hierarchy import default_link_radius as default_link_radius
+from fxspace.navigation._hierarchy import level_sizes as level_sizes
+from fxspace.navigation._hierarchy import link_graph_connected as link_graph_connected
+from fxspace.navigation._hierarchy import nearest_frames as nearest_frames
+from fxspace.navigation._hierarchy import split_centers as split_centers
+from fxspace.navigation._playback import Playback as Playback
+from fxspace.navigation._playback import playback as playback
+from fxspace.navigation._playback import rigid_align as rigid_align
+from fxspace.navigation._routes import NavigationError as NavigationError
+from fxspace.navigation._routes import Route as Route
+from fxspace.navigation._routes import frame_path as frame_path
+from fxspace.navigation._routes import is_graph_walk as is_graph_walk
+from fxspace.navigation._routes import make_route as make_route
+from fxspace.navigation._routes import navigate as navigate
+from fxspace.navigation._routes import path_candidates as path_candidates
+from fxspace.navigation._routes import refine_route as refine_route
+from fxspace.navigation._space import NavigationSpace as NavigationSpace
+from fxspace.navigation._space import navigation_space as navigation_space
+from fxspace.navigation._space import resolve_threshold as resolve_threshold
+
+__all__ = [
+    "NavigationSpace",
+    "navigation_space",
+    "resolve_threshold",
+    "Hierarchy",
+    "Level",
+    "build_hierarchy",
+    "center_links",
+    "default_link_radius",
+    "level_sizes",
+    "link_graph_connected",
+    "nearest_frames",
+    "split_centers",
+    "NavigationError",
+    "Route",
+    "frame_path",
+    "is_graph_walk",
+    "make_route",
+    "navigate",
+    "path_candidates",
+    "refine_route",
+    "Playback",
+    "playback",
+    "rigid_align",
+]

@@ -1,0 +1,508 @@
+"""The hierarchy of fuzzy c-means levels over the 2-D expression space, and the links
+between centres that navigation may follow.
+
+Seed paper §4: level l has c_l = c0·2^l centres (c0 ≈ 10), up to the level that shows
+every frame (c_L = T, the number of frames); each centre is shown as its nearest
+frame. Level l+1 is warm-started from level l by *splitting* centres (LBG-style): the
+centres that contribute most to the objective are replaced by two children at
+v ± 0.8 σ r, r the principal axis of the cluster's fuzzy covariance and σ² its
+variance along r (for a Gaussian cluster the halves' centroids lie at ±0.8 σ).
+
+Two centres are *linked* when the geodesic (frame-graph) path between their frames
+passes no frame within 2-D distance ρ of any other centre; ρ defaults to half the
+median nearest-neighbour spacing of the level's centres. Should the unblocked links
+leave the level disconnected while the frame graph is connected, the cheapest
+(geodesic) link between components is added (a *bridge*) so that every centre stays
+reachable.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from fxspace.cluster._fcm import FCMResult, _sq_dists, fuzzy_cmeans
+from fxspace.errors import FxspaceError
+
+__all__ = [
+    "Level",
+    "Hierarchy",
+    "level_sizes",
+    "split_centers",
+    "nearest_frames",
+    "center_links",
+    "default_link_radius",
+    "build_hierarchy",
+    "link_graph_connected",
+]
+
+
+class Level(NamedTuple):
+    """One level of the hierarchy.
+
+    **Fields:**
+
+    - `n_clusters`: c_l.
+    - `centers`: (c, 2) FCM centres in the expression space.
+    - `memberships`: (T, c) fuzzy memberships of every frame.
+    - `center_frames`: (c,) the frame nearest each centre (how a centre is shown).
+    - `objective`, `num_steps`, `converged`: the FCM diagnostics of this level.
+    - `num_steps_cold`: iterations one cold (k-means++) start needed (-1 if not measured).
+    - `objective_cold`: its objective (nan if not measured).
+    - `links`: (c, c) symmetric bool, False on the diagonal (None if not computed).
+    - `bridges`: (c, c) bool, the subset of `links` added only to keep the level connected.
+    - `radius`: the ρ used for the links.
+    - `time_s`: wall time of this level's FCM (all starts; compilation included on a new
+      shape).
+    - `init`: the start that won: ``"split"``, ``"kmeans++-extend"``, ``"kmeans++"`` or
+      ``"frames"`` (c = T).
+    - `num_steps_split`: iterations of the split start alone (-1 when not run).
+    - `total_steps`: iterations of all starts together (the level's cost).
+    """
+
+    n_clusters: int
+    centers: np.ndarray
+    memberships: np.ndarray
+    center_frames: np.ndarray
+    objective: float
+    num_steps: int
+    converged: bool
+    num_steps_cold: int
+    objective_cold: float
+    links: np.ndarray | None
+    bridges: np.ndarray | None
+    radius: float
+    time_s: float
+    init: str = ""
+    num_steps_split: int = -1
+    total_steps: int = -1
+
+    @property
+    def labels(self) -> np.ndarray:
+        """(T,) each frame's hard cluster at this level (largest membership)."""
+        return np.argmax(self.memberships, axis=1)
+
+    def neighbours(self, k: int) -> np.ndarray:
+        """Centres linked to centre ``k``."""
+        if self.links is None:
+            raise FxspaceError("this level has no links; build the hierarchy with geodesics")
+        return np.flatnonzero(self.links[k])
+
+
+class Hierarchy(NamedTuple):
+    """All levels, coarse to fine, over one 2-D embedding."""
+
+    levels: tuple[Level, ...]
+    embedding: np.ndarray
+
+    @property
+    def sizes(self) -> tuple[int, ...]:
+        return tuple(lv.n_clusters for lv in self.levels)
+
+
+def level_sizes(n_frames: int, c0: int = 10) -> tuple[int, ...]:
+    """c0, 2c0, 4c0, … while below ``n_frames``, then ``n_frames`` (the level showing every
+    frame). The number of levels is ⌈log2(T / c0)⌉ + 1."""
+    if int(c0) < 1:
+        raise FxspaceError(f"c0 must be >= 1, got {c0}")
+    if int(n_frames) < 1:
+        raise FxspaceError(f"n_frames must be >= 1, got {n_frames}")
+    sizes = []
+    c = int(c0)
+    while c < n_frames:
+        sizes.append(c)
+        c *= 2
+    sizes.append(int(n_frames))
+    return tuple(sizes)
+
+
+@partial(jax.jit, static_argnames=("n_new", "m", "power_steps", "symmetric", "hard"))
+def _split(
+    x,
+    centers,
+    memberships,
+    n_new: int,
+    m: float,
+    alpha=0.8,
+    symmetric: bool = True,
+    power_steps: int = 8,
+    hard: bool = True,
+):
+    um = jnp.power(memberships, m)
+    if hard:
+        # FCM's memberships have heavy tails (u ~ d^-2), which inflate a fuzzy covariance;
+        # the split uses the samples each centre wins
+        um = um * (jnp.argmax(memberships, axis=1)[:, None] == jnp.arange(um.shape[1])[None, :])
+    mass = jnp.maximum(jnp.sum(um, axis=0), jnp.finfo(x.dtype).tiny)
+    d2 = _sq_dists(x, centers)
+    contribution = jnp.sum(um * d2, axis=0)
+    order = jnp.argsort(-contribution)[:n_new]
+    # power iteration for the principal axis of each cluster's fuzzy covariance,
+    # C_k r = Σ_i u_ik^m (x_i − v_k)((x_i − v_k)·r) / Σ_i u_ik^m, without (n, c, d) temporaries
+    r0 = jnp.ones_like(centers) / jnp.sqrt(centers.shape[1])
+    r0 = r0.at[:, 0].add(0.1)
+
+    def cov_times(r):
+        proj = x @ r.T - jnp.sum(centers * r, axis=1)[None, :]
+        w = um * proj
+        return (w.T @ x - centers * jnp.sum(w, axis=0)[:, None]) / mass[:, None]
+
+    def step(r, _):
+        cr = cov_times(r)
+        nrm = jnp.linalg.norm(cr, axis=1, keepdims=True)
+        return jnp.where(nrm > 0, cr / jnp.where(nrm > 0, nrm, 1.0), r), None
+
+    r, _ = jax.lax.scan(step, r0 / jnp.linalg.norm(r0, axis=1, keepdims=True), None, power_steps)
+    lam = jnp.maximum(jnp.sum(r * cov_times(r), axis=1), 0.0)
+    step = alpha * jnp.sqrt(lam)[:, None] * r
+    child = centers + step
+    if symmetric:
+        parent = centers.at[order].add(-step[order])
+    else:
+        parent = centers
+    return jnp.concatenate([parent, child[order]], axis=0)
+
+
+def split_centers(
+    x: Float[Array, "n d"],
+    centers: Float[Array, "c d"],
+    memberships: Float[Array, "n c"],
+    n_clusters: int,
+    m: float = 2.0,
+) -> Float[Array, "c2 d"]:
+    """Initial centres for a finer level: the ``n_clusters − c`` centres with the largest
+    share of the objective are each replaced by two children at v ± 0.8 σ r (r: principal
+    axis of the cluster's fuzzy covariance, by power iteration; σ²: variance along r)."""
+    c = centers.shape[0]
+    if not c <= n_clusters <= 2 * c:
+        raise FxspaceError(
+            f"n_clusters must lie in [{c}, {2 * c}] to split {c} centres, got {n_clusters}"
+        )
+    if n_clusters == c:
+        return jnp.asarray(centers)
+    return _split(
+        jnp.asarray(x), jnp.asarray(centers), jnp.asarray(memberships), n_clusters - c, float(m)
+    )
+
+
+@jax.jit
+def _nearest(x, centers):
+    return jnp.argmin(_sq_dists(centers, x), axis=1).astype(jnp.int32)
+
+
+def nearest_frames(embedding: Float[Array, "T d"], centers: Float[Array, "c d"]) -> np.ndarray:
+    """(c,) index of the frame nearest each centre (how each centre is shown)."""
+    return np.asarray(_nearest(jnp.asarray(embedding), jnp.asarray(centers)))
+
+
+def default_link_radius(points: Float[Array, "c 2"], scale: float = 0.5) -> float:
+    """ρ = ``scale`` × median nearest-neighbour distance between the centres' positions
+    (the level's spacing)."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) < 2:
+        return 0.0
+    d2 = np.sum((p[:, None, :] - p[None, :, :]) ** 2, axis=-1) if len(p) <= 512 else None
+    if d2 is None:
+        d2 = np.array(_sq_dists(jnp.asarray(p), jnp.asarray(p)))
+    np.fill_diagonal(d2, np.inf)
+    nn = np.sqrt(np.min(d2, axis=1))
+    nn = nn[np.isfinite(nn) & (nn > 0)]
+    return float(scale * np.median(nn)) if len(nn) else 0.0
+
+
+_NEAR_K = 16
+_PAIR_CHUNK = 16384
+
+
+@partial(jax.jit, static_argnames=("max_len", "chunk"))
+def _links_kernel(xy, next_hop, center_frames, iu, ju, rho, max_len: int, chunk: int):
+    """Linked flag of each pair (iu[p], ju[p]); pairs are processed ``chunk`` at a time."""
+    c = center_frames.shape[0]
+    pos = xy[center_frames]
+    kk = min(_NEAR_K, c)
+    neg, near_idx = jax.lax.top_k(-_sq_dists(xy, pos), kk)  # nearest centres of every frame
+    near_d = jnp.sqrt(jnp.maximum(-neg, 0.0))
+    # when fewer than _NEAR_K centres exist the list covers them all
+    cover = near_d[:, -1] if kk == _NEAR_K else jnp.full(xy.shape[0], jnp.inf, xy.dtype)
+
+    def seg_blocked(f, g, pi, pj, fi, fj):
+        """Does segment xy[f]→xy[g] pass within rho of a centre other than pi, pj?"""
+        a, b = xy[f], xy[g]
+        ab = b - a
+        L2 = jnp.sum(ab * ab, axis=-1)
+        ids = near_idx[f]  # (n, kk)
+        q = pos[ids]  # (n, kk, 2)
+        t = jnp.sum((q - a[:, None, :]) * ab[:, None, :], axis=-1)
+        t = t / jnp.where(L2 > 0, L2, 1.0)[:, None]
+        t = jnp.clip(t, 0.0, 1.0)
+        closest = a[:, None, :] + t[..., None] * ab[:, None, :]
+        dist = jnp.sqrt(jnp.sum(jnp.square(q - closest), axis=-1))
+        of = center_frames[ids]
+        other = (ids != pi[:, None]) & (ids != pj[:, None])
+        other &= (of != fi[:, None]) & (of != fj[:, None])
+        hit = jnp.any(other & (dist < rho), axis=1)
+        # a centre within rho of the segment lies within rho + |ab| of its start: if the
+        # near list does not reach that far it may miss one, so count the pair as blocked
+        uncovered = cover[f] <= rho + jnp.sqrt(L2)
+        return hit | uncovered
+
+    def one_chunk(args):
+        pi, pj = args
+        fi, fj = center_frames[pi], center_frames[pj]
+
+        def cond(s):
+            _, active, _, step = s
+            return jnp.any(active) & (step < max_len)
+
+        def body(s):
+            cur, active, blocked, step = s
+            nxt = next_hop[cur, fj]
+            unreachable = nxt < 0
+            nxt = jnp.where(unreachable, cur, nxt)
+            blk = blocked | (active & (unreachable | seg_blocked(cur, nxt, pi, pj, fi, fj)))
+            active = active & ~blk & (nxt != fj)
+            return jnp.where(active, nxt, cur), active, blk, step + 1
+
+        active0 = fi != fj
+        _, active, blocked, _ = jax.lax.while_loop(
+            cond, body, (fi, active0, fi == fj, jnp.asarray(0, jnp.int32))
+        )
+        return ~blocked & ~active
+
+    n = iu.shape[0]
+    pad = (-n) % chunk
+    pi = jnp.pad(iu, (0, pad)).reshape(-1, chunk)
+    pj = jnp.pad(ju, (0, pad)).reshape(-1, chunk)
+    ok = jax.lax.map(one_chunk, (pi, pj)).reshape(-1)[:n]
+    links = jnp.zeros((c, c), bool).at[iu, ju].set(ok)
+    return links | links.T
+
+
+def _components(adj: np.ndarray) -> np.ndarray:
+    n = adj.shape[0]
+    parent = np.arange(n)
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for i, j in zip(*np.nonzero(np.triu(adj, 1)), strict=True):
+        ri, rj = find(i), find(j)
+        if ri != rj:
+            parent[ri] = rj
+    return np.array([find(i) for i in range(n)])
+
+
+def center_links(
+    embedding: Float[Array, "T 2"],
+    geodesics,
+    center_frames: Int[Array, " c"],
+    rho: float,
+    *,
+    bridge: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Links between centres (seed §4): i—j when the geodesic path between their frames,
+    drawn in 2-D as the polyline through its frames, passes no other centre within ρ.
+    Pairs whose path is unreachable are never linked. Each segment is tested exactly
+    against the 16 centres nearest its start frame; a segment so long that a farther
+    centre could be within ρ counts as blocked (conservative).
+
+    With ``bridge`` the cheapest geodesic link between components is added while the
+    link graph is disconnected but the centres are reachable in the frame graph.
+
+    **Returns:** ``(links, bridges)``, both (c, c) symmetric bool with a False diagonal.
+    Vectorised over the c(c−1)/2 pairs; the walk stops when every pair is blocked or
+    arrived, so its length is that of the longest *unblocked* path.
+    """
+    cf = np.asarray(center_frames, dtype=np.int32)
+    c = len(cf)
+    if c < 2:
+        return np.zeros((c, c), bool), np.zeros((c, c), bool)
+    nh = jnp.asarray(geodesics.next_hop)
+    T = nh.shape[0]
+    iu, ju = np.triu_indices(c, 1)
+    chunk = int(min(_PAIR_CHUNK, len(iu)))
+    xy = jnp.asarray(embedding)
+    links = np.array(
+        _links_kernel(
+            xy,
+            nh,
+            jnp.asarray(cf),
+            jnp.asarray(iu, jnp.int32),
+            jnp.asarray(ju, jnp.int32),
+            jnp.asarray(rho, xy.dtype),
+            T + 1,
+            chunk,
+        )
+    )
+    bridges = np.zeros_like(links)
+    if bridge:
+        D = np.asarray(geodesics.distances)[np.ix_(cf, cf)].astype(np.float64)
+        np.fill_diagonal(D, np.inf)
+        while True:
+            comp = _components(links)
+            roots = np.unique(comp)
+            if len(roots) == 1:
+                break
+            # connect the smallest component to its geodesically nearest centre
+            sizes = [(np.sum(comp == r), r) for r in roots]
+            _, r = min(sizes)
+            inside = comp == r
+            sub = D[np.ix_(inside, ~inside)]
+            if not np.isfinite(sub).any():
+                break  # the frame graph itself is disconnected here
+            a, b = np.unravel_index(np.argmin(sub), sub.shape)
+            i, j = np.flatnonzero(inside)[a], np.flatnonzero(~inside)[b]
+            links[i, j] = links[j, i] = True
+            bridges[i, j] = bridges[j, i] = True
+    return links, bridges
+
+
+def build_hierarchy(
+    embedding: Float[Array, "T d"],
+    geodesics=None,
+    *,
+    c0: int = 10,
+    m: float = 2.0,
+    key: Array | None = None,
+    tol: float = 1e-4,
+    max_steps: int = 300,
+    warm_start: bool = True,
+    restarts: int = 1,
+    split: bool = True,
+    first_level_seeds: int = 8,
+    compare_cold: bool = False,
+    rho_scale: float = 0.5,
+    max_link_centres: int | None = None,
+    criterion: str = "max",
+) -> Hierarchy:
+    """Fuzzy c-means levels c0·2^l (seed §4) over the expression-space ``embedding``.
+
+    **Arguments:**
+
+    - `embedding`: (T, 2) MDS coordinates (any (T, d) works for the clustering).
+    - `geodesics`: the frame graph's ``Geodesics`` (distances, next_hop); when given,
+      every level gets its links (see :func:`center_links`).
+    - `c0`: centres at the coarsest level; sizes from :func:`level_sizes`.
+    - `m`, `tol`, `max_steps`, `criterion`: FCM settings (see :func:`fuzzy_cmeans`).
+    - `key`: PRNG key for the k-means++ draws.
+    - `warm_start`: start level l+1 from level l: its centres split
+      (:func:`split_centers`) and, with ``restarts`` ≥ 1, also ``restarts`` runs that keep
+      the coarse centres and draw the new ones k-means++-style (:func:`kmeanspp_extend`);
+      the lowest objective of all starts wins. Without it,
+      every level is seeded from scratch (k-means++, 1 + ``restarts`` seeds).
+    - `split`: include the split start (False: only the ``restarts`` k-means++-extend starts,
+      which need ``restarts`` ≥ 1).
+    - `first_level_seeds`: k-means++ seeds at the first level (cheap there, and it decides
+      the coarse structure every finer level inherits).
+    - `compare_cold`: also run every warm-started level cold (one k-means++ seed) to
+      measure the iterations the warm start saves (``num_steps_cold``/``objective_cold``).
+    - `rho_scale`: ρ = rho_scale × median nearest-centre spacing of the level.
+    - `max_link_centres`: skip links for levels with more centres (None: all levels).
+
+    **Returns:** a :class:`Hierarchy`. At the finest level c = T: k-means++ seeding draws
+    every frame, the global optimum (J = 0), so its start is the frames themselves.
+    """
+    from fxspace.cluster._fcm import kmeanspp_extend, kmeanspp_init
+
+    x = jnp.asarray(embedding)
+    if x.ndim != 2:
+        raise FxspaceError(f"embedding must be (T, d), got shape {x.shape}")
+    if not bool(jnp.all(jnp.isfinite(x))):
+        raise FxspaceError(
+            "embedding has NaN/inf rows: build the expression space on a "
+            "connected graph (see threshold_sweep) before the hierarchy"
+        )
+    if int(restarts) < 0:
+        raise FxspaceError(f"restarts must be >= 0, got {restarts}")
+    if not split and int(restarts) < 1:
+        raise FxspaceError("split=False needs restarts >= 1 (the k-means++-extend starts)")
+    T = x.shape[0]
+    if key is None:
+        key = jax.random.PRNGKey(0)
+    fcm_kw = dict(tol=tol, max_steps=max_steps, criterion=criterion)
+    levels: list[Level] = []
+    prev: FCMResult | None = None
+    for li, c in enumerate(level_sizes(T, c0)):
+        key, k_cold, k_ext = jax.random.split(key, 3)
+        t0 = time.perf_counter()
+        if c == T:
+            inits = [x]
+        elif prev is None or not warm_start:
+            n_seeds = max(1 + restarts, first_level_seeds if prev is None else 1)
+            ks = jax.random.split(k_cold, n_seeds)
+            inits = [kmeanspp_init(x, c, k) for k in ks]
+        else:
+            n_new = c - prev.centers.shape[0]
+            starts = [split_centers(x, prev.centers, prev.memberships, c, m)] if split else []
+            starts += [
+                kmeanspp_extend(x, prev.centers, n_new, k)
+                for k in jax.random.split(k_ext, restarts)
+            ]
+            inits = starts
+        # the starts run one after another: on CPU a vmapped while-loop costs more than the
+        # sum of the single runs (every lane pays for the slowest)
+        runs = [
+            jax.block_until_ready(fuzzy_cmeans(x, c, m, init_centers=v, **fcm_kw)) for v in inits
+        ]
+        objs = np.asarray([float(r.objective) for r in runs])
+        best = int(np.argmin(np.where(np.isnan(objs), np.inf, objs)))
+        res = runs[best]
+        dt = time.perf_counter() - t0
+        steps_cold, obj_cold = -1, float("nan")
+        if compare_cold and warm_start and 0 < li and c < T:
+            cold = fuzzy_cmeans(x, c, m, key=k_cold, **fcm_kw)
+            steps_cold, obj_cold = int(cold.num_steps), float(cold.objective)
+        elif li == 0 or not warm_start or c == T:
+            steps_cold, obj_cold = int(res.num_steps), float(res.objective)
+        frames = nearest_frames(x, res.centers)
+        links = bridges = None
+        rho = float("nan")
+        if geodesics is not None and (max_link_centres is None or c <= max_link_centres):
+            rho = default_link_radius(np.asarray(x)[frames], rho_scale)
+            links, bridges = center_links(x, geodesics, frames, rho)
+        if c == T:
+            init_name = "frames"
+        elif prev is None or not warm_start:
+            init_name = "kmeans++"
+        else:
+            init_name = "split" if (split and best == 0) else "kmeans++-extend"
+        levels.append(
+            Level(
+                n_clusters=c,
+                centers=np.asarray(res.centers),
+                memberships=np.asarray(res.memberships),
+                center_frames=frames,
+                objective=float(res.objective),
+                num_steps=int(res.num_steps),
+                converged=bool(res.converged),
+                num_steps_cold=steps_cold,
+                objective_cold=obj_cold,
+                links=links,
+                bridges=bridges,
+                radius=rho,
+                time_s=dt,
+                init=init_name,
+                num_steps_split=int(runs[0].num_steps)
+                if split and init_name.startswith(("split", "kmeans++-"))
+                else -1,
+                total_steps=int(sum(int(r.num_steps) for r in runs)),
+            )
+        )
+        prev = res
+    return Hierarchy(tuple(levels), np.asarray(x))
+
+
+def link_graph_connected(level: Level) -> bool:
+    """Whether the level's link graph is connected."""
+    if level.links is None:
+        raise FxspaceError("this level has no links")
+    return len(np.unique(_components(level.links))) == 1

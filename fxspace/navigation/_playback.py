@@ -1,0 +1,110 @@
+"""Playback of a navigated frame sequence at a chosen frame rate (seed paper §5).
+
+The final route is a sequence of captured frames; playback resamples it to ``fps``:
+the time of each path step is proportional to its length in the 2-D expression space
+(``by="arclength"``, the cross moves at constant speed) or constant (``by="frame"``), and
+the marker positions and the 2-D cross are linearly interpolated between the two path
+frames that bracket each output instant. Frames can be rigidly aligned (Kabsch) to the
+first path frame so that head motion from different takes does not jump.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal, NamedTuple
+
+import numpy as np
+
+from fxspace.errors import FxspaceError
+
+__all__ = ["Playback", "playback", "rigid_align"]
+
+
+class Playback(NamedTuple):
+    """A resampled route: ``times`` (K,) s, ``xy`` (K, 2) cross positions, ``positions``
+    (K, M, 3) markers, ``frame`` (K,) nearest captured frame, ``fps``."""
+
+    times: np.ndarray
+    xy: np.ndarray
+    positions: np.ndarray
+    frame: np.ndarray
+    fps: float
+
+
+def rigid_align(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Rotate and translate every frame of ``positions`` (T, M, 3) onto ``reference``
+    (M, 3) in the least-squares sense (Kabsch/Horn, with reflection guard)."""
+    P = np.asarray(positions, dtype=np.float64)
+    R0 = np.asarray(reference, dtype=np.float64)
+    pc = P.mean(axis=1, keepdims=True)
+    rc = R0.mean(axis=0)
+    H = np.einsum("tmi,mj->tij", P - pc, R0 - rc)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", U, Vt)))
+    S = np.ones((len(P), 3))
+    S[:, 2] = d
+    R = np.einsum("tji,tj,tkj->tik", Vt, S, U)  # V diag(S) Uᵀ
+    return np.einsum("tij,tmj->tmi", R, P - pc) + rc
+
+
+def playback(
+    frames: Sequence[int],
+    embedding: np.ndarray,
+    positions: np.ndarray,
+    *,
+    fps: float = 30.0,
+    rate: float = 60.0,
+    duration: float | None = None,
+    by: Literal["arclength", "frame"] = "arclength",
+    align: bool = True,
+) -> Playback:
+    """Resample the frame sequence ``frames`` to ``fps``.
+
+    **Arguments:**
+
+    - `frames`: the route's frames (e.g. ``Route.frames`` at the finest level).
+    - `embedding`: (T, 2) expression-space coordinates; `positions`: (T, M, 3) markers.
+    - `fps`: output frame rate; `rate`: capture rate, used for the default duration
+      ``len(frames) / rate`` seconds (each captured frame shown once on average).
+    - `duration`: total length in seconds (overrides the default).
+    - `by`: ``"arclength"`` (constant speed along the 2-D path) or ``"frame"``.
+    - `align`: rigidly align every frame to the first path frame.
+    """
+    f = np.asarray(frames, dtype=np.int64)
+    if f.ndim != 1 or len(f) < 1:
+        raise FxspaceError("frames must be a non-empty 1-D sequence of frame indices")
+    if not fps > 0:
+        raise FxspaceError(f"fps must be > 0, got {fps}")
+    emb = np.asarray(embedding, dtype=np.float64)
+    pos = np.asarray(positions, dtype=np.float64)
+    if pos.ndim != 3 or pos.shape[2] != 3 or len(pos) != len(emb):
+        raise FxspaceError(
+            f"positions must be (T, M, 3) with T = {len(emb)} frames, got {pos.shape}"
+        )
+    if by not in ("arclength", "frame"):
+        raise FxspaceError(f"by must be 'arclength' or 'frame', got {by!r}")
+    if duration is None:
+        duration = len(f) / float(rate)
+    xy = emb[f]
+    P = pos[f]
+    if align:
+        P = rigid_align(P, P[0])
+    if len(f) == 1:
+        K = max(1, int(round(duration * fps)) + 1)
+        t = np.arange(K) / fps
+        return Playback(t, np.repeat(xy, K, 0), np.repeat(P, K, 0), np.repeat(f, K), float(fps))
+    seg = np.linalg.norm(np.diff(xy, axis=0), axis=1) if by == "arclength" else np.ones(len(f) - 1)
+    if not np.any(seg > 0):
+        seg = np.ones(len(f) - 1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    s = s / s[-1] * duration  # time at each path frame
+    K = max(2, int(round(duration * fps)) + 1)
+    t = np.arange(K) / fps
+    t = np.minimum(t, duration)
+    i = np.clip(np.searchsorted(s, t, side="right") - 1, 0, len(f) - 2)
+    span = np.where(s[i + 1] > s[i], s[i + 1] - s[i], 1.0)
+    a = np.clip((t - s[i]) / span, 0.0, 1.0)
+    out_xy = (1 - a)[:, None] * xy[i] + a[:, None] * xy[i + 1]
+    out_p = (1 - a)[:, None, None] * P[i] + a[:, None, None] * P[i + 1]
+    nearest = np.where(a < 0.5, f[i], f[i + 1])
+    return Playback(t, out_xy, out_p, nearest, float(fps))

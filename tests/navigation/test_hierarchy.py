@@ -1,0 +1,153 @@
+"""FCM hierarchy and links between centres."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fxspace as fx
+from fxspace.navigation._hierarchy import _components
+
+
+def _curve(n=120, seed=0):
+    """A noisy 2-D 'Y' (three arms from a neutral centre), like the expression space."""
+    rng = np.random.default_rng(seed)
+    arm = rng.integers(0, 3, n)
+    t = rng.uniform(0, 1, n)
+    ang = np.array([0.3, 2.4, 4.4])[arm]
+    pts = np.stack([t * 10 * np.cos(ang), t * 10 * np.sin(ang)], 1)
+    return pts + rng.normal(scale=0.15, size=(n, 2))
+
+
+@pytest.fixture(scope="module")
+def space():
+    X = _curve()
+    P = fx.pairwise_distances(jnp.asarray(X))
+    eps = float(fx.connecting_threshold(P)) * 1.3
+    W = fx.epsilon_graph(P, eps)
+    geo = fx.geodesic_distances(W)
+    h = fx.build_hierarchy(X, geo, c0=8, key=jax.random.PRNGKey(0), compare_cold=True)
+    return X, W, geo, h
+
+
+def test_level_sizes():
+    assert fx.level_sizes(2400, 10) == (10, 20, 40, 80, 160, 320, 640, 1280, 2400)
+    assert fx.level_sizes(120, 8) == (8, 16, 32, 64, 120)
+    assert fx.level_sizes(5, 10) == (5,)
+    with pytest.raises(fx.FxspaceError, match="c0"):
+        fx.level_sizes(10, 0)
+
+
+def test_levels_shapes_and_memberships(space):
+    X, _, _, h = space
+    assert h.sizes == (8, 16, 32, 64, 120)
+    for lv in h.levels:
+        assert lv.centers.shape == (lv.n_clusters, 2)
+        assert lv.memberships.shape == (len(X), lv.n_clusters)
+        np.testing.assert_allclose(lv.memberships.sum(1), 1.0, rtol=1e-9)
+        assert lv.labels.shape == (len(X),)
+        # each centre is shown as its nearest frame
+        d = np.linalg.norm(X[None] - lv.centers[:, None], axis=-1)
+        np.testing.assert_array_equal(lv.center_frames, np.argmin(d, axis=1))
+    # the finest level shows every frame
+    assert sorted(h.levels[-1].center_frames.tolist()) == list(range(len(X)))
+    assert h.levels[-1].objective < 1e-12
+
+
+def test_finer_level_never_worse_in_objective(space):
+    _, _, _, h = space
+    objs = [lv.objective for lv in h.levels]
+    assert all(b <= a for a, b in zip(objs[:-1], objs[1:], strict=True)), objs
+    for lv in h.levels[1:-1]:
+        assert lv.init in ("split", "kmeans++-extend")
+        assert lv.num_steps_cold > 0 and np.isfinite(lv.objective_cold)
+
+
+def test_warm_start_never_worse_than_its_split_start(space):
+    X, _, _, h = space
+    lv0, lv1 = h.levels[0], h.levels[1]
+    init = fx.split_centers(X, lv0.centers, lv0.memberships, lv1.n_clusters)
+    u0 = fx.fcm_memberships(X, init)
+    start = float(fx.fcm_objective(X, init, u0))
+    res = fx.fuzzy_cmeans(X, lv1.n_clusters, init_centers=init)
+    assert float(res.objective) <= start + 1e-9
+    assert lv1.objective <= float(res.objective) + 1e-9  # the best start is kept
+
+
+def test_split_centers_shape_and_error(space):
+    X, _, _, h = space
+    lv = h.levels[0]
+    v = np.asarray(fx.split_centers(X, lv.centers, lv.memberships, 12))
+    assert v.shape == (12, 2) and np.all(np.isfinite(v))
+    with pytest.raises(fx.FxspaceError, match="n_clusters must lie"):
+        fx.split_centers(X, lv.centers, lv.memberships, 17)
+
+
+def test_links_symmetric_and_connected(space):
+    _, W, _, h = space
+    n_comp, _ = fx.connected_components(W)
+    assert int(n_comp) == 1
+    for lv in h.levels:
+        L = lv.links
+        assert L.dtype == bool and L.shape == (lv.n_clusters, lv.n_clusters)
+        np.testing.assert_array_equal(L, L.T)
+        assert not L.diagonal().any()
+        assert fx.link_graph_connected(lv)
+        assert np.all(L[lv.bridges])  # bridges are links
+
+
+def _seg_dist(p, a, b):
+    ab = b - a
+    L2 = ab @ ab
+    t = 0.0 if L2 == 0 else np.clip((p - a) @ ab / L2, 0, 1)
+    return np.linalg.norm(p - (a + t * ab))
+
+
+def _reference_links(xy, geo, frames, rho):
+    c = len(frames)
+    pos = xy[frames]
+    L = np.zeros((c, c), bool)
+    for i in range(c):
+        for j in range(i + 1, c):
+            if frames[i] == frames[j]:
+                continue
+            path = fx.shortest_path(geo, frames[i], frames[j])
+            ok = True
+            for a, b in zip(path[:-1], path[1:], strict=True):
+                for k in range(c):
+                    if k in (i, j) or frames[k] in (frames[i], frames[j]):
+                        continue
+                    if _seg_dist(pos[k], xy[a], xy[b]) < rho:
+                        ok = False
+            L[i, j] = L[j, i] = ok
+    return L
+
+
+def test_links_match_bruteforce_reference(space):
+    X, _, geo, h = space
+    for lv in h.levels[:2]:  # ≤ 16 centres: the kernel's near list covers every centre
+        links, bridges = fx.center_links(X, geo, lv.center_frames, lv.radius, bridge=False)
+        ref = _reference_links(X, geo, lv.center_frames, lv.radius)
+        np.testing.assert_array_equal(links, ref)
+
+
+def test_bridges_connect_a_disconnected_link_graph(space):
+    X, _, geo, h = space
+    lv = h.levels[1]
+    huge = 100.0 * lv.radius  # every path is blocked → only bridges remain
+    links, bridges = fx.center_links(X, geo, lv.center_frames, huge)
+    np.testing.assert_array_equal(links, bridges)
+    assert len(np.unique(_components(links))) == 1
+    assert bridges.sum() // 2 == lv.n_clusters - 1  # a spanning tree
+
+
+def test_default_link_radius():
+    pts = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
+    assert fx.default_link_radius(pts, 0.5) == pytest.approx(0.5 * 1.0)
+
+
+def test_embedding_with_nan_rejected():
+    X = np.zeros((10, 2))
+    X[3, 0] = np.nan
+    with pytest.raises(fx.FxspaceError, match="NaN"):
+        fx.build_hierarchy(X)
