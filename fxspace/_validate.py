@@ -31,6 +31,7 @@ gamma = check_scalar(gamma, "gamma", low=0.0, low_open=True)      # gamma > 0
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from pathlib import Path
 from typing import Any, Literal
 
 import jax
@@ -48,6 +49,7 @@ __all__ = [
     "check_choice",
     "missing_report",
     "describe_missing",
+    "check_readable",
 ]
 
 FinitePolicy = Literal["raise", "nan", "allow"]
@@ -131,6 +133,7 @@ def as_float_array(
     finite: FinitePolicy = "raise",
     dtype: Any = None,
     xp: Literal["jax", "numpy"] = "jax",
+    axes: Sequence[str] | None = None,
 ):
     """Validate and convert a float array argument.
 
@@ -143,6 +146,7 @@ def as_float_array(
     - `finite`: see :func:`check_finite`.
     - `dtype`: force this float dtype (else keep float32/64, ints → default float).
     - `xp`: return a ``jax.Array`` (``"jax"``) or a ``numpy.ndarray`` (``"numpy"``).
+    - `axes`: axis names for the shape message, e.g. ``("n_points", "n_features")``.
 
     **Returns:** the array in a float32/float64 dtype.
     """
@@ -158,6 +162,10 @@ def as_float_array(
         check_dtype(x, name)
     if shape is not None:
         ndim = len(shape)
+    if axes is not None:
+        ndim = len(axes) if ndim is None else ndim
+    if ndim is not None and x.ndim != ndim and axes is not None:
+        raise FxspaceError(f"{name} must be ({', '.join(axes)}); got shape {tuple(x.shape)}")
     if ndim is not None and x.ndim != ndim:
         want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")" if shape else ""
         raise FxspaceError(
@@ -215,11 +223,14 @@ def check_scalar(
     lo_bad = low is not None and (v <= low if low_open else v < low)
     hi_bad = high is not None and (v >= high if high_open else v > high)
     if lo_bad or hi_bad:
-        left = "(" if low_open else "["
-        right = ")" if high_open else "]"
-        lo = "-inf" if low is None else f"{low:g}"
-        hi = "inf" if high is None else f"{high:g}"
-        raise FxspaceError(f"{name} must lie in {left}{lo}, {hi}{right}, got {v:g}")
+        if high is None:
+            want = f"be {'>' if low_open else '>='} {low:g}"
+        elif low is None:
+            want = f"be {'<' if high_open else '<='} {high:g}"
+        else:
+            left, right = "(" if low_open else "[", ")" if high_open else "]"
+            want = f"lie in {left}{low:g}, {high:g}{right}"
+        raise FxspaceError(f"{name} must {want}, got {v:g}")
     return v
 
 
@@ -232,9 +243,11 @@ def check_int(value: Any, name: str, *, low: int | None = None, high: int | None
             raise FxspaceError(f"{name} must be an integer, got {value!r}")
     v = int(value)
     if (low is not None and v < low) or (high is not None and v > high):
-        lo = "-inf" if low is None else str(low)
-        hi = "inf" if high is None else str(high)
-        raise FxspaceError(f"{name} must lie in [{lo}, {hi}], got {v}")
+        if high is None:
+            raise FxspaceError(f"{name} must be >= {low}, got {v}")
+        if low is None:
+            raise FxspaceError(f"{name} must be <= {high}, got {v}")
+        raise FxspaceError(f"{name} must lie in [{low}, {high}], got {v}")
     return v
 
 
@@ -277,3 +290,20 @@ def describe_missing(runs: Sequence[tuple[str, int, int]], limit: int = 8) -> st
     parts = [f"{m} frames {s}–{e}" if e > s else f"{m} frame {s}" for m, s, e in runs[:limit]]
     more = f" and {len(runs) - limit} more gaps" if len(runs) > limit else ""
     return "; ".join(parts) + more
+
+
+def check_readable(path: Any, what: str = "file") -> Path:
+    """``path`` as a :class:`~pathlib.Path` if it is a readable file, else the precise
+    ``OSError``: ``FileNotFoundError`` (absent), ``IsADirectoryError`` (a directory, not a
+    file) or ``PermissionError`` (not readable) — never a misleading "corrupt"."""
+    p = Path(path)
+    if p.is_dir():
+        raise IsADirectoryError(f"{p} is a directory, not a {what}")
+    if not p.exists():
+        raise FileNotFoundError(f"{what} not found: {p}")
+    try:
+        with p.open("rb"):
+            pass
+    except PermissionError as e:
+        raise PermissionError(f"{p}: permission denied (cannot read the {what})") from e
+    return p

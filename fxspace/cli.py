@@ -1,4 +1,5 @@
-"""The ``fxspace`` command: ``demo``, ``run CONFIG``, ``sweep``, ``view``, ``bench``, ``data``."""
+"""The ``fxspace`` command: ``demo``, ``run CONFIG``, ``sweep``, ``studio`` (alias ``view``),
+``bench``, ``data``."""
 
 from __future__ import annotations
 
@@ -21,9 +22,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     raw = dict(_DEMO)
     raw["seed"] = args.seed
+    out = args.out
     if args.real:
         raw["data"] = {"source": "animface"}
-    dirs = run_dict(raw, args.out, force=True)
+        out = out or "runs/demo_real"  # never the synthetic demo's folder
+    dirs = run_dict(raw, out or "runs/demo", force=True)
     for d in dirs:
         print(
             f"demo results in {d}: metrics.json, "
@@ -40,15 +43,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
+    """``fxspace studio TARGET`` (alias ``view``): the app of the target's experiment."""
+    from fxspace.studio import serve
+
     try:
-        from fxspace.studio._navigator import serve  # type: ignore[attr-defined]
+        serve(args.target, port=args.port)
     except ImportError as e:
         print(
-            f"fxspace view needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
+            f"fxspace studio needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
             file=sys.stderr,
         )
         return 2
-    serve(args.target, port=args.port)
     return 0
 
 
@@ -56,9 +61,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     import runpy
 
     root = Path(__file__).resolve().parent.parent / "experiments"
+    names = sorted(p.stem.removeprefix("bench_") for p in root.glob("bench_*.py"))
+    if args.name is None:
+        print("benchmarks (fxspace bench NAME [options]):")
+        for n in names:
+            doc = (root / f"bench_{n}.py").read_text().split('"""')
+            first = doc[1].strip().splitlines()[0] if len(doc) > 2 else ""
+            print(f"  {n:12s} {first}")
+        return 0
     script = root / f"bench_{args.name}.py"
     if not script.is_file():
-        names = sorted(p.stem.removeprefix("bench_") for p in root.glob("bench_*.py"))
         print(f"no benchmark {args.name!r}; available: {names}", file=sys.stderr)
         return 2
     sys.argv = [str(script), *args.rest]
@@ -77,18 +89,30 @@ def _cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("fxspace")
+    except metadata.PackageNotFoundError:  # pragma: no cover - a bare checkout
+        return "0.0.0"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="fxspace",
         description="fxspace: motion-capture-driven facial and character animation in JAX.",
         epilog="Real data is read from $FXSPACE_DATA (default ../shared/data when present).",
     )
+    p.add_argument("--version", action="version", version=f"fxspace {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     d = sub.add_parser(
         "demo", help="expression space of the embedded synthetic face (no data needed)"
     )
-    d.add_argument("--out", default="runs/demo", help="run folder (default runs/demo)")
+    d.add_argument(
+        "--out", default=None, help="run folder (default runs/demo, runs/demo_real with --real)"
+    )
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     d.add_argument("--real", action="store_true", help="use the AnimFace capture instead")
     d.set_defaults(func=_cmd_demo)
@@ -103,13 +127,18 @@ def build_parser() -> argparse.ArgumentParser:
         r.add_argument("--force", action="store_true", help="rerun runs that are already complete")
         r.set_defaults(func=_cmd_run)
 
-    v = sub.add_parser("view", help="interactive navigator in the browser (needs .[viewer])")
-    v.add_argument("target", help="a run folder or a config file")
-    v.add_argument("--port", type=int, default=8080)
-    v.set_defaults(func=_cmd_view)
+    for name in ("studio", "view"):
+        v = sub.add_parser(
+            name,
+            help="the paper's app for a run in the browser: navigator, editor, …"
+            + (" (alias of studio)" if name == "view" else " (needs .[viewer])"),
+        )
+        v.add_argument("target", help="a run folder or a config file")
+        v.add_argument("--port", type=int, default=8080)
+        v.set_defaults(func=_cmd_view)
 
-    b = sub.add_parser("bench", help="run experiments/bench_NAME.py (e.g. geodesic)")
-    b.add_argument("name")
+    b = sub.add_parser("bench", help="run experiments/bench_NAME.py (alone: list them)")
+    b.add_argument("name", nargs="?", default=None)
     b.add_argument("rest", nargs=argparse.REMAINDER)
     b.set_defaults(func=_cmd_bench)
 
@@ -147,7 +176,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except FxspaceError as e:
-        print(f"fxspace: error: {e}", file=sys.stderr)
+        print(f"fxspace: error: {' '.join(str(e).split())}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fxspace: interrupted; rerun to resume", file=sys.stderr)
+        return 130
+    except OSError as e:  # unwritable --out, a full disk, a file that vanished, ...
+        where = e.filename or ""
+        print(f"fxspace: error: {where}{': ' if where else ''}{e.strerror or e}", file=sys.stderr)
         return 2
 
 

@@ -31,7 +31,14 @@ def data_root() -> Path | None:
 
 
 def data_path(*parts: str) -> Path:
-    """Path of a file under the data root; raises ``DataNotFoundError`` with the fix."""
+    """Path of a file under the data root; raises ``DataNotFoundError`` with the fix.
+
+    An absolute path (a single absolute part) is kept as it is, never re-rooted."""
+    if len(parts) == 1 and Path(parts[0]).expanduser().is_absolute():
+        p = Path(parts[0]).expanduser()
+        if not p.exists():
+            raise DataNotFoundError(f"{p} does not exist")
+        return p
     root = data_root()
     if root is None:
         raise DataNotFoundError(

@@ -5,12 +5,17 @@ versions, git SHA, platform, device), ``metrics.json`` and figures (PNG). Files 
 written to a temporary name in the same folder and renamed into place, so an
 interrupted run never leaves a half-written file; ``metrics.json`` is written last
 and marks the run complete. ``cached`` stores intermediate results so an
-interrupted sweep resumes where it stopped.
+interrupted sweep resumes where it stopped; the cache belongs to one *run key* — a hash
+of the resolved config, the data (file digests) and the code (:func:`run_key`) — and is
+cleared when the key changes, so a changed config, data file or code never reuses it.
+``status.json`` says ``running``, ``complete``, ``failed`` (with the error) or
+``interrupted``. Files are readable by the group (never 0600).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 import platform
@@ -35,6 +40,12 @@ __all__ = [
     "write_meta",
     "cached",
     "to_jsonable",
+    "code_digest",
+    "file_digest",
+    "run_key",
+    "write_status",
+    "read_status",
+    "reset_cache",
 ]
 
 _PACKAGES = (
@@ -60,12 +71,19 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; use the usual mode
         os.replace(tmp, p)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
     return p
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
@@ -162,6 +180,64 @@ def write_meta(run_dir: str | Path, seed: int, extra: dict[str, Any] | None = No
     }
     meta.update(extra or {})
     return write_json_atomic(Path(run_dir) / "meta.json", meta)
+
+
+def code_digest() -> str:
+    """SHA-256 of fxspace's source files (paths + bytes): the code version of a run key."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def file_digest(path: str | Path, chunk: int = 1 << 20) -> str:
+    """SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_key(config_text: str, data_files: list[str | Path] = (), code: str | None = None) -> str:
+    """The content key of a run: hash of the resolved config, data digests and code."""
+    h = hashlib.sha256(config_text.encode())
+    for f in sorted(str(Path(x)) for x in data_files):
+        h.update(f.encode() + b"\0" + file_digest(f).encode())
+    h.update((code if code is not None else code_digest()).encode())
+    return h.hexdigest()
+
+
+def write_status(run_dir: str | Path, status: str, **extra: Any) -> Path:
+    """Write ``status.json`` (``running`` / ``complete`` / ``failed`` / ``interrupted``)."""
+    now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    return write_json_atomic(Path(run_dir) / "status.json", {"status": status, "at": now, **extra})
+
+
+def read_status(run_dir: str | Path) -> dict[str, Any]:
+    """``status.json`` of a run folder (``{}`` when absent or unreadable)."""
+    try:
+        return json.loads((Path(run_dir) / "status.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def reset_cache(run_dir: str | Path, key: str, force: bool = False) -> bool:
+    """Bind ``run_dir/cache`` to the run key ``key``: clear it when the key differs (or on
+    ``force``). Returns whether an existing cache was cleared."""
+    import shutil
+
+    d = Path(run_dir) / "cache"
+    kp = d / "KEY"
+    old = kp.read_text().strip() if kp.is_file() else None
+    cleared = False
+    if d.exists() and (force or old != key):
+        shutil.rmtree(d)
+        cleared = True
+    write_text_atomic(kp, key + "\n")
+    return cleared
 
 
 def cached(run_dir: str | Path, key: str, compute: Callable[[], Any]) -> Any:

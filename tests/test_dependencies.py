@@ -14,7 +14,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "fxspace"
-DEV_ONLY = ("scipy", "sklearn", "skfuzzy", "cvxpy", "dtaidistance", "dtw", "tslearn", "prox_tv")
+DEV_ONLY = ("sklearn", "skfuzzy", "cvxpy", "dtaidistance", "dtw", "tslearn", "prox_tv")
 
 
 def _declared() -> tuple[set[str], set[str]]:

@@ -6,6 +6,8 @@ from fxspace.cluster._fcm import fcm_objective as fcm_objective
 from fxspace.cluster._fcm import fuzzy_cmeans as fuzzy_cmeans
 from fxspace.cluster._fcm import kmeanspp_extend as kmeanspp_extend
 from fxspace.cluster._fcm import kmeanspp_init as kmeanspp_init
+from fxspace.cluster._fcm_sparse import SparseFCMResult as SparseFCMResult
+from fxspace.cluster._fcm_sparse import sparse_fuzzy_cmeans as sparse_fuzzy_cmeans
 from fxspace.cluster._kernel_kmeans import KernelKMeansResult as KernelKMeansResult
 from fxspace.cluster._kernel_kmeans import gaussian_kernel as gaussian_kernel
 from fxspace.cluster._kernel_kmeans import kernel_kmeans as kernel_kmeans
@@ -19,6 +21,8 @@ __all__ = [
     "fuzzy_cmeans",
     "kmeanspp_extend",
     "kmeanspp_init",
+    "SparseFCMResult",
+    "sparse_fuzzy_cmeans",
     "KernelKMeansResult",
     "gaussian_kernel",
     "kernel_kmeans",

@@ -20,13 +20,14 @@ is never formed (small d is unrolled over the feature axis, large d uses the
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from fxspace._validate import as_float_array, check_scalar
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -212,7 +213,9 @@ def _fcm_loop(x, v0, u0, m, tol, max_steps, criterion="max", check_every=1):
     u_fin, obj_fin = _memberships_and_objective(x, v, m)
     obj = jnp.where(steps == 0, obj_fin, obj)
     u = jnp.where(steps == 0, u_fin, u)
-    return FCMResult(v, u, obj, steps, delta < tol)
+    # a NaN/inf iterate (e.g. from non-finite data under jit) never reports convergence
+    ok = jnp.isfinite(obj) & jnp.all(jnp.isfinite(v)) & jnp.all(jnp.isfinite(u))
+    return FCMResult(v, u, obj, steps, (delta < tol) & ok)
 
 
 @partial(
@@ -262,7 +265,7 @@ def fuzzy_cmeans(
     n_init: int = 1,
     init_centers: Float[Array, "c d"] | None = None,
     init_memberships: Float[Array, "n c"] | None = None,
-    criterion: str = "max",
+    criterion: Literal["max", "fro"] = "max",
     check_every: int = 4,
 ) -> FCMResult:
     """Fuzzy c-means clustering (Bezdek's alternating updates) as one jitted while-loop.
@@ -291,11 +294,7 @@ def fuzzy_cmeans(
     **Returns:** an :class:`FCMResult`. Cost O(n c d) per step, O(n c) memory.
     Empty clusters keep their previous centre; coincident centres stay finite.
     """
-    x = jnp.asarray(x)
-    if x.ndim != 2:
-        raise FxspaceError(f"x must be (n_samples, n_features), got shape {x.shape}")
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
+    x = as_float_array(x, "x", axes=("n_samples", "n_features"))  # dtype, NaN/inf checked
     n = x.shape[0]
     if isinstance(n_clusters, bool) or not isinstance(n_clusters, int | np.integer):
         raise FxspaceError(f"n_clusters must be an integer, got {n_clusters!r}")
@@ -307,9 +306,8 @@ def fuzzy_cmeans(
             f"n_clusters={n_clusters} exceeds n_samples={n}: fuzzy c-means needs at most one "
             "centre per sample; lower n_clusters or pass more data"
         )
-    m = float(m)
-    if not m > 1.0:
-        raise FxspaceError(f"m (fuzzifier) must be > 1, got {m}")
+    m = check_scalar(m, "m (fuzzifier)", low=1.0, low_open=True)
+    tol = check_scalar(tol, "tol", low=0.0)
     if int(max_steps) < 0:
         raise FxspaceError(f"max_steps must be >= 0, got {max_steps}")
     if int(n_init) < 1:

@@ -24,6 +24,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
+from fxspace._validate import as_float_array, check_int, check_scalar
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -174,7 +175,14 @@ def kernel_kmeans_gram(
     init: Literal["k-means++", "random"] | Int[ArrayLike, "n_init n"] = "k-means++",
 ) -> KernelKMeansResult:
     """Kernel k-means on a precomputed Gram matrix ``K`` (see :func:`kernel_kmeans`)."""
-    K = jnp.asarray(K)
+    K = as_float_array(K, "K", ndim=2)  # dtype policy; NaN/inf named and rejected
+    if K.shape[0] != K.shape[1]:
+        raise FxspaceError(f"K must be a square (n, n) Gram matrix; got shape {K.shape}")
+    if not isinstance(n_clusters, int | np.integer) or not 1 <= n_clusters <= K.shape[0]:
+        raise FxspaceError(
+            f"n_clusters must be an int in [1, n_points={K.shape[0]}]; got {n_clusters!r}"
+        )
+    check_int(max_steps, "max_steps", low=0)
     if key is None:
         key = jax.random.PRNGKey(0)
     if isinstance(init, str):
@@ -234,7 +242,9 @@ def _kkm_core(K, n_clusters, key, n_init, max_steps, init, labels0):
     med = jnp.argmin(jnp.where(member, pd[:, None], jnp.inf), axis=0).astype(jnp.int32)
     sz = sizes[best].astype(jnp.int32)
     med = jnp.where(sz > 0, med, -1)
-    return KernelKMeansResult(lab, objs[best], steps, ~changed[best], med, sz, objs)
+    # NaN/inf in K (e.g. a NaN point or a bad γ under jit) never reports convergence
+    ok = jnp.isfinite(objs[best]) & jnp.all(jnp.isfinite(K))
+    return KernelKMeansResult(lab, objs[best], steps, ~changed[best] & ok, med, sz, objs)
 
 
 def kernel_kmeans(
@@ -270,9 +280,7 @@ def kernel_kmeans(
 
     **Returns:** :class:`KernelKMeansResult`.
     """
-    X = jnp.asarray(X)
-    if X.ndim != 2:
-        raise FxspaceError(f"X must be (n_points, n_features); got shape {X.shape}")
+    X = as_float_array(X, "X", axes=("n_points", "n_features"))  # dtype, NaN/inf checked
     n = X.shape[0]
     if not isinstance(n_clusters, int | np.integer) or not 1 <= n_clusters <= n:
         raise FxspaceError(f"n_clusters must be an int in [1, n_points={n}]; got {n_clusters!r}")
@@ -282,8 +290,8 @@ def kernel_kmeans(
         raise FxspaceError(f"init must be 'k-means++', 'random' or labels; got {init!r}")
     if not isinstance(init, str):
         n_init = int(np.prod(np.shape(init)) // n)
-    if not jnp.issubdtype(X.dtype, jnp.floating):
-        X = X.astype(jnp.result_type(float))
+    if gamma is not None:
+        gamma = check_scalar(gamma, "gamma", low=0.0, low_open=True)
     need = kernel_kmeans_memory(n, int(n_clusters), n_init, X.dtype.itemsize)
     limit = _default_limit() if memory_limit_bytes is None else int(memory_limit_bytes)
     if need > limit:

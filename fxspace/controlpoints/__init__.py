@@ -2,6 +2,14 @@
 control points, in-betweens from the first/last frames + control points, fitting, RBF transfer.
 """
 
+from fxspace.controlpoints._edits import EditKey as EditKey
+from fxspace.controlpoints._edits import apply_edits as apply_edits
+from fxspace.controlpoints._edits import control_positions as control_positions
+from fxspace.controlpoints._edits import edit_control_keys as edit_control_keys
+from fxspace.controlpoints._edits import effective_keys as effective_keys
+from fxspace.controlpoints._edits import keyed_offsets as keyed_offsets
+from fxspace.controlpoints._edits import load_edits as load_edits
+from fxspace.controlpoints._edits import save_edits as save_edits
 from fxspace.controlpoints._fitting import FitResult as FitResult
 from fxspace.controlpoints._fitting import refine_control_points as refine_control_points
 from fxspace.controlpoints._fused_lasso import FusedLassoResult as FusedLassoResult
@@ -25,6 +33,19 @@ from fxspace.controlpoints._rbf import FaceSurface as FaceSurface
 from fxspace.controlpoints._rbf import face_surface as face_surface
 from fxspace.controlpoints._rbf import rbf_deform as rbf_deform
 from fxspace.controlpoints._rbf import rbf_transfer_matrix as rbf_transfer_matrix
+from fxspace.controlpoints._scene import SceneErrors as SceneErrors
+from fxspace.controlpoints._scene import SceneFit as SceneFit
+from fxspace.controlpoints._scene import SceneModel as SceneModel
+from fxspace.controlpoints._scene import fit_scene as fit_scene
+from fxspace.controlpoints._scene import linear_scene as linear_scene
+from fxspace.controlpoints._scene import reconstruct_scene as reconstruct_scene
+from fxspace.controlpoints._scene import scene_compression_ratio as scene_compression_ratio
+from fxspace.controlpoints._scene import scene_errors as scene_errors
+from fxspace.controlpoints._scene import scene_from_arrays as scene_from_arrays
+from fxspace.controlpoints._scene import scene_storage_size as scene_storage_size
+from fxspace.controlpoints._scene import scene_to_arrays as scene_to_arrays
+from fxspace.controlpoints._scene import segment_of_frame as segment_of_frame
+from fxspace.controlpoints._scene import thin_frames as thin_frames
 from fxspace.controlpoints._segment import Segmentation as Segmentation
 from fxspace.controlpoints._segment import motion_summary as motion_summary
 from fxspace.controlpoints._segment import segment_motion as segment_motion
@@ -43,6 +64,27 @@ __all__ = [
     "residual_trajectories",
     "storage_size",
     "temporal_window",
+    "EditKey",
+    "apply_edits",
+    "control_positions",
+    "edit_control_keys",
+    "effective_keys",
+    "keyed_offsets",
+    "load_edits",
+    "save_edits",
+    "SceneErrors",
+    "SceneFit",
+    "SceneModel",
+    "fit_scene",
+    "linear_scene",
+    "reconstruct_scene",
+    "scene_compression_ratio",
+    "scene_errors",
+    "scene_storage_size",
+    "segment_of_frame",
+    "scene_to_arrays",
+    "scene_from_arrays",
+    "thin_frames",
     "FitResult",
     "refine_control_points",
     "FusedLassoResult",

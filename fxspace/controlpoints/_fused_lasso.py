@@ -37,6 +37,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from fxspace._validate import as_float_array, check_dtype, check_int, check_scalar
 from fxspace.errors import FxspaceError
 
 __all__ = ["fused_lasso", "fused_lasso_solve", "flsa_objective", "tv_denoise", "FusedLassoResult"]
@@ -259,19 +260,20 @@ def _flsa_core(y2, l1, l2, method, max_steps):
     return b, flsa_objective(y2, b, l1, l2), steps, conv
 
 
+_weighted_jit = jax.jit(lambda *a: _weighted_core(*a), static_argnums=(4, 5))
+
 # ----------------------------------------------------------------------------------------
 # Public API
 
 
-def _prepare(Y, lam_l1, lam_tv):
-    Y = jnp.asarray(Y)
+def _prepare(Y, lam_l1, lam_tv, weights=None):
+    # dtype policy (complex / float16 rejected, ints converted); NaN only where weight 0
+    Y = as_float_array(Y, "Y", min_frames=1, finite="nan" if weights is not None else "raise")
     if Y.ndim < 1:
         raise FxspaceError(f"Y must have a time axis (axis 0); got a scalar of shape {Y.shape}")
-    if not jnp.issubdtype(Y.dtype, jnp.floating):
-        Y = Y.astype(jnp.result_type(float))
-    if Y.shape[0] < 1:
-        raise FxspaceError("Y has no frames (axis 0 has length 0)")
     chan = Y.shape[1:]
+    for name, lam in (("lam_l1", lam_l1), ("lam_tv", lam_tv)):
+        check_dtype(lam, name)
     try:
         l1 = jnp.broadcast_to(jnp.asarray(lam_l1, Y.dtype), chan)
         l2 = jnp.broadcast_to(jnp.asarray(lam_tv, Y.dtype), chan)
@@ -280,26 +282,75 @@ def _prepare(Y, lam_l1, lam_tv):
             f"lam_l1 (shape {jnp.shape(lam_l1)}) and lam_tv (shape {jnp.shape(lam_tv)}) must "
             f"broadcast to the channel shape Y.shape[1:] = {chan}"
         ) from e
+    w = None
+    if weights is not None:
+        w = as_float_array(weights, "weights", min_frames=1, dtype=Y.dtype)
+        try:
+            w = jnp.broadcast_to(w.reshape(w.shape + (1,) * (Y.ndim - w.ndim)), Y.shape)
+        except (ValueError, TypeError) as e:
+            raise FxspaceError(
+                f"weights (shape {w.shape}) must broadcast to Y's shape {Y.shape} along "
+                "the time axis first, e.g. (T,) or (T, ...)"
+            ) from e
     try:
         y_np, l1_np, l2_np = np.asarray(Y), np.asarray(l1), np.asarray(l2)
+        w_np = None if w is None else np.asarray(w)
     except jax.errors.TracerArrayConversionError:
-        pass  # under jit/vmap: values are not checked (kernels assume)
+        pass  # under jit/vmap: values are not checked (the result reports converged=False)
     else:
-        if not np.all(np.isfinite(y_np)):
-            raise FxspaceError("Y contains NaN/inf; fill or drop missing samples first")
-        if np.any(l1_np < 0) or np.any(l2_np < 0):
-            raise FxspaceError("lam_l1 and lam_tv must be >= 0")
+        for name, v in (("lam_l1", l1_np), ("lam_tv", l2_np)):
+            if not np.all(np.isfinite(v)) or np.any(v < 0):
+                raise FxspaceError(f"{name} must be finite and >= 0, got {v.ravel()[:4]}")
+        if w_np is not None:
+            if np.any(w_np < 0):
+                raise FxspaceError("weights must be >= 0 (0 marks a missing frame)")
+            bad = ~np.isfinite(y_np) & (w_np > 0)
+            if bad.any():
+                raise FxspaceError(
+                    f"Y is NaN/inf at {int(bad.sum())} samples whose weight is > 0; give "
+                    "missing frames weight 0"
+                )
     T = Y.shape[0]
-    return Y.reshape(T, -1), l1.reshape(-1), l2.reshape(-1), chan
+    w2 = None if w is None else w.reshape(T, -1)
+    return Y.reshape(T, -1), l1.reshape(-1), l2.reshape(-1), chan, w2
+
+
+def _weighted_core(y2, w2, l1, l2, max_steps, tol):
+    """Weighted FLSA by jaxopt's proximal gradient with the exact FLSA prox (direct TV)."""
+    from fxspace.controlpoints._jaxopt_adapter import weighted_proximal_gradient
+
+    y0 = jnp.where(w2 > 0, y2, 0.0)
+    T = y2.shape[0]
+    tv_steps = 4 * T * T + 64
+
+    def prox(v, eta):
+        x, _, _, _ = _condat_chunked(v.T, eta * l2, tv_steps)
+        return _soft(x.T, eta * l1[None, :])
+
+    # start from the fill of each channel by its weighted mean (a feasible, sane point)
+    mean = jnp.sum(w2 * y0, axis=0) / jnp.maximum(jnp.sum(w2, axis=0), 1e-30)
+    init = jnp.where(w2 > 0, y0, mean[None, :])
+    scale = jnp.maximum(jnp.max(jnp.abs(y0)), 1.0)
+    b, steps, err = weighted_proximal_gradient(
+        y0, w2, prox, init=init, maxiter=max_steps, tol=tol * scale
+    )
+    obj = flsa_objective(y0, b, l1, l2, weights=w2)
+    ok = jnp.all(jnp.isfinite(b)) & (err <= tol * scale)
+    return b, obj, steps, ok
 
 
 def flsa_objective(
-    Y: Float[ArrayLike, "T ..."], B: Float[ArrayLike, "T ..."], lam_l1, lam_tv
+    Y: Float[ArrayLike, "T ..."], B: Float[ArrayLike, "T ..."], lam_l1, lam_tv, weights=None
 ) -> Float[Array, ...]:
-    """FLSA objective ``½‖y − b‖² + λ₁‖b‖₁ + λ₂ Σ|b_t − b_{t−1}|`` per channel."""
+    """FLSA objective ``½ Σ w (y − b)² + λ₁‖b‖₁ + λ₂ Σ|b_t − b_{t−1}|`` per channel
+    (``w = 1`` without `weights`; samples of weight 0 do not count, even when NaN)."""
     Y, B = jnp.asarray(Y), jnp.asarray(B)
+    R2 = (Y - B) ** 2
+    if weights is not None:
+        w = jnp.asarray(weights)
+        R2 = jnp.where(w > 0, w * R2, 0.0)
     return (
-        0.5 * jnp.sum((Y - B) ** 2, axis=0)
+        0.5 * jnp.sum(R2, axis=0)
         + lam_l1 * jnp.sum(jnp.abs(B), axis=0)
         + lam_tv * jnp.sum(jnp.abs(jnp.diff(B, axis=0)), axis=0)
     )
@@ -312,6 +363,8 @@ def fused_lasso_solve(
     *,
     method: Literal["direct", "dual"] = "direct",
     max_steps: int | None = None,
+    weights: Float[ArrayLike, "T ..."] | None = None,
+    tol: float = 1e-6,
 ) -> FusedLassoResult:
     """Fused lasso signal approximator along axis 0, with solver diagnostics.
 
@@ -326,18 +379,32 @@ def fused_lasso_solve(
       (so a λ grid can be solved in one call by stacking channels).
     - `method`: ``"direct"`` (exact, default) or ``"dual"`` (jaxopt projected gradient).
     - `max_steps`: bound on solver steps (default ``4T² + 64`` for ``direct``, which is
-      never reached in practice, ``20000`` for ``dual``).
+      never reached in practice, ``20000`` for ``dual`` and for `weights`).
+    - `weights`: per-sample weights ``w ≥ 0``, shape ``(T,)`` or broadcastable to ``Y``:
+      the data term becomes ``½ Σ_t w_t (y_t − b_t)²``, so a missing frame (weight 0, its
+      ``Y`` may be NaN) is filled by the TV and ℓ₁ terms alone. Solved by jaxopt's
+      accelerated ``ProximalGradient`` (step ``1/max w``) whose prox is the exact FLSA
+      prox above (``soft(TV_{ηλ₂}(v), ηλ₁)``), to the fixed-point residual `tol` × the
+      data scale; not differentiable (the unweighted path is).
+    - `tol`: stopping tolerance of the weighted solver (relative to ``max |y|``).
 
     **Returns:** :class:`FusedLassoResult`. Cost: O(C·T) per step, typically O(T) steps for
     the direct solver; memory O(C·T).
     """
     if method not in ("direct", "dual"):
         raise FxspaceError(f"method must be 'direct' or 'dual', got {method!r}")
-    y2, l1, l2, chan = _prepare(Y, lam_l1, lam_tv)
+    y2, l1, l2, chan, w2 = _prepare(Y, lam_l1, lam_tv, weights)
     T = y2.shape[0]
+    if w2 is not None:
+        max_steps = 20000 if max_steps is None else check_int(max_steps, "max_steps", low=1)
+        tol = check_scalar(tol, "tol", low=0.0, low_open=True)
+        b, obj, steps, conv = _weighted_jit(y2, w2, l1, l2, int(max_steps), float(tol))
+        return FusedLassoResult(b.reshape((T, *chan)), obj.reshape(chan), steps, conv)
     if max_steps is None:
         max_steps = 4 * T * T + 64 if method == "direct" else 20000
+    max_steps = check_int(max_steps, "max_steps", low=1)
     b, obj, steps, conv = _flsa_core(y2, l1, l2, method, int(max_steps))
+    conv = conv & jnp.all(jnp.isfinite(b))  # NaN λ or data under jit never "converges"
     return FusedLassoResult(b.reshape((T, *chan)), obj.reshape(chan), steps, conv)
 
 
@@ -347,15 +414,17 @@ def fused_lasso(
     lam_tv: Float[ArrayLike, ...] = 1.0,
     *,
     method: Literal["direct", "dual"] = "direct",
+    weights: Float[ArrayLike, "T ..."] | None = None,
 ) -> Float[Array, "T ..."]:
     """Fused lasso along time (axis 0), vmapped over the other axes; returns the fit ``b*``.
 
     ``b* = argmin_b ½‖y − b‖² + λ₁‖b‖₁ + λ₂ Σ_t |b_t − b_{t−1}|`` per channel. Exact
     (Condat's direct TV algorithm + soft-threshold) by default; differentiable w.r.t.
-    ``Y``, ``lam_l1`` and ``lam_tv`` through the fused-group Jacobian (custom VJP). See
-    :func:`fused_lasso_solve` for the arguments and diagnostics.
+    ``Y``, ``lam_l1`` and ``lam_tv`` through the fused-group Jacobian (custom VJP). With
+    `weights` (0 on missing frames) the weighted problem is solved by proximal gradient.
+    See :func:`fused_lasso_solve` for the arguments and diagnostics.
     """
-    return fused_lasso_solve(Y, lam_l1, lam_tv, method=method).solution
+    return fused_lasso_solve(Y, lam_l1, lam_tv, method=method, weights=weights).solution
 
 
 def tv_denoise(Y: Float[ArrayLike, "T ..."], lam: Float[ArrayLike, ...]) -> Float[Array, "T ..."]:

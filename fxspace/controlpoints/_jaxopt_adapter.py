@@ -1,13 +1,18 @@
 """The one module that imports jaxopt (unmaintained upstream): swap it here, nowhere else.
 
-It exposes a single solver used by :func:`fxspace.fused_lasso` (``method="dual"``): the
-box-constrained dual of the 1-D total-variation prox, solved with jaxopt's
-``ProjectedGradient`` (accelerated projected gradient, i.e. FISTA on the dual).
+It exposes the two jaxopt solvers of :func:`fxspace.fused_lasso`:
+
+- ``method="dual"``: the box-constrained dual of the 1-D total-variation prox, solved with
+  jaxopt's ``ProjectedGradient`` (accelerated projected gradient, i.e. FISTA on the dual);
+- ``weights=``: the *weighted* fused lasso (weight 0 on missing frames), solved with
+  jaxopt's ``ProximalGradient`` (FISTA) whose prox is the exact fused-lasso prox passed in
+  by the caller (Condat's direct TV algorithm + soft-threshold).
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -18,7 +23,7 @@ with warnings.catch_warnings():
     import jaxopt
     from jaxopt.projection import projection_box
 
-__all__ = ["tv_dual_projected_gradient", "DualTVSolution"]
+__all__ = ["tv_dual_projected_gradient", "DualTVSolution", "weighted_proximal_gradient"]
 
 
 class DualTVSolution(NamedTuple):
@@ -72,3 +77,38 @@ def tv_dual_projected_gradient(
     sol = pg.run(init, hyperparams_proj=(lo, -lo), y=y)
     u = sol.params
     return DualTVSolution(y - _dt(u), u, sol.state.iter_num, sol.state.error)
+
+
+def weighted_proximal_gradient(
+    y: Float[Array, "T C"],
+    w: Float[Array, "T C"],
+    prox: Callable[[Array, float], Array],
+    *,
+    init: Float[Array, "T C"],
+    maxiter: int,
+    tol: float,
+) -> tuple[Array, Array, Array]:
+    """``argmin_b ½ Σ w (y − b)² + g(b)`` by jaxopt's accelerated ``ProximalGradient``.
+
+    `prox(v, η)` must return ``prox_{η g}(v)``. The smooth part has Lipschitz constant
+    ``max w``, so the step is ``1 / max w``. Returns ``(b, num_steps, error)`` where
+    `error` is jaxopt's fixed-point residual ``‖b − prox(b − η∇f(b))‖ / η``.
+    """
+
+    def fun(b, y, w):
+        r = b - y
+        return 0.5 * jnp.sum(w * r * r)
+
+    lip = jnp.maximum(jnp.max(w), 1e-12)
+    pg = jaxopt.ProximalGradient(
+        fun=fun,
+        prox=lambda v, hyper, scaling: prox(v, scaling),
+        stepsize=lambda _: 1.0 / lip,
+        maxiter=maxiter,
+        tol=tol,
+        acceleration=True,
+        implicit_diff=False,
+        jit=True,
+    )
+    sol = pg.run(init, None, y=y, w=w)
+    return sol.params, sol.state.iter_num, sol.state.error

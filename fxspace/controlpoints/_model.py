@@ -79,7 +79,8 @@ def linear_interpolation(
         raise FxspaceError(f"n_frames must be >= 2; got {n_frames}")
     s = jnp.linspace(0.0, 1.0, n_frames, dtype=jnp.result_type(first.dtype, float))
     s = s.reshape((n_frames,) + (1,) * first.ndim)
-    return first[None] + s * (last - first)[None]
+    # (1 − s)·first + s·last reproduces both key frames exactly (segments stitch exactly)
+    return (1.0 - s) * first[None] + s * last[None]
 
 
 def reconstruction_error(X: Float[ArrayLike, "T ..."], X_hat: Float[ArrayLike, "T ..."]) -> Array:
@@ -232,7 +233,7 @@ def fit_control_points(
 def _control_residuals(controls: Float[Array, "c T 3"]) -> Float[Array, "c T 3"]:
     T = controls.shape[1]
     s = jnp.linspace(0.0, 1.0, T, dtype=controls.dtype)[None, :, None]
-    return controls - (controls[:, :1] + s * (controls[:, -1:] - controls[:, :1]))
+    return controls - ((1.0 - s) * controls[:, :1] + s * controls[:, -1:])
 
 
 def reconstruct(model: ControlPointModel) -> Float[Array, "T N 3"]:

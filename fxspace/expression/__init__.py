@@ -14,11 +14,30 @@ from fxspace.expression._geodesic import floyd_warshall as floyd_warshall
 from fxspace.expression._geodesic import geodesic_distances as geodesic_distances
 from fxspace.expression._geodesic import next_hops as next_hops
 from fxspace.expression._geodesic import shortest_path as shortest_path
+from fxspace.expression._landmark import LandmarkBasis as LandmarkBasis
+from fxspace.expression._landmark import LandmarkGeodesics as LandmarkGeodesics
+from fxspace.expression._landmark import farthest_point_landmarks as farthest_point_landmarks
+from fxspace.expression._landmark import landmark_basis as landmark_basis
+from fxspace.expression._landmark import landmark_geodesics as landmark_geodesics
+from fxspace.expression._landmark import landmark_mds as landmark_mds
+from fxspace.expression._landmark import landmark_score as landmark_score
+from fxspace.expression._landmark import place_frames as place_frames
 from fxspace.expression._mds import MDSResult as MDSResult
 from fxspace.expression._mds import classical_mds as classical_mds
 from fxspace.expression._mds import pearson_score as pearson_score
+from fxspace.expression._missing import GapFill as GapFill
+from fxspace.expression._missing import fill_gaps as fill_gaps
+from fxspace.expression._missing import missing_report as missing_report
+from fxspace.expression._missing import require_complete as require_complete
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
 from fxspace.expression._space import expression_space as expression_space
+from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
+from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
+from fxspace.expression._sparse import graph_from_dense as graph_from_dense
+from fxspace.expression._sparse import neighbourhood_graph as neighbourhood_graph
+from fxspace.expression._sparse import sparse_components as sparse_components
+from fxspace.expression._sparse import sparse_shortest_path as sparse_shortest_path
+from fxspace.expression._sparse import to_scipy as to_scipy
 from fxspace.expression._sweep import SweepResult as SweepResult
 from fxspace.expression._sweep import choose_threshold as choose_threshold
 from fxspace.expression._sweep import threshold_grid as threshold_grid
@@ -40,6 +59,25 @@ __all__ = [
     "next_hops",
     "shortest_path",
     "MDSResult",
+    "LandmarkBasis",
+    "LandmarkGeodesics",
+    "farthest_point_landmarks",
+    "landmark_basis",
+    "landmark_geodesics",
+    "landmark_mds",
+    "landmark_score",
+    "place_frames",
+    "NeighbourGraph",
+    "check_sparse_connected",
+    "graph_from_dense",
+    "neighbourhood_graph",
+    "sparse_components",
+    "sparse_shortest_path",
+    "to_scipy",
+    "GapFill",
+    "fill_gaps",
+    "missing_report",
+    "require_complete",
     "classical_mds",
     "pearson_score",
     "SweepResult",

@@ -8,11 +8,14 @@ motion (rotation + translation), so the expression space measures expression, no
 from __future__ import annotations
 
 import warnings
+from typing import Literal
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import as_float_array
 from fxspace.errors import FxspaceError
 
 __all__ = ["distance_features", "pairwise_distances", "marker_pairs", "clean_frames"]
@@ -24,10 +27,11 @@ def marker_pairs(n_markers: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _safe_norm(x: Array, axis: int = -1) -> Array:
-    """Euclidean norm whose gradient at 0 is 0 instead of NaN."""
+    """Euclidean norm whose gradient at 0 is 0 instead of NaN; NaN stays NaN."""
     sq = jnp.sum(x * x, axis=axis)
     pos = sq > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+    zero = jnp.where(jnp.isnan(sq), jnp.nan, 0.0).astype(sq.dtype)
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), zero)
 
 
 def distance_features(
@@ -36,41 +40,129 @@ def distance_features(
     """Pairwise marker distances ``f_t[(i,j)] = ‖x_i(t) − x_j(t)‖`` for ``i < j`` (row-major).
 
     **Arguments:**
-    - `positions`: ``(T, M, 3)`` marker positions; NaN marks a missing marker (use
-      :func:`clean_frames` first: NaN propagates into every pair that touches it).
+    - `positions`: ``(T, M, 3)`` marker positions (float32/float64; integers are converted);
+      NaN marks a missing marker and propagates: every pair that touches a missing marker
+      is NaN, never 0 (fill the gaps with :func:`fxspace.fill_gaps` or drop the frames with
+      :func:`clean_frames` first). ±inf is rejected.
 
     **Returns:** ``(T, M(M−1)/2)`` distances, invariant to rigid motion of each frame.
     Cost O(T·M²). Differentiable (the gradient at a zero distance is taken as 0).
+
+    **Example:**
+
+    ```python
+    F = fx.distance_features(positions)        # (T, M(M-1)/2)
+    ```
     """
-    positions = jnp.asarray(positions)
-    if positions.ndim != 3 or positions.shape[-1] != 3:
-        raise FxspaceError(f"positions must have shape (frames, markers, 3), got {positions.shape}")
+    positions = as_float_array(positions, "positions", shape=(None, None, 3), finite="nan")
     if positions.shape[1] < 2:
         raise FxspaceError("positions needs at least 2 markers to form a distance")
     i, j = marker_pairs(positions.shape[1])
     return _safe_norm(positions[:, i, :] - positions[:, j, :])
 
 
-def pairwise_distances(features: Float[Array, "frames dims"]) -> Float[Array, "frames frames"]:
-    """Euclidean distance matrix ``P[s, t] = ‖f_s − f_t‖`` between feature vectors.
+def _finite_mean(F: Array) -> Array:
+    """Column means over the finite entries (0 where a column has none)."""
+    ok = jnp.isfinite(F)
+    cnt = jnp.sum(ok, axis=0)
+    mu = jnp.sum(jnp.where(ok, F, 0.0), axis=0) / jnp.maximum(cnt, 1)
+    return jax.lax.stop_gradient(mu)
 
-    Uses the Gram expansion on centred features (O(T²·P) in one matrix product), exact 0
-    on the diagonal, symmetric, and differentiable (zero-distance gradients are 0).
-    """
-    F = jnp.asarray(features)
-    if F.ndim != 2:
-        raise FxspaceError(f"features must have shape (frames, dims), got {F.shape}")
-    F = F - jnp.mean(F, axis=0, keepdims=True)
+
+def _gram_distances(F: Array) -> Array:
+    """Gram-expansion distances on centred features, NaN rows kept NaN (used in float64)."""
+    F = F - _finite_mean(F)[None, :]
     sq = jnp.sum(F * F, axis=1)
-    d2 = sq[:, None] + sq[None, :] - 2.0 * (F @ F.T)
+    G = jnp.dot(F, F.T, precision=jax.lax.Precision.HIGHEST)
+    d2 = sq[:, None] + sq[None, :] - 2.0 * G
     d2 = 0.5 * (d2 + d2.T)
     n = F.shape[0]
     off = ~jnp.eye(n, dtype=bool)
     pos = (d2 > 0) & off
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, d2, 1.0)), 0.0)
+    zero = jnp.where(jnp.isnan(d2), jnp.nan, 0.0).astype(d2.dtype)
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, d2, 1.0)), zero)
 
 
-def clean_frames(positions: np.ndarray, policy: str = "drop") -> tuple[np.ndarray, np.ndarray]:
+_BLOCK = 2048  # rows per float64 product in the float32 path (memory O(block·n))
+_ROWS = 64  # rows per elementwise pass (cache-resident)
+
+
+def _np_distances64(F: np.ndarray) -> np.ndarray:
+    """Float32 distances computed in float64 blocks (as scikit-learn does), on the host."""
+    X = np.asarray(F, dtype=np.float64)
+    n = X.shape[0]
+    if np.isfinite(X).all():
+        X -= X.mean(axis=0)
+    else:
+        ok = np.isfinite(X)
+        X -= np.where(ok, X, 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
+    sq = np.einsum("ij,ij->i", X, X)
+    X *= np.sqrt(2.0)  # the product below is then 2·G (relative change O(eps64): harmless)
+    out = np.empty((n, n), dtype=np.float32)
+    tmp = np.empty((_ROWS, n))
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        G2 = X @ X.T if n <= _BLOCK else X[a:b] @ X.T  # the symmetric product is one syrk
+        for r in range(0, b - a, _ROWS):
+            g = G2[r : r + _ROWS]
+            t = tmp[: len(g)]
+            np.add(sq[a + r : a + r + len(g), None], sq[None, :], out=t)  # symmetric
+            np.subtract(t, g, out=g)  # d² = sq_s + sq_t − 2 f_s·f_t, in float64
+            np.maximum(g, 0.0, out=g)
+            np.sqrt(g, out=out[a + r : a + r + len(g)], casting="unsafe")
+    if n > _BLOCK:  # row blocks of a general product may round (s, t) and (t, s) apart
+        out = np.minimum(out, out.T)
+    out[np.arange(n), np.arange(n)] = np.where(np.isnan(sq), np.nan, 0.0)
+    return out
+
+
+@jax.custom_jvp
+def _distances_f32(F: Array) -> Array:
+    shape = jax.ShapeDtypeStruct((F.shape[0], F.shape[0]), jnp.float32)
+    return jax.pure_callback(_np_distances64, shape, F, vmap_method="sequential")
+
+
+@_distances_f32.defjvp
+def _distances_f32_jvp(primals, tangents):
+    (F,), (dF,) = primals, tangents
+    D = _distances_f32(F)
+    Fc = F - _finite_mean(F)[None, :]
+    A = jnp.dot(Fc, dF.T, precision=jax.lax.Precision.HIGHEST)  # A[s, t] = f_s · df_t
+    a = jnp.diagonal(A)
+    num = a[:, None] + a[None, :] - A - A.T  # (f_s − f_t)·(df_s − df_t)
+    pos = D > 0
+    return D, jnp.where(pos, num / jnp.where(pos, D, 1.0), 0.0)
+
+
+def pairwise_distances(features: Float[Array, "frames dims"]) -> Float[Array, "frames frames"]:
+    """Euclidean distance matrix ``P[s, t] = ‖f_s − f_t‖`` between feature vectors.
+
+    Exact 0 on the diagonal, symmetric, differentiable (zero-distance gradients are 0).
+    A row with a NaN feature (a frame with a missing marker) gives NaN in its row and
+    column, and leaves every other pair untouched.
+
+    Accuracy: float64 features use the Gram expansion on centred features (one matrix
+    product). Float32 features are computed in float64 blocks on the host (the Gram
+    expansion in float32 loses the closest pairs — 4.6 % relative error on a real capture,
+    exactly the ε-graph's edges — as scikit-learn's ``euclidean_distances`` also avoids);
+    the result is float32 within a few ulps of the float64 distance on every pair.
+    Cost O(T²·P) time, O(T²) memory.
+
+    **Example:**
+
+    ```python
+    P = fx.pairwise_distances(fx.distance_features(positions))   # (T, T)
+    ```
+    """
+    F = as_float_array(features, "features", ndim=2, finite="nan")
+    if F.dtype == jnp.float64:
+        return _gram_distances(F)
+    return _distances_f32(F)
+
+
+def clean_frames(
+    positions: np.ndarray, policy: Literal["drop", "raise"] = "drop"
+) -> tuple[np.ndarray, np.ndarray]:
     """Handle frames with missing (NaN) markers before building features.
 
     **Arguments:**

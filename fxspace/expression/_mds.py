@@ -16,14 +16,15 @@ O(n³) per embedding axis, and runs only when differentiating).
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental.sparse.linalg import lobpcg_standard
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
+from fxspace._validate import as_float_array, check_int
 from fxspace.errors import FxspaceError
 
 __all__ = ["MDSResult", "classical_mds", "double_centre", "top_eigh", "pearson_score"]
@@ -33,17 +34,23 @@ _LOBPCG_FROM = 400
 _LOBPCG_STEPS = 300
 
 
+EigMethod = Literal["auto", "eigh", "lobpcg"]
+
+
 class MDSResult(NamedTuple):
     """Classical MDS output.
 
     - `embedding`: ``(n, dim)`` coordinates ``V_k Λ_k^{1/2}``.
     - `eigenvalues`: ``(dim,)`` top eigenvalues of ``B`` (descending).
     - `num_steps`: eigensolver iterations (0 for the dense ``eigh``).
+    - `converged`: False when the eigensolver ran out of iterations or the input or the
+      output holds NaN/inf (checked under ``jit``, where no error can be raised).
     """
 
     embedding: Float[Array, "n dim"]
     eigenvalues: Float[Array, " dim"]
     num_steps: Int[Array, ""]
+    converged: Bool[Array, ""]
 
 
 def double_centre(D: Float[Array, "n n"]) -> Float[Array, "n n"]:
@@ -78,7 +85,7 @@ def _top_eigh_primal(B: Array, k: int, method: str) -> tuple[Array, Array, Array
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(1, 2))
-def top_eigh(B: Float[Array, "n n"], k: int, method: str = "auto"):
+def top_eigh(B: Float[Array, "n n"], k: int, method: EigMethod = "auto"):
     """Top-``k`` eigenpairs ``(λ (k,), V (n, k), num_steps)`` of a symmetric matrix."""
     return _top_eigh_primal(B, k, method)
 
@@ -110,11 +117,15 @@ def _top_eigh_jvp(k, method, primals, tangents):
     return (lam, V, steps), (dlam, dV_in + dV_out, np.zeros((), dtype=jax.dtypes.float0))
 
 
-def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: str = "auto") -> MDSResult:
+def classical_mds(
+    D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "auto"
+) -> MDSResult:
     """Classical (Torgerson) MDS of a distance matrix.
 
     **Arguments:**
-    - `D`: ``(n, n)`` symmetric distances (finite: check connectivity first).
+    - `D`: ``(n, n)`` symmetric distances, finite (check connectivity first): NaN/inf
+      raise a :class:`~fxspace.errors.FxspaceError`, or under ``jit`` give
+      ``converged = False``.
     - `dim`: embedding dimension (2 for the expression space).
     - `method`: ``"eigh"`` (dense, O(n³)), ``"lobpcg"`` (top-k, O(n²k) per step) or
       ``"auto"`` (LOBPCG from 400 points on).
@@ -122,15 +133,19 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: str = "auto") ->
     **Returns:** :class:`MDSResult`. Negative eigenvalues (non-Euclidean ``D``) give zero
     coordinates on that axis. jit/vmap/grad compatible.
     """
-    D = jnp.asarray(D)
-    if D.ndim != 2 or D.shape[0] != D.shape[1]:
+    D = as_float_array(D, "D", ndim=2, min_frames=2)  # NaN/inf rejected when concrete
+    if D.shape[0] != D.shape[1]:
         raise FxspaceError(f"D must be a square (n, n) distance matrix, got shape {D.shape}")
-    if not 1 <= dim < D.shape[0]:
-        raise FxspaceError(f"dim must be in [1, n) = [1, {D.shape[0]}), got {dim}")
+    dim = check_int(dim, "dim", low=1, high=D.shape[0] - 1)
+    if method not in ("auto", "eigh", "lobpcg"):
+        raise FxspaceError(f"method must be 'auto', 'eigh' or 'lobpcg', got {method!r}")
     lam, V, steps = top_eigh(double_centre(D), dim, method)
     pos = lam > 0
     scale = jnp.where(pos, jnp.sqrt(jnp.where(pos, lam, 1.0)), 0.0)
-    return MDSResult(V * scale[None, :], lam, steps)
+    X = V * scale[None, :]
+    ok = jnp.all(jnp.isfinite(D)) & jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(lam))
+    converged = ok & (steps < _LOBPCG_STEPS)
+    return MDSResult(X, lam, steps, converged)
 
 
 def pearson_score(D: Float[Array, "n n"], embedding: Float[Array, "n dim"]) -> Array:

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from fxspace.errors import FxspaceError
 from fxspace.expression._features import distance_features, pairwise_distances
 from fxspace.expression._geodesic import (
     Geodesics,
@@ -22,9 +23,14 @@ from fxspace.expression._geodesic import (
     floyd_warshall,
     next_hops,
 )
+from fxspace.expression._landmark import LandmarkGeodesics, landmark_space
 from fxspace.expression._mds import MDSResult, classical_mds, pearson_score
+from fxspace.expression._missing import require_complete
+from fxspace.expression._sparse import NeighbourGraph
 
 __all__ = ["ExpressionSpace", "expression_space", "embed_graph", "GraphEmbedding"]
+
+_LANDMARK_FROM = 5000  # frames; above this expression_space takes the landmark route
 
 
 class GraphEmbedding(NamedTuple):
@@ -65,9 +71,9 @@ class ExpressionSpace(NamedTuple):
     """
 
     features: Float[Array, "n p"] | None
-    pairwise: Float[Array, "n n"]
-    graph: Float[Array, "n n"]
-    geodesics: Geodesics
+    pairwise: Float[Array, "n n"] | None  # None on the landmark route
+    graph: Float[Array, "n n"] | NeighbourGraph  # NeighbourGraph on the landmark route
+    geodesics: Geodesics | LandmarkGeodesics  # (L, T) landmark rows on the landmark route
     mds: MDSResult
     score: Array
     threshold: float
@@ -87,6 +93,9 @@ def expression_space(
     paths: bool = True,
     method: Literal["auto", "scan", "blocked", "sharded"] = "auto",
     mds_method: Literal["auto", "eigh", "lobpcg"] = "auto",
+    route: Literal["auto", "dense", "landmark"] = "auto",
+    landmarks: int = 256,
+    neighbours: int = 32,
 ) -> ExpressionSpace:
     """Build the expression space of marker frames at threshold ε (Kim & Jung §3).
 
@@ -101,6 +110,13 @@ def expression_space(
     - `paths`: also compute the next-hop matrix (needed for :func:`fxspace.shortest_path`
       and navigation; skip it for a score or a figure).
     - `method`, `mds_method`: Floyd and eigensolver variants.
+    - `route`: ``"dense"`` (T × T geodesics), ``"landmark"`` (de Silva & Tenenbaum 2004:
+      sparse ε-graph capped at `neighbours` per frame, geodesics from `landmarks` max-min
+      landmarks, landmark MDS; memory O(T·L); see :func:`fxspace.landmark_mds`) or
+      ``"auto"`` (landmark above 5000 frames unless `pairwise` is given). On the
+      landmark route ``pairwise`` is ``None``, ``graph`` a
+      :class:`~fxspace.expression.NeighbourGraph`, ``geodesics`` a
+      :class:`~fxspace.expression.LandmarkGeodesics` and ``score`` the landmark r.
 
     **Returns:** an :class:`ExpressionSpace`.
 
@@ -115,9 +131,16 @@ def expression_space(
     ```
     """
     if pairwise is None:
+        if features is None:
+            require_complete(positions)  # names the missing markers and frames
         F = distance_features(positions) if features is None else jnp.asarray(features)
+        if route == "landmark" or (route == "auto" and F.shape[0] > _LANDMARK_FROM):
+            g, lgeo, lmds, r = landmark_space(F, threshold, dim, landmarks, neighbours)
+            return ExpressionSpace(F, None, g, lgeo, lmds, r, float(threshold))
         P = pairwise_distances(F)
     else:
+        if route == "landmark":
+            raise FxspaceError("route='landmark' needs positions or features, not pairwise")
         F = None if features is None else jnp.asarray(features)
         P = jnp.asarray(pairwise)
     W = epsilon_graph(P, threshold)

@@ -9,7 +9,7 @@ never ``inf`` distances fed to the embedding.
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -70,7 +70,7 @@ def _sweep(P, thresholds, dim, batch_size, method, mds_method, shard):
     if method == "auto" and P.shape[0] >= _BLOCKED_FROM:
         method = "blocked"  # one Floyd per threshold; devices share the thresholds instead
     f = partial(_one, P, dim=dim, method=method, mds_method=mds_method)
-    nd = jax.device_count()
+    nd = jax.local_device_count()
     if not shard or nd == 1 or thresholds.shape[0] == 1:
         return jax.lax.map(f, thresholds, batch_size=batch_size)
     from jax.sharding import Mesh
@@ -79,16 +79,18 @@ def _sweep(P, thresholds, dim, batch_size, method, mds_method, shard):
     S = thresholds.shape[0]
     pad = (-S) % nd
     th = jnp.concatenate([thresholds, jnp.repeat(thresholds[-1:], pad)])
-    mesh = Mesh(np.array(jax.devices()), ("eps",))
+    mesh = Mesh(np.array(jax.local_devices()), ("eps",))
     bs = None if batch_size is None else max(1, batch_size // nd)
-    out = jax.shard_map(
+    # no collective inside and none after: the padded, sharded outputs are returned as
+    # they are and gathered on the host (XLA:CPU aborts a collective whose participants
+    # arrive far apart, so downstream ops must not be partitioned)
+    return jax.shard_map(
         lambda t: jax.lax.map(f, t, batch_size=bs),
         mesh=mesh,
         in_specs=Ps("eps"),
         out_specs=Ps("eps"),
         check_vma=False,
     )(th)
-    return jax.tree_util.tree_map(lambda a: a[:S], out)
 
 
 def threshold_sweep(
@@ -96,9 +98,9 @@ def threshold_sweep(
     thresholds: Float[Array, " S"],
     dim: int = 2,
     batch_size: int | None = None,
-    method: str = "auto",
-    mds_method: str = "auto",
-    shard: bool = False,
+    method: Literal["auto", "scan", "blocked", "sharded"] = "auto",
+    mds_method: Literal["auto", "eigh", "lobpcg"] = "auto",
+    shard: bool | None = None,
 ) -> SweepResult:
     """Score every threshold: ε-graph → geodesics → classical MDS → Pearson r.
 
@@ -111,9 +113,15 @@ def threshold_sweep(
     - `method`, `mds_method`: Floyd and eigensolver variants.
 
     - `shard`: split the thresholds across all local devices with ``shard_map`` (GPUs,
-      or CPU cores exposed as devices with ``--xla_force_host_platform_device_count``).
-      Keep the per-device work balanced: XLA:CPU aborts a collective whose participants
-      arrive more than 40 s apart.
+      or CPU cores exposed as devices with ``--xla_force_host_platform_device_count``);
+      ``None`` (default) shards whenever there is more than one local device. It is safe
+      by construction: no collective runs inside the sweep, and the sharded outputs are
+      gathered on the host before anything else uses them.
+
+    Under ``jax.distributed`` (several processes, e.g. one per GPU node) the thresholds
+    are first split over the processes, each sweeps its share on its local devices, and
+    the results are gathered, so every process returns the same :class:`SweepResult`,
+    identical to a one-process run.
 
     **Returns:** :class:`SweepResult`. Cost O(S·n³); the dense Floyd costs the same at every
     ε, while Dijkstra slows down as the graph densifies.
@@ -128,8 +136,36 @@ def threshold_sweep(
         raise FxspaceError("thresholds must be finite and positive")
     if batch_size is not None and batch_size < 1:
         raise FxspaceError(f"batch_size must be >= 1 or None, got {batch_size}")
-    r, conn, ncomp, deg, eig = _sweep(P, th, dim, batch_size, method, mds_method, shard)
+    traced = isinstance(P, jax.core.Tracer) or isinstance(th, jax.core.Tracer)
+    shard = (jax.local_device_count() > 1 and not traced) if shard is None else bool(shard)
+    if jax.process_count() > 1 and not traced:
+        out = _across_processes(P, np.asarray(th), dim, batch_size, method, mds_method, shard)
+    else:
+        out = _sweep(P, th, dim, batch_size, method, mds_method, shard)
+        S = th.shape[0]  # gathered on the host unless traced
+        out = tuple(a[:S] if traced else np.asarray(a)[:S] for a in out)
+    r, conn, ncomp, deg, eig = (jnp.asarray(a) for a in out)
     return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]))
+
+
+def _across_processes(P, th, dim, batch_size, method, mds_method, shard):
+    """Thresholds split round-robin over the ``jax.distributed`` processes, then gathered."""
+    from jax.experimental import multihost_utils
+
+    nproc, me = jax.process_count(), jax.process_index()
+    S = th.shape[0]
+    per = -(-S // nproc)
+    padded = np.concatenate([th, np.repeat(th[-1:], per * nproc - S)])
+    mine = _sweep(P, jnp.asarray(padded[me::nproc]), dim, batch_size, method, mds_method, shard)
+    mine = tuple(np.asarray(a)[:per] for a in mine)
+    every = [np.asarray(multihost_utils.process_allgather(a)) for a in mine]  # (nproc, per…)
+    out = []
+    for a in every:
+        full = np.empty((per * nproc, *a.shape[2:]), a.dtype)
+        for q in range(nproc):
+            full[q::nproc] = a[q]
+        out.append(full[:S])
+    return tuple(out)
 
 
 def threshold_grid(
@@ -154,7 +190,9 @@ def threshold_grid(
 
 
 def choose_threshold(
-    sweep: SweepResult, criterion: str = "max_r", max_mean_degree: float | None = None
+    sweep: SweepResult,
+    criterion: Literal["max_r", "bounded_degree", "elbow"] = "max_r",
+    max_mean_degree: float | None = None
 ) -> dict:
     """Pick a threshold from a sweep.
 

@@ -12,9 +12,14 @@ from fxspace.io._bvh import read_bvh as read_bvh
 from fxspace.io._bvh import write_bvh as write_bvh
 from fxspace.io._c3d import write_c3d as write_c3d
 from fxspace.io._gltf import read_gltf as read_gltf
+from fxspace.io._ik_bvh import ik_poses_to_motion as ik_poses_to_motion
+from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
 from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
 from fxspace.io._markers import read_markers as read_markers
 from fxspace.io._markers import write_npz as write_npz
+from fxspace.io._meshseq import write_gltf_morph as write_gltf_morph
+from fxspace.io._meshseq import write_obj_sequence as write_obj_sequence
+from fxspace.io._meshseq import write_ply_sequence as write_ply_sequence
 from fxspace.io._trc import write_trc as write_trc
 from fxspace.io._types import UNIT_SCALES as UNIT_SCALES
 from fxspace.io._types import MarkerSequence as MarkerSequence
@@ -38,9 +43,14 @@ __all__ = [
     "write_bvh",
     "write_c3d",
     "read_gltf",
+    "ik_poses_to_motion",
+    "write_ik_bvh",
     "SUPPORTED_EXTENSIONS",
     "read_markers",
     "write_npz",
+    "write_gltf_morph",
+    "write_obj_sequence",
+    "write_ply_sequence",
     "write_trc",
     "UNIT_SCALES",
     "MarkerSequence",

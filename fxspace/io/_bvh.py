@@ -15,9 +15,10 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from fxspace._validate import check_readable
 from fxspace.errors import CorruptFileError
 from fxspace.motion._types import Motion
-from fxspace.rotations import euler_to_quat, quat_to_euler
+from fxspace.rotations import euler_to_quat, quat_rotate, quat_to_euler
 
 __all__ = ["read_bvh", "write_bvh"]
 
@@ -26,10 +27,7 @@ _POS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
 
 
 def _open_text(path: Path) -> str:
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path} does not exist") from None
+    raw = check_readable(path, "file").read_bytes()  # absent / directory / permission
     if path.suffix == ".gz" or raw[:2] == b"\x1f\x8b":
         try:
             raw = gzip.decompress(raw)
@@ -84,6 +82,13 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
 
     **Returns:** a ``Motion``; end sites become joints named ``<parent>_end``.
 
+    Position channels may sit on any joint (game-pipeline BVH such as the Bandai Namco
+    dataset, 6 channels per joint): their values replace the joint's OFFSET. Constant ones
+    become the offset; a varying one on the root's only child (the usual ``Hips`` under a
+    static ``Root``) is folded into the root translation, so every joint below the root
+    keeps its world position (:func:`fxspace.motion.drop_root` then removes the static root).
+    Other varying translations (stretching bones) raise ``CorruptFileError``.
+
     Raises ``CorruptFileError`` naming the line of the first malformed token.
     """
     path = Path(path)
@@ -116,12 +121,6 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
             for c in chans:
                 if c not in _ROT and c not in _POS:
                     raise tk.error(f"unknown channel {c!r} of joint {name!r}", n)
-                if c in _POS and parent != -1:
-                    raise tk.error(
-                        f"joint {name!r} has a position channel {c!r}; only the "
-                        "root may be translated",
-                        n,
-                    )
         channels.append(chans)
         while True:
             t, n = tk.next("JOINT, End Site or }")
@@ -181,34 +180,65 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
                 f"{path}, line {ln_no + 1}: non-numeric value in frame data"
             ) from None
     if len(rows) != n_frames:
+        hint = "truncated file?" if len(rows) < n_frames else "fix the 'Frames:' line"
         raise CorruptFileError(
             f"{path}, line {len(lines)}: header says {n_frames} frames, "
-            f"found {len(rows)} (truncated file?)"
+            f"found {len(rows)} ({hint})"
         )
     data = np.asarray(rows, dtype=np.float64).reshape(n_frames, n_ch)
     J = len(names)
     quats = np.zeros((n_frames, J, 4))
     quats[..., 0] = 1.0
     root = np.zeros((n_frames, 3))
+    local = {}  # non-root joints with position channels: (T, 3) local translations
     col = 0
     for j, chans in enumerate(channels):
         order = "".join(_ROT[c] for c in chans if c in _ROT)
         rcols = [col + i for i, c in enumerate(chans) if c in _ROT]
         for i, c in enumerate(chans):
             if c in _POS:
-                root[:, _POS[c]] = data[:, col + i]
+                if parents[j] == -1:
+                    root[:, _POS[c]] = data[:, col + i]
+                else:
+                    tr = local.setdefault(j, np.tile(np.asarray(offsets[j], float), (n_frames, 1)))
+                    tr[:, _POS[c]] = data[:, col + i]
         if order:
             quats[:, j] = euler_to_quat(data[:, rcols], order)
         col += len(chans)
+    offsets_np = np.asarray(offsets, dtype=np.float64)
+    if local:
+        _fold_joint_translations(path, names, parents, offsets_np, root, quats, local)
     return Motion(
         names=tuple(names),
         parents=tuple(parents),
-        offsets=jnp.asarray(np.asarray(offsets) * scale),
+        offsets=jnp.asarray(offsets_np * scale),
         root_translation=jnp.asarray(root * scale),
         rotations=jnp.asarray(quats),
         rate=float(1.0 / dt),
         channels=tuple(channels),
     )
+
+
+def _fold_joint_translations(path, names, parents, offsets, root, quats, local) -> None:
+    """Position channels on non-root joints (a BVH variant from game pipelines, e.g. the
+    Bandai Namco dataset: 6 channels on every joint): the channel values replace the
+    joint's OFFSET, frame by frame. A translation that stays constant (within 1e-6 of the
+    file's length unit per frame) becomes the joint's offset; one that varies is folded
+    into the root translation, which is exact for every joint but the root when the joint
+    is the root's only child (``X_j = X_root + R_root t_j``; the root itself then sits at
+    ``X_j − R_root OFFSET_j``). Anything else cannot be represented by a
+    :class:`Motion` (rigid bones) and raises ``CorruptFileError``. Edits in place."""
+    children = [sum(1 for p in parents if p == j) for j in range(len(parents))]
+    for j, tr in local.items():
+        if np.ptp(tr, axis=0).max() <= 1e-6 * max(1.0, float(np.abs(tr).max())):
+            offsets[j] = tr.mean(axis=0)
+        elif parents[j] == 0 and children[0] == 1:
+            root += np.asarray(quat_rotate(quats[:, 0], tr - offsets[j][None]))
+        else:
+            raise CorruptFileError(
+                f"{path}: joint {names[j]!r} has time-varying position channels and is not "
+                "the root's only child; a Motion has rigid bones, so this file cannot be read"
+            )
 
 
 def _fmt(x: float) -> str:
@@ -268,8 +298,10 @@ def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
         eul = quat_to_euler(quats[:, j], order) if order else None
         r = 0
         for c in chans:
-            if c in _POS:
+            if c in _POS and motion.parents[j] == -1:
                 cols.append(root[:, _POS[c]])
+            elif c in _POS:  # a non-root joint's position channel: its (constant) offset
+                cols.append(np.full(T, offsets[j, _POS[c]]))
             else:
                 cols.append(eul[:, r])
                 r += 1

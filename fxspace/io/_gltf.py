@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fxspace._validate import check_readable
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.mesh._types import Animation, AnimationChannel, LocalPose, SkinnedMesh
 from fxspace.rotations import matrix_to_quat, quat_normalize, quat_to_matrix
@@ -72,7 +73,7 @@ class _Reader:
     def __init__(self, path: Path):
         import pygltflib
 
-        self.path = path
+        self.path = check_readable(path, "glTF file")  # a permission error is not "corrupt"
         try:
             self.g = pygltflib.GLTF2().load(str(path))
         except Exception as e:  # pygltflib raises assorted errors on bad input
@@ -193,6 +194,8 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
     **Returns:** a :class:`SkinnedMesh`.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"read_gltf: {path} is a directory, not a glTF file")
     if not path.is_file():
         raise FxspaceError(f"read_gltf: {path} does not exist")
     r = _Reader(path)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fxspace._validate import check_readable
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.io._c3d import _read_c3d
 from fxspace.io._trc import _read_trc
@@ -108,8 +109,7 @@ def read_markers(path: str | Path) -> MarkerSequence:
     """
     p = Path(path)
     fmt = _format_of(p)
-    if not p.is_file():
-        raise FileNotFoundError(f"marker file not found: {p}")
+    check_readable(p, "marker file")  # absent / a directory / unreadable, said as such
     if fmt == ".c3d":
         return _read_c3d(p)
     if fmt in (".trc", ".trc.gz"):

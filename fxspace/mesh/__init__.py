@@ -2,8 +2,10 @@
 visible triangles, joint angles by the factored (two-loop) gradient.
 """
 
+from fxspace.mesh._ik import IK_STATUS as IK_STATUS
 from fxspace.mesh._ik import IKForward as IKForward
 from fxspace.mesh._ik import IKModel as IKModel
+from fxspace.mesh._ik import IKRegularization as IKRegularization
 from fxspace.mesh._ik import IKResult as IKResult
 from fxspace.mesh._ik import ik_forward as ik_forward
 from fxspace.mesh._ik import ik_gradient_autodiff as ik_gradient_autodiff
@@ -14,7 +16,9 @@ from fxspace.mesh._ik import ik_markers as ik_markers
 from fxspace.mesh._ik import ik_model as ik_model
 from fxspace.mesh._ik import ik_normal_equations as ik_normal_equations
 from fxspace.mesh._ik import ik_objective as ik_objective
+from fxspace.mesh._ik import ik_regularization as ik_regularization
 from fxspace.mesh._ik import ik_residuals as ik_residuals
+from fxspace.mesh._ik import marker_normals as marker_normals
 from fxspace.mesh._ik import solve_ik as solve_ik
 from fxspace.mesh._ik import track_ik as track_ik
 from fxspace.mesh._markers import MarkerSet as MarkerSet
@@ -43,6 +47,9 @@ __all__ = [
     "IKForward",
     "IKModel",
     "IKResult",
+    "IK_STATUS",
+    "IKRegularization",
+    "ik_regularization",
     "ik_forward",
     "ik_gradient_autodiff",
     "ik_gradient_factored",
@@ -53,6 +60,7 @@ __all__ = [
     "ik_normal_equations",
     "ik_objective",
     "ik_residuals",
+    "marker_normals",
     "solve_ik",
     "track_ik",
     "MarkerSet",

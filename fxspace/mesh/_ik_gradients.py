@@ -57,6 +57,7 @@ __all__ = [
 Gradient = Literal["factored", "naive", "autodiff"]
 GRADIENTS: tuple[str, ...] = ("factored", "naive", "autodiff")
 
+
 def _pad(x: Array) -> Array:
     return jnp.concatenate([x, jnp.zeros((1,) + x.shape[1:], x.dtype)], axis=0)
 
@@ -124,15 +125,17 @@ def ik_gradient_autodiff(model: IKModel, pose: Pose, targets: Float[Array, "mark
     return jax.grad(ik_objective, argnums=1)(model, pose, targets)
 
 
-_GRAD = {
-    "naive": ik_gradient_naive,
-    "factored": ik_gradient_factored,
-    "autodiff": ik_gradient_autodiff,
-}
+def value_and_gradient(
+    gradient: Gradient, model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]
+) -> tuple[Float[Array, ""], Pose]:
+    """``(E, ∇E)`` from one forward pass, with the chosen gradient form.
 
+    **Arguments:** `gradient`: ``"factored"`` (eq. (13)), ``"naive"`` (eq. (9)) or
+    ``"autodiff"`` (``jax.value_and_grad``); `model`, `pose`, `targets` as
+    :func:`ik_gradient_factored`.
 
-def _value_and_grad(gradient: str, model: IKModel, pose: Pose, targets) -> tuple[Array, Pose]:
-    """``(E, ∇E)`` from one forward pass, with the chosen gradient form."""
+    **Returns:** the objective and its gradient (a :class:`fxspace.Pose`).
+    """
     if gradient == "autodiff":
         return jax.value_and_grad(ik_objective, argnums=1)(model, pose, targets)
     fw = ik_forward(model, pose)
@@ -201,4 +204,3 @@ def ik_normal_equations(
     )
     g = jnp.concatenate([g_ang.reshape(-1), r.sum(axis=0)])
     return r, g, h
-

@@ -49,6 +49,7 @@ __all__ = [
     "ik_objective",
 ]
 
+
 class IKModel(NamedTuple):
     """Everything the IK objective needs, as arrays (a pytree: pass it through ``jit``/``vmap``).
 
@@ -97,12 +98,22 @@ class IKForward(NamedTuple):
     markers: Float[Array, "markers 3"]  # p_k
 
 
+IK_STATUS: tuple[str, ...] = ("converged", "max_steps", "non_finite", "stalled")
+"""Meaning of :attr:`IKResult.status`: ``0`` converged; ``1`` hit ``max_steps``; ``2`` the
+targets, the initial pose or an iterate held NaN/inf (the returned pose is the last finite
+iterate, never a made-up answer); ``3`` no step lowered the objective any more before the
+tolerance was met."""
+
+
 class IKResult(NamedTuple):
-    """Result of :func:`solve_ik`: the pose and diagnostics.
+    """Result of :func:`fxspace.solve_ik`: the pose and diagnostics.
 
     ``residual`` is the RMS marker distance ``sqrt(E / K)`` (the mesh's units),
-    ``objective`` is ``E`` (eq. (1)), ``converged`` says whether the tolerance was met
-    within ``max_steps``.
+    ``objective`` is ``E`` (eq. (1); plus the regularisers when some are on),
+    ``converged`` says whether the tolerance was met within ``max_steps``, and
+    ``status`` says why the solver stopped (an index into :data:`IK_STATUS`:
+    ``IK_STATUS[int(res.status)]``). Non-finite targets give ``converged=False`` and
+    ``status=2``, never the rest pose flagged as converged.
     """
 
     pose: Pose
@@ -110,6 +121,7 @@ class IKResult(NamedTuple):
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
     converged: Bool[Array, ""]
+    status: Int[Array, ""] | int = 0
 
 
 def _quaternion_to_matrix_np(q: np.ndarray) -> np.ndarray:
@@ -290,4 +302,3 @@ def ik_objective(
     """``E(θ) = Σ_k ‖p_k(θ) − t_k‖²`` (the paper's eq. (1)/(7))."""
     d = ik_residuals(model, pose, targets)
     return jnp.sum(d * d)
-

@@ -1,6 +1,7 @@
 """Decoupled parametric motion synthesis (Ha & Han): forward kinematics, DTW registration,
-k-NN blending over sampled parameter spaces, incremental time-warping with two synchronised
-clocks, upper/lower-body splicing and Horn re-placement.
+k-NN blending over sampled parameter spaces, incremental time-warping (eq. 1) with the two
+clocks aligned by eqs. 2–3, upper/lower-body splicing and the §3.2 Horn re-placement, all in
+one pure per-frame step (:func:`synthesize_step`).
 
 Quaternions are ``(w, x, y, z)``; lengths are metres; see :class:`Motion`. The rotation
 helpers re-exported here live in :mod:`fxspace.rotations`.
@@ -25,6 +26,19 @@ from fxspace.motion._fk import forward_kinematics as forward_kinematics
 from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
 from fxspace.motion._horn import apply_rigid as apply_rigid
+from fxspace.motion._metrics import foot_sliding as foot_sliding
+from fxspace.motion._metrics import ground_speed as ground_speed
+from fxspace.motion._register import alignment_curve as alignment_curve
+from fxspace.motion._register import drop_root as drop_root
+from fxspace.motion._register import gait_window as gait_window
+from fxspace.motion._register import pose_features as pose_features
+from fxspace.motion._register import register_dtw as register_dtw
+from fxspace.motion._register import smooth_warp as smooth_warp
+from fxspace.motion._setups import SETUPS as SETUPS
+from fxspace.motion._setups import Setup as Setup
+from fxspace.motion._setups import SetupData as SetupData
+from fxspace.motion._setups import SetupSpace as SetupSpace
+from fxspace.motion._setups import prepare_setup as prepare_setup
 from fxspace.motion._space import extract_window as extract_window
 from fxspace.motion._space import find_key_times as find_key_times
 from fxspace.motion._space import stack_examples as stack_examples
@@ -32,9 +46,23 @@ from fxspace.motion._splice import align_start as align_start
 from fxspace.motion._splice import heading_quat as heading_quat
 from fxspace.motion._splice import splice_pose as splice_pose
 from fxspace.motion._splice import upper_body_mask as upper_body_mask
+from fxspace.motion._synthesis import Pose as Pose
+from fxspace.motion._synthesis import SynthesisSpaces as SynthesisSpaces
+from fxspace.motion._synthesis import SynthState as SynthState
+from fxspace.motion._synthesis import build_spaces as build_spaces
+from fxspace.motion._synthesis import exact_upper_params as exact_upper_params
+from fxspace.motion._synthesis import init_state as init_state
+from fxspace.motion._synthesis import lower_param_of as lower_param_of
+from fxspace.motion._synthesis import replace_samples as replace_samples
+from fxspace.motion._synthesis import synthesize as synthesize
+from fxspace.motion._synthesis import synthesize_step as synthesize_step
+from fxspace.motion._synthesis import upper_param_of as upper_param_of
 from fxspace.motion._timewarp import Clocks as Clocks
 from fxspace.motion._timewarp import advance_clock as advance_clock
+from fxspace.motion._timewarp import advance_clock_duration as advance_clock_duration
+from fxspace.motion._timewarp import align_clocks as align_clocks
 from fxspace.motion._timewarp import interp_curve as interp_curve
+from fxspace.motion._timewarp import invert_curve as invert_curve
 from fxspace.motion._timewarp import keytime_warp as keytime_warp
 from fxspace.motion._timewarp import sync_clocks as sync_clocks
 from fxspace.motion._timewarp import warp_slopes as warp_slopes
@@ -78,6 +106,11 @@ __all__ = [
     "quat_slerp",
     "quat_to_euler",
     "quat_to_matrix",
+    "SETUPS",
+    "Setup",
+    "SetupData",
+    "SetupSpace",
+    "prepare_setup",
     "extract_window",
     "find_key_times",
     "stack_examples",
@@ -85,9 +118,31 @@ __all__ = [
     "heading_quat",
     "splice_pose",
     "upper_body_mask",
+    "foot_sliding",
+    "ground_speed",
+    "alignment_curve",
+    "drop_root",
+    "gait_window",
+    "pose_features",
+    "register_dtw",
+    "smooth_warp",
+    "Pose",
+    "SynthesisSpaces",
+    "SynthState",
+    "build_spaces",
+    "exact_upper_params",
+    "init_state",
+    "lower_param_of",
+    "replace_samples",
+    "synthesize",
+    "synthesize_step",
+    "upper_param_of",
     "Clocks",
     "advance_clock",
+    "advance_clock_duration",
+    "align_clocks",
     "interp_curve",
+    "invert_curve",
     "keytime_warp",
     "sync_clocks",
     "warp_slopes",

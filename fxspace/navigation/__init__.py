@@ -5,12 +5,13 @@ levels, links between centres, routes refined level by level, playback.
 from fxspace.navigation._hierarchy import Hierarchy as Hierarchy
 from fxspace.navigation._hierarchy import Level as Level
 from fxspace.navigation._hierarchy import build_hierarchy as build_hierarchy
-from fxspace.navigation._hierarchy import center_links as center_links
-from fxspace.navigation._hierarchy import default_link_radius as default_link_radius
 from fxspace.navigation._hierarchy import level_sizes as level_sizes
-from fxspace.navigation._hierarchy import link_graph_connected as link_graph_connected
 from fxspace.navigation._hierarchy import nearest_frames as nearest_frames
 from fxspace.navigation._hierarchy import split_centers as split_centers
+from fxspace.navigation._index import GridIndex as GridIndex
+from fxspace.navigation._links import center_links as center_links
+from fxspace.navigation._links import default_link_radius as default_link_radius
+from fxspace.navigation._links import link_graph_connected as link_graph_connected
 from fxspace.navigation._playback import Playback as Playback
 from fxspace.navigation._playback import playback as playback
 from fxspace.navigation._playback import rigid_align as rigid_align
@@ -22,14 +23,21 @@ from fxspace.navigation._routes import make_route as make_route
 from fxspace.navigation._routes import navigate as navigate
 from fxspace.navigation._routes import path_candidates as path_candidates
 from fxspace.navigation._routes import refine_route as refine_route
+from fxspace.navigation._scale import SparseLevel as SparseLevel
+from fxspace.navigation._scale import sparse_hierarchy as sparse_hierarchy
+from fxspace.navigation._scale import sparse_links as sparse_links
+from fxspace.navigation._scale import sparse_route as sparse_route
 from fxspace.navigation._space import NavigationSpace as NavigationSpace
 from fxspace.navigation._space import navigation_space as navigation_space
 from fxspace.navigation._space import resolve_threshold as resolve_threshold
+from fxspace.navigation._space import threshold_from_run as threshold_from_run
 
 __all__ = [
     "NavigationSpace",
     "navigation_space",
     "resolve_threshold",
+    "threshold_from_run",
+    "GridIndex",
     "Hierarchy",
     "Level",
     "build_hierarchy",
@@ -50,4 +58,8 @@ __all__ = [
     "Playback",
     "playback",
     "rigid_align",
+    "SparseLevel",
+    "sparse_hierarchy",
+    "sparse_links",
+    "sparse_route",
 ]

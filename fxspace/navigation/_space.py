@@ -6,7 +6,9 @@ the library's chain into a hierarchy).
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+import json
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -15,46 +17,106 @@ from jaxtyping import Array, Float
 from fxspace.errors import FxspaceError
 from fxspace.expression import (
     ExpressionSpace,
+    choose_threshold,
     connecting_threshold,
     distance_features,
     expression_space,
     pairwise_distances,
+    threshold_grid,
+    threshold_sweep,
 )
 from fxspace.navigation._hierarchy import Hierarchy, build_hierarchy
 
-__all__ = ["NavigationSpace", "navigation_space", "resolve_threshold"]
+__all__ = [
+    "NavigationSpace",
+    "navigation_space",
+    "resolve_threshold",
+    "threshold_from_run",
+    "THRESHOLD_CRITERIA",
+]
+
+THRESHOLD_CRITERIA = ("max_r", "bounded_degree", "elbow")
 
 
 class NavigationSpace(NamedTuple):
-    """An expression space, its hierarchy, the connecting ε and the ε used."""
+    """An expression space, its hierarchy, the connecting ε, the ε used and where it came
+    from (``threshold_source``: ``"value"``, ``"factor 1.25 × connecting"``,
+    ``"criterion max_r (sweep of 24)"`` or ``"from:RUN_DIR (bounded_degree)"``)."""
 
     space: ExpressionSpace
     hierarchy: Hierarchy | None
     connecting_threshold: float
     threshold: float
+    threshold_source: str = "value"
+
+
+def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
+    """``(ε, criterion)`` chosen by a finished threshold-sweep run (its ``metrics.json``:
+    ``best_threshold`` and ``criterion``). Raises ``FxspaceError`` naming what is missing."""
+    p = Path(run_dir)
+    m = p / "metrics.json"
+    if not m.is_file():
+        raise FxspaceError(
+            f"threshold = 'from:{run_dir}': {m} not found; run the sweep first "
+            "(fxspace run configs/threshold_sweep.toml)"
+        )
+    metrics = json.loads(m.read_text())
+    if "best_threshold" not in metrics:
+        raise FxspaceError(f"{m} has no best_threshold: not a threshold_sweep run")
+    return float(metrics["best_threshold"]), str(metrics.get("criterion", "?"))
+
+
+def _threshold_value(
+    pairwise, threshold: float | str | None, threshold_factor: float, t_conn: float
+) -> tuple[float, str]:
+    if isinstance(threshold, str):
+        if threshold.startswith("from:"):
+            eps, crit = threshold_from_run(threshold.removeprefix("from:"))
+            return eps, f"{threshold} ({crit})"
+        if threshold in THRESHOLD_CRITERIA:
+            grid = threshold_grid(pairwise, 24, 0.6, 0.9)
+            sw = threshold_sweep(pairwise, grid)
+            return float(choose_threshold(sw, threshold)["threshold"]), (
+                f"criterion {threshold} (sweep of {len(grid)})"
+            )
+        raise FxspaceError(
+            f"threshold must be a number, 'from:RUN_DIR' (a threshold_sweep run) or a "
+            f"criterion {THRESHOLD_CRITERIA}; got {threshold!r}"
+        )
+    if threshold:
+        return float(threshold), "value"
+    return threshold_factor * t_conn, f"factor {threshold_factor:g} × connecting"
 
 
 def resolve_threshold(
-    pairwise: Float[Array, "n n"], threshold: float | None, threshold_factor: float = 1.25
-) -> tuple[float, float]:
-    """``(ε, connecting ε)``: ``threshold`` when given, else ``threshold_factor`` × the smallest
-    threshold that connects the graph. Raises ``FxspaceError`` when ε leaves it disconnected."""
+    pairwise: Float[Array, "n n"],
+    threshold: float | str | None,
+    threshold_factor: float = 1.25,
+    *,
+    with_source: bool = False,
+) -> tuple[float, float] | tuple[float, float, str]:
+    """``(ε, connecting ε)`` (and the source with ``with_source``): ``threshold`` when a
+    number; ``"from:RUN_DIR"`` → the ε a finished threshold-sweep run chose; a criterion
+    name (``"max_r"`` — the seed paper's, ``"bounded_degree"``, ``"elbow"``) → a sweep of
+    24 thresholds here and :func:`fxspace.choose_threshold`; ``None``/0 →
+    ``threshold_factor`` × the smallest threshold that connects the graph. Raises
+    ``FxspaceError`` when ε leaves the graph disconnected."""
     t_conn = float(connecting_threshold(pairwise))
-    eps = float(threshold) if threshold else threshold_factor * t_conn
+    eps, source = _threshold_value(pairwise, threshold, threshold_factor, t_conn)
     if eps < t_conn:
         raise FxspaceError(
             f"threshold = {eps:.4g} leaves the graph disconnected; the smallest connecting "
             f"threshold is {t_conn:.4g}: raise it"
         )
-    return eps, t_conn
+    return (eps, t_conn, source) if with_source else (eps, t_conn)
 
 
 def navigation_space(
     positions: Float[Array, "n markers 3"],
-    threshold: float | None = None,
+    threshold: float | str | None = None,
     *,
     threshold_factor: float = 1.25,
-    dtype: str = "float32",
+    dtype: Literal["float32", "float64"] = "float32",
     key: Array | None = None,
     hierarchy: dict[str, Any] | None = None,
 ) -> NavigationSpace:
@@ -64,7 +126,10 @@ def navigation_space(
     **Arguments:**
 
     - `positions`: ``(n, M, 3)`` marker frames without NaN.
-    - `threshold`: ε; ``None`` or 0 → `threshold_factor` × the connecting threshold.
+    - `threshold`: ε; ``None`` or 0 → `threshold_factor` × the connecting threshold;
+      ``"from:runs/threshold_sweep"`` → the ε that sweep run chose; ``"max_r"``,
+      ``"bounded_degree"`` or ``"elbow"`` → a sweep here, chosen by that criterion
+      (see :func:`resolve_threshold`). The result's ``threshold_source`` records which.
     - `dtype`: ``"float32"`` or ``"float64"`` for the chain.
     - `key`: PRNG key of the FCM seeding.
     - `hierarchy`: keyword arguments of :func:`fxspace.build_hierarchy`.
@@ -73,7 +138,7 @@ def navigation_space(
         raise FxspaceError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     X = jnp.asarray(positions, jnp.float32 if dtype == "float32" else jnp.float64)
     P = pairwise_distances(distance_features(X))
-    eps, t_conn = resolve_threshold(P, threshold, threshold_factor)
+    eps, t_conn, source = resolve_threshold(P, threshold, threshold_factor, with_source=True)
     es = expression_space(None, eps, 2, pairwise=P)
     es = jax.block_until_ready(es)
     h = None
@@ -84,4 +149,4 @@ def navigation_space(
             key=jax.random.PRNGKey(0) if key is None else key,
             **hierarchy,
         )
-    return NavigationSpace(es, h, t_conn, eps)
+    return NavigationSpace(es, h, t_conn, eps, source)

@@ -1,13 +1,26 @@
-"""Mesh IK experiment (issue 6; Park, Kang & Kwon, §4).
+"""Mesh IK experiment: Park, Kang & Kwon §5 (Figs. 4–10), on every mesh of the config.
 
-For each mesh and each marker count (1 / 5 / 10 / 50 / 120 by default): markers on the
-triangles facing the camera, targets from an animation's frames (300 by default, as in
-the paper), IK solved frame by frame from the rest pose, each frame warm-started from the
-previous one. Reports the marker residual, the vertex error against the true posed mesh,
-the time per frame of the Levenberg–Marquardt solve, and the time per frame of a
-first-order (Adam) solve with each of the three gradients (naive eq. (9), factored
-eq. (13), autodiff), plus the bare gradient times. Figures: rest / target / deformed per
-marker count, time per frame naive vs factored, time and vertex error vs markers.
+For each mesh (``"File:animation"``, file stem under ``mesh/``) and each marker count
+(1 / 5 / 10 / 50 / 120 by default): markers on random triangles visible from a random
+viewpoint (seeded), targets from ``num_frames`` frames of the mesh's own animation (300,
+as the paper), and IK solved frame by frame, one jitted call per frame:
+
+- from the rest pose every frame (**cold**, as the paper) and from the previous frame's
+  pose (**warm**);
+- with Levenberg–Marquardt on the analytic Jacobian (the library's default) and with
+  BFGS driven by the factored gradient (eq. (13)) and by the naive one (eq. (9)) — the
+  paper's comparison: both BFGS runs take identical steps, so their time ratio is what
+  eq. (13) buys per solved frame. The naive run is timed on ``naive_frames`` evenly
+  spaced frames, each started where the factored run started it (the same solves), to
+  keep the experiment to minutes; the bare gradient evaluations are timed too.
+
+Metrics per mesh × markers: mean time per frame, vertex error against the true posed
+mesh, marker residual, naive/factored ratios (``metrics.json`` and ``table.md``).
+Figures: ``<mesh>_poses.png`` (rest / target / deformed, shaded: Figs. 4–8),
+``<mesh>_time_per_frame.png`` (naive vs factored per frame at the largest count: Fig. 9),
+``<mesh>_time_vs_markers.png`` (Fig. 10), ``<mesh>_error_vs_markers.png``, and
+``regularizers.png`` (vertex error with few markers with and without the optional
+joint-angle prior, joint limits and normal constraint).
 """
 
 from __future__ import annotations
@@ -21,43 +34,61 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._progress import progress
+from fxspace._progress import progress, stage
 from fxspace.config import ConfigError
 from fxspace.data import data_path
-from fxspace.mesh._ik import (
-    GRADIENTS,
+from fxspace.mesh import (
+    Pose,
     ik_gradient_factored,
     ik_gradient_naive,
     ik_model,
+    ik_regularization,
+    marker_positions,
+    place_markers,
+    pose_vertices,
     solve_ik,
     track_ik,
+    triangle_normals,
+    visible_triangles,
 )
-from fxspace.mesh._ik import ik_gradient_autodiff as _autodiff
-from fxspace.mesh._markers import marker_positions, place_markers
-from fxspace.mesh._skinning import Pose, pose_vertices
-from fxspace.runs import save_figure_atomic, save_npz_atomic
+from fxspace.runs import save_figure_atomic, save_npz_atomic, write_text_atomic
 
-__all__ = ["Config", "run", "median_time"]
+__all__ = ["Config", "run", "median_time", "random_view"]
 
 PAPER = {"accelerated_ms": 32.5, "naive_ms": 90.6, "speedup_mean": 3.14, "speedup_human": 2.78}
+SOLVERS = (
+    "lm",
+    "bfgs_factored",
+    "bfgs_naive",
+)  # the naive run replays frames (see _per_frame_replay)
 
 
 @dataclasses.dataclass(frozen=True)
 class Config:
     """``meshes``: ``"File:animation"`` (file stem under ``mesh/``; empty animation = the
-    first). ``view_dir``: the camera's viewing direction for marker placement."""
+    first). ``view_dir``: the camera's viewing direction for marker placement; empty =
+    a random viewpoint (seeded) with enough visible triangles. ``reg_*``: the regulariser
+    weights of the comparison (``fxspace.mesh.ik_regularization``)."""
 
-    meshes: tuple[str, ...] = ("CesiumMan:Anim_0", "Fox:Walk")
+    meshes: tuple[str, ...] = ("CesiumMan:Anim_0", "Fox:Walk", "RiggedSimple:")
     marker_counts: tuple[int, ...] = (1, 5, 10, 50, 120)
     num_frames: int = 300
-    view_dir: tuple[float, ...] = (0.0, 0.0, -1.0)
-    max_steps: int = 50
+    view_dir: tuple[float, ...] = ()
     lm_rtol: float = 1e-3
-    adam_steps: int = 20
-    adam_learning_rate: float = 0.01
-    timing_frames: int = 60
-    timing_repeats: int = 3
+    lm_steps: int = 50
+    bfgs_rtol: float = 1e-3
+    bfgs_steps: int = 200
+    naive_frames: int = 60  # frames (evenly spaced) the naive-gradient BFGS is timed on
+    starts: tuple[str, ...] = ("cold", "warm")
+    gradient_repeats: int = 3
     figure_frame: float = 0.5  # which frame (fraction of the animation) the pose figure shows
+    reg_mesh: str = "CesiumMan:Anim_0"
+    reg_marker_counts: tuple[int, ...] = (1, 5, 10)
+    reg_prior: float = 1e-3
+    reg_prior_to: Literal["rest", "previous"] = "previous"
+    reg_limits: float = 1.0
+    reg_limit: float = 1.5707963267948966
+    reg_normal: float = 1e-2
     dtype: Literal["float32", "float64"] = "float64"
 
     def validate(self) -> None:
@@ -65,12 +96,19 @@ class Config:
             raise ConfigError("meshes must name at least one mesh, e.g. 'CesiumMan:Anim_0'")
         if not self.marker_counts or min(self.marker_counts) < 1:
             raise ConfigError("marker_counts must be positive integers")
-        if len(self.view_dir) != 3:
-            raise ConfigError("view_dir must have 3 components")
-        if self.num_frames < 2 or self.timing_frames < 1 or self.timing_repeats < 1:
-            raise ConfigError("num_frames >= 2, timing_frames >= 1, timing_repeats >= 1 please")
+        if self.view_dir and (len(self.view_dir) != 3 or not any(self.view_dir)):
+            raise ConfigError("view_dir must be empty (random) or a non-zero 3-vector")
+        if self.num_frames < 2 or self.gradient_repeats < 1 or self.naive_frames < 1:
+            raise ConfigError("num_frames >= 2, naive_frames >= 1, gradient_repeats >= 1 please")
+        if not set(self.starts) <= {"cold", "warm"} or not self.starts:
+            raise ConfigError("starts must be a non-empty subset of ['cold', 'warm']")
         if not 0.0 <= self.figure_frame <= 1.0:
             raise ConfigError("figure_frame is a fraction of the animation in [0, 1]")
+        for name in ("reg_prior", "reg_limits", "reg_normal", "lm_rtol", "bfgs_rtol"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"{name} must be >= 0")
+        if self.reg_prior_to not in ("rest", "previous"):
+            raise ConfigError("reg_prior_to must be 'rest' or 'previous'")
 
 
 def median_time(fn, repeats: int) -> tuple[float, float]:
@@ -83,191 +121,339 @@ def median_time(fn, repeats: int) -> tuple[float, float]:
     return float(np.median(ts)), float(np.min(ts))
 
 
-def _per_frame_times(model, targets, n, **kw) -> np.ndarray:
-    """Seconds per frame of jitted warm-started ``solve_ik`` calls, frame by frame."""
-    nj = model.ancestors.shape[0]
-    pose = Pose(jnp.zeros((nj, 3), targets.dtype), jnp.zeros((3,), targets.dtype))
-    jax.block_until_ready(solve_ik(model, targets[0], pose, **kw))  # compile
-    out = np.empty(n)
+def random_view(vertices, faces, need: int, rng: np.random.Generator) -> np.ndarray:
+    """A random unit viewing direction from which at least ``need`` triangles face the
+    camera (the one with the most, after 16 tries, when none has enough)."""
+    best, best_n = None, -1
+    for _ in range(16):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        n = int(np.asarray(visible_triangles(vertices, faces, d)).sum())
+        if n >= need:
+            return d
+        if n > best_n:
+            best, best_n = d, n
+    return best
+
+
+def _solver_opts(cfg: Config, name: str) -> dict:
+    if name == "lm":
+        return dict(method="lm", rtol=cfg.lm_rtol, max_steps=cfg.lm_steps)
+    grad = name.split("_", 1)[1]
+    return dict(method="bfgs", gradient=grad, rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps)
+
+
+def _per_frame(model, targets, rest, start: str, **kw):
+    """Seconds per frame of jitted ``solve_ik`` calls along the frames, and the results."""
+    jax.block_until_ready(solve_ik(model, targets[0], rest, **kw))  # compile
+    n = targets.shape[0]
+    times = np.empty(n)
+    out = []
+    pose = rest
     for t in range(n):
         t0 = time.perf_counter()
-        res = solve_ik(model, targets[t], pose, **kw)
-        jax.block_until_ready(res)
-        out[t] = time.perf_counter() - t0
-        pose = res.pose
+        res = jax.block_until_ready(solve_ik(model, targets[t], pose, **kw))
+        times[t] = time.perf_counter() - t0
+        out.append(res)
+        if start == "warm":
+            pose = res.pose
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *out)
+    return times, stacked
+
+
+def _per_frame_replay(model, targets, rest, start, frames, poses, **kw):
+    """Per-frame times on ``frames`` only, each started where the full run started it (rest,
+    or the given run's pose of the frame before): the same solves as that run's, so a
+    solver taking identical steps (naive vs factored gradient) is timed like for like."""
+    jax.block_until_ready(solve_ik(model, targets[0], rest, **kw))  # compile
+    times = np.empty(len(frames))
+    dev = 0.0
+    for i, t in enumerate(frames):
+        init = rest if start == "cold" or t == 0 else _frame(poses, t - 1)
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(solve_ik(model, targets[t], init, **kw))
+        times[i] = time.perf_counter() - t0
+        dev = max(dev, float(jnp.max(jnp.abs(res.pose.angles - poses.angles[t]))))
+    return times, dev
+
+
+def _gradient_us(model, pose, targets, repeats: int) -> dict:
+    """Microseconds per bare gradient evaluation (forward + gradient, jitted, 200 calls)."""
+    out = {}
+    for name, g in (("naive", ik_gradient_naive), ("factored", ik_gradient_factored)):
+        f = jax.jit(g)
+        jax.block_until_ready(f(model, pose, targets))
+        med, _ = median_time(lambda f=f: [f(model, pose, targets) for _ in range(200)][-1], repeats)
+        out[name] = 1e6 * med / 200
     return out
 
 
-def _run_mesh(cfg: Config, spec: str, run_dir: Path, seed: int) -> dict:
+def _load(spec: str, num_frames: int, dtype):
     from fxspace.io import read_gltf
 
     stem, _, anim = spec.partition(":")
     mesh = read_gltf(data_path("mesh", f"{stem}.glb"))
     anim = anim or mesh.animation_names[0]
-    t0, t1 = mesh.animation_range(anim)
-    times = np.linspace(t0, t1, cfg.num_frames)
-    dtype = jnp.float64 if cfg.dtype == "float64" else jnp.float32
+    times = np.linspace(*mesh.animation_range(anim), num_frames)
     truth = jnp.asarray(mesh.animation_vertices(anim, times), dtype)  # (T, V, 3)
+    return stem, mesh, anim, truth
+
+
+def _frame(pose: Pose, t: int) -> Pose:
+    return Pose(pose.angles[t], pose.translation[t])
+
+
+def _cast(model, dtype):
+    return jax.tree_util.tree_map(
+        lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, model
+    )
+
+
+def _run_mesh(cfg: Config, spec: str, run_dir: Path, seed: int, label: str = "") -> dict:
+    dtype = jnp.float64 if cfg.dtype == "float64" else jnp.float32
+    stage(f"{label}loading {spec} ({cfg.num_frames} frames)")
+    stem, mesh, anim, truth = _load(spec, cfg.num_frames, dtype)
+    rng = np.random.default_rng(seed)
+    view = (
+        np.asarray(cfg.view_dir, float)
+        if cfg.view_dir
+        else random_view(mesh.vertices, mesh.faces, max(cfg.marker_counts), rng)
+    )
+    n_vis = int(np.asarray(visible_triangles(mesh.vertices, mesh.faces, view)).sum())
     scale = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
     posed = jax.jit(jax.vmap(lambda p: pose_vertices(mesh, p)))
     fig_frame = int(round(cfg.figure_frame * (cfg.num_frames - 1)))
-    nt = min(cfg.timing_frames, cfg.num_frames)
+    rest = Pose(jnp.zeros((mesh.num_joints, 3), dtype), jnp.zeros((3,), dtype))
     out: dict = {
         "mesh": stem,
         "animation": anim,
         "joints": mesh.num_joints,
         "vertices": mesh.num_vertices,
+        "triangles": int(mesh.faces.shape[0]),
+        "visible_triangles": n_vis,
+        "view_dir": view.tolist(),
         "frames": cfg.num_frames,
         "scale": scale,
         "per_markers": {},
     }
-    figure_rows = {}
-    per_frame_series = {}
-    for k in progress(cfg.marker_counts, desc=f"{stem} marker counts"):
-        rng = np.random.default_rng(seed + 1000 * k)
-        ms = place_markers(mesh.vertices, mesh.faces, k, cfg.view_dir, seed=rng)
-        model = jax.tree_util.tree_map(
-            lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a,
-            ik_model(mesh, ms),
-        )
+    figure_rows, series = {}, {}
+    counts = [k for k in cfg.marker_counts if k <= n_vis]
+    for j, k in enumerate(progress(counts, desc=f"{label}{stem}: marker counts")):
+        stage(f"{label}{stem}: {k} markers ({j + 1}/{len(counts)} marker counts)")
+        ms = place_markers(mesh.vertices, mesh.faces, k, view, seed=rng)
+        model = _cast(ik_model(mesh, ms), dtype)
         targets = marker_positions(truth, mesh.faces, ms).astype(dtype)  # (T, K, 3)
-        opts = dict(method="lm", max_steps=cfg.max_steps, rtol=cfg.lm_rtol)
-        tr = jax.block_until_ready(track_ik(model, targets, **opts))
-        scan_s, _ = median_time(
-            lambda m=model, t=targets, o=opts: track_ik(m, t, **o), cfg.timing_repeats
-        )
-        verts = posed(tr.pose)
-        verr = jnp.linalg.norm(verts - truth, axis=-1)  # (T, V)
-        lm_frames = _per_frame_times(model, targets, nt, **opts)
-        row = {
-            "markers": k,
-            "marker_rms_mean": float(jnp.mean(tr.residual)),
-            "marker_rms_max": float(jnp.max(tr.residual)),
-            "vertex_error_mean": float(jnp.mean(verr)),
-            "vertex_error_max": float(jnp.max(verr)),
-            "vertex_error_mean_rel": float(jnp.mean(verr)) / scale,
-            "converged_fraction": float(jnp.mean(tr.converged)),
-            "lm_steps_mean": float(jnp.mean(tr.num_steps)),
-            "lm_ms_per_frame_scan": 1e3 * scan_s / cfg.num_frames,
-            "lm_ms_per_frame_call_median": 1e3 * float(np.median(lm_frames)),
-            "lm_ms_per_frame_call_mean": 1e3 * float(np.mean(lm_frames)),
-        }
-        # bare gradient at the rest pose against the middle frame's targets (forward + gradient)
-        rest = Pose(jnp.zeros((mesh.num_joints, 3), dtype), jnp.zeros((3,), dtype))
-        fns = {"naive": ik_gradient_naive, "factored": ik_gradient_factored, "autodiff": _autodiff}
-        for name in GRADIENTS:
-            f = jax.jit(fns[name])
-            jax.block_until_ready(f(model, rest, targets[fig_frame]))
-            reps = 200
-            med, _ = median_time(
-                lambda f=f, a=(model, rest, targets[fig_frame]), n=reps: [f(*a) for _ in range(n)][
-                    -1
-                ],
-                max(cfg.timing_repeats, 3),
-            )
-            row[f"gradient_us_{name}"] = 1e6 * med / reps
-            # first-order solve per frame with this gradient (fixed step count: atol=0)
-            adam = dict(
-                method="adam",
-                gradient=name,
-                max_steps=cfg.adam_steps,
-                atol=0.0,
-                learning_rate=cfg.adam_learning_rate,
-            )
-            ft = _per_frame_times(model, targets, nt, **adam)
-            row[f"adam_ms_per_frame_{name}"] = 1e3 * float(np.median(ft))
-            if k == max(cfg.marker_counts):
-                per_frame_series[name] = 1e3 * ft
-        row["gradient_speedup_factored_vs_naive"] = (
-            row["gradient_us_naive"] / row["gradient_us_factored"]
-        )
-        row["adam_speedup_factored_vs_naive"] = (
-            row["adam_ms_per_frame_naive"] / row["adam_ms_per_frame_factored"]
-        )
+        row: dict = {"markers": k}
+        frames = np.unique(np.linspace(0, cfg.num_frames - 1, cfg.naive_frames).astype(int))
+        for solver in SOLVERS[:2]:
+            for start in cfg.starts:
+                ts, res = _per_frame(model, targets, rest, start, **_solver_opts(cfg, solver))
+                verr = jnp.linalg.norm(posed(res.pose) - truth, axis=-1)  # (T, V)
+                key = f"{solver}_{start}"
+                row[f"{key}_ms_mean"] = 1e3 * float(np.mean(ts))
+                row[f"{key}_ms_median"] = 1e3 * float(np.median(ts))
+                row[f"{key}_vertex_error"] = float(jnp.mean(verr))
+                row[f"{key}_marker_rms"] = float(jnp.mean(res.residual))
+                row[f"{key}_steps"] = float(jnp.mean(res.num_steps))
+                row[f"{key}_converged"] = float(jnp.mean(res.converged))
+                if solver == "bfgs_factored":
+                    tn, dev = _per_frame_replay(
+                        model,
+                        targets,
+                        rest,
+                        start,
+                        frames,
+                        res.pose,
+                        **_solver_opts(cfg, "bfgs_naive"),
+                    )
+                    row[f"bfgs_naive_{start}_ms_mean"] = 1e3 * float(np.mean(tn))
+                    row[f"bfgs_naive_{start}_ms_median"] = 1e3 * float(np.median(tn))
+                    row[f"bfgs_naive_{start}_max_angle_difference"] = dev
+                    row[f"ratio_naive_factored_{start}"] = float(np.mean(tn) / np.mean(ts[frames]))
+                    if k == max(counts):
+                        series[f"factored ({start})"] = 1e3 * ts[frames]
+                        series[f"naive ({start})"] = 1e3 * tn
+                if solver == "lm" and start == cfg.starts[0]:
+                    figure_rows[k] = (
+                        np.asarray(pose_vertices(mesh, _frame(res.pose, fig_frame))),
+                        np.asarray(targets[fig_frame]),
+                        np.asarray(marker_positions(jnp.asarray(mesh.vertices), mesh.faces, ms)),
+                    )
+                    save_npz_atomic(
+                        run_dir / f"{stem}_{k}_markers.npz",
+                        angles=np.asarray(res.pose.angles),
+                        translation=np.asarray(res.pose.translation),
+                        vertex_error=np.asarray(verr.mean(axis=1)),
+                        triangles=np.asarray(ms.triangles),
+                        barycentric=np.asarray(ms.barycentric),
+                    )
+        g = _gradient_us(model, rest, targets[fig_frame], cfg.gradient_repeats)
+        row["gradient_us_naive"], row["gradient_us_factored"] = g["naive"], g["factored"]
+        row["ratio_naive_factored_gradient"] = g["naive"] / g["factored"]
         out["per_markers"][str(k)] = row
-        figure_rows[k] = (
-            np.asarray(verts[fig_frame]),
-            np.asarray(targets[fig_frame]),
-            np.asarray(marker_positions(jnp.asarray(mesh.vertices, dtype), mesh.faces, ms)),
-        )
-        save_npz_atomic(
-            run_dir / f"{stem}_{k}_markers.npz",
-            angles=np.asarray(tr.pose.angles),
-            translation=np.asarray(tr.pose.translation),
-            residual=np.asarray(tr.residual),
-            vertex_error=np.asarray(verr.mean(axis=1)),
-            triangles=np.asarray(ms.triangles),
-            barycentric=np.asarray(ms.barycentric),
-        )
+    out["skipped_marker_counts"] = [k for k in cfg.marker_counts if k > n_vis]
+    _figures(
+        cfg, mesh, stem, anim, truth, fig_frame, view, counts, out, figure_rows, series, run_dir
+    )
+    return out
 
+
+def _figures(cfg, mesh, stem, anim, truth, fig_frame, view, counts, out, rows_fig, series, run_dir):
     from fxspace.plot import plot_ik_poses, plot_time_per_frame, plot_vs_markers
 
-    counts = list(cfg.marker_counts)
     rows = [out["per_markers"][str(k)] for k in counts]
     save_figure_atomic(
         plot_ik_poses(
             mesh.faces,
             mesh.vertices,
             np.asarray(truth[fig_frame]),
-            figure_rows,
-            title=f"{stem} / {anim}, frame {fig_frame}",
-            axes2d=(0 if np.ptp(mesh.vertices[:, 0]) >= np.ptp(mesh.vertices[:, 2]) else 2, 1),
+            rows_fig,
+            title=f"{stem} / {anim}, frame {fig_frame} (LM, {cfg.starts[0]} start)",
+            view_dir=view,
         ),
         run_dir / f"{stem}_poses.png",
     )
     save_figure_atomic(
         plot_time_per_frame(
-            per_frame_series,
-            title=f"{stem}: Adam, {cfg.adam_steps} steps/frame, {max(counts)} markers",
+            series,
+            title=f"{stem}: BFGS per frame, {max(counts)} markers, naive vs factored "
+            f"({len(series) and cfg.naive_frames} timed frames)",
         ),
         run_dir / f"{stem}_time_per_frame.png",
     )
+    times = {}
+    for s in SOLVERS:
+        for st in cfg.starts:
+            times[f"{s.replace('_', ' ')} ({st})"] = [r[f"{s}_{st}_ms_mean"] for r in rows]
+    # naive mean over its timed frames; factored over all frames (see the table for like-for-like)
     save_figure_atomic(
         plot_vs_markers(
             counts,
-            {g: [r[f"adam_ms_per_frame_{g}"] for r in rows] for g in GRADIENTS}
-            | {"LM (analytic J)": [r["lm_ms_per_frame_call_median"] for r in rows]},
-            "time per frame [ms]",
-            title=f"{stem}: average time per frame",
+            times,
+            "mean time per frame [ms]",
+            title=f"{stem}: mean time per frame",
+            logy=True,
         ),
         run_dir / f"{stem}_time_vs_markers.png",
     )
+    errs = {}
+    for s in ("lm", "bfgs_factored"):
+        for st in cfg.starts:
+            errs[f"{s.replace('_', ' ')} ({st})"] = [r[f"{s}_{st}_vertex_error"] for r in rows]
     save_figure_atomic(
         plot_vs_markers(
             counts,
-            {
-                "mean vertex error": [r["vertex_error_mean"] for r in rows],
-                "marker RMS residual": [r["marker_rms_mean"] for r in rows],
-            },
-            "distance [mesh units]",
-            title=f"{stem}: error vs markers",
+            errs,
+            "mean vertex error [mesh units]",
+            title=f"{stem}: vertex error vs markers",
             logy=True,
         ),
         run_dir / f"{stem}_error_vs_markers.png",
     )
-    errs = [r["vertex_error_mean"] for r in rows]
-    out["vertex_error_decreasing"] = bool(errs[-1] < errs[0])
-    return out
+
+
+def _run_regularizers(cfg: Config, run_dir: Path, seed: int) -> dict:
+    """Vertex error with few markers, with and without each regulariser (warm tracking)."""
+    from fxspace.plot import plot_vs_markers
+
+    dtype = jnp.float64 if cfg.dtype == "float64" else jnp.float32
+    stem, mesh, anim, truth = _load(cfg.reg_mesh, cfg.num_frames, dtype)
+    rng = np.random.default_rng(seed + 7)
+    view = (
+        np.asarray(cfg.view_dir, float)
+        if cfg.view_dir
+        else random_view(mesh.vertices, mesh.faces, max(cfg.reg_marker_counts), rng)
+    )
+    posed = jax.jit(jax.vmap(lambda p: pose_vertices(mesh, p)))
+    variants = {
+        "none": {},
+        "joint prior": dict(prior=cfg.reg_prior, prior_to=cfg.reg_prior_to),
+        "joint limits": dict(limits=cfg.reg_limits, limit=cfg.reg_limit),
+        "normals": dict(normal=cfg.reg_normal),
+        "all": dict(
+            prior=cfg.reg_prior,
+            prior_to=cfg.reg_prior_to,
+            limits=cfg.reg_limits,
+            limit=cfg.reg_limit,
+            normal=cfg.reg_normal,
+        ),
+    }
+    errs: dict[str, list[float]] = {v: [] for v in variants}
+    counts = list(cfg.reg_marker_counts)
+    stage(f"regularisers on {stem}: {len(counts)} marker counts × {len(variants)} variants")
+    for k in progress(counts, desc=f"{stem}: regularisers"):
+        ms = place_markers(mesh.vertices, mesh.faces, k, view, seed=rng)
+        model = _cast(ik_model(mesh, ms), dtype)
+        targets = marker_positions(truth, mesh.faces, ms).astype(dtype)
+        nrm = jax.vmap(lambda v: triangle_normals(v, mesh.faces))(truth)[:, ms.triangles]
+        nrm = nrm / jnp.linalg.norm(nrm, axis=-1, keepdims=True)
+        for name, w in variants.items():
+            reg = ik_regularization(model, mesh=mesh, markers=ms, **w) if w else None
+            kw = dict(method="bfgs", rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps)
+            if reg is not None and reg.corners is not None:
+                kw["target_normals"] = nrm.astype(dtype)
+            tr = track_ik(model, targets, regularization=reg, **kw)
+            verr = jnp.linalg.norm(posed(tr.pose) - truth, axis=-1)
+            errs[name].append(float(jnp.mean(verr)))
+    save_figure_atomic(
+        plot_vs_markers(
+            counts,
+            errs,
+            "mean vertex error [mesh units]",
+            title=f"{stem}: few markers, with and without regularisers",
+        ),
+        run_dir / "regularizers.png",
+    )
+    return {"mesh": stem, "animation": anim, "marker_counts": counts, "vertex_error": errs}
+
+
+def _table(results: dict, starts) -> str:
+    st = starts[-1]
+    lines = [
+        f"| mesh | markers | LM ms/frame ({st}) | BFGS factored ms | BFGS naive ms | "
+        f"naive/factored per frame | naive/factored per gradient | vertex error LM | "
+        f"vertex error BFGS |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        for k, row in r["per_markers"].items():
+            lines.append(
+                f"| {name} | {k} | {row[f'lm_{st}_ms_mean']:.2f} | "
+                f"{row[f'bfgs_factored_{st}_ms_mean']:.2f} | "
+                f"{row[f'bfgs_naive_{st}_ms_mean']:.2f} | "
+                f"{row[f'ratio_naive_factored_{st}']:.2f}x | "
+                f"{row['ratio_naive_factored_gradient']:.2f}x | "
+                f"{row[f'lm_{st}_vertex_error']:.3g} | "
+                f"{row[f'bfgs_factored_{st}_vertex_error']:.3g} |"
+            )
+    return "\n".join(lines) + "\n"
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     run_dir = Path(run_dir)
     with jax.enable_x64(cfg.dtype == "float64"):
         results = {}
-        for spec in cfg.meshes:
-            r = _run_mesh(cfg, spec, run_dir, seed)
+        for i, spec in enumerate(cfg.meshes):
+            r = _run_mesh(cfg, spec, run_dir, seed, label=f"mesh {i + 1}/{len(cfg.meshes)} ")
             results[r["mesh"]] = r
-            kmax = str(max(cfg.marker_counts))
-            row = r["per_markers"][kmax]
+            rows = r["per_markers"]
+            kmax = max(rows, key=int)
+            row = rows[kmax]
+            st = cfg.starts[-1]
             print(
-                f"[mesh_ik] {r['mesh']}: {kmax} markers: LM "
-                f"{row['lm_ms_per_frame_call_median']:.2f} ms/frame, vertex error "
-                f"{row['vertex_error_mean']:.4g} (mean), gradient naive "
-                f"{row['gradient_us_naive']:.0f} us / factored {row['gradient_us_factored']:.0f} us"
-                f" = {row['gradient_speedup_factored_vs_naive']:.2f}x; vertex error by markers "
-                + ", ".join(
-                    f"{k}: {r['per_markers'][str(k)]['vertex_error_mean']:.3g}"
-                    for k in cfg.marker_counts
-                )
+                f"[mesh_ik] {r['mesh']}: {kmax} markers ({st}): LM {row[f'lm_{st}_ms_mean']:.2f}"
+                f" ms/frame, BFGS factored {row[f'bfgs_factored_{st}_ms_mean']:.2f} / naive "
+                f"{row[f'bfgs_naive_{st}_ms_mean']:.2f} ms = "
+                f"{row[f'ratio_naive_factored_{st}']:.2f}x; gradient "
+                f"{row['ratio_naive_factored_gradient']:.2f}x; vertex error LM by markers "
+                + ", ".join(f"{k}: {v[f'lm_{st}_vertex_error']:.3g}" for k, v in rows.items())
             )
-    return {"meshes": results, "paper": PAPER, "dtype": cfg.dtype, "device": str(jax.devices()[0])}
+        reg = _run_regularizers(cfg, run_dir, seed) if cfg.reg_marker_counts else None
+    write_text_atomic(run_dir / "table.md", _table(results, cfg.starts))
+    return {
+        "meshes": results,
+        "regularizers": reg,
+        "paper": PAPER,
+        "dtype": cfg.dtype,
+        "device": str(jax.devices()[0]),
+    }

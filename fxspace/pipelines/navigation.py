@@ -1,7 +1,10 @@
 """Hierarchical navigation of the expression space (issue 3, Kim & Jung §4–5).
 
 Loads facial frames (AnimFace takes or the synthetic face), builds the expression space
-at ε = ``threshold_factor`` × the smallest connecting threshold (or an explicit one),
+at ε taken from a finished threshold-sweep run (``threshold = "from:runs/threshold_sweep"``),
+a criterion swept here (``"max_r"``, the seed paper's, ``"bounded_degree"``, ``"elbow"``),
+an explicit value, or ``threshold_factor`` × the smallest connecting threshold (recorded
+as ``threshold_source``),
 builds the fuzzy c-means levels (warm-started, and cold for comparison), their links,
 runs a scripted navigation (key centres at the first level refined automatically to the
 finest) and writes the level figures, the grid of all levels, the animation, the
@@ -18,14 +21,17 @@ from typing import Literal
 import jax
 import numpy as np
 
+from fxspace._progress import progress, stage
 from fxspace.config import ConfigError
 from fxspace.datasets import FaceData, load_face
 from fxspace.errors import FxspaceError
 from fxspace.expression import pearson_score
 from fxspace.navigation import navigation_space
-from fxspace.navigation._hierarchy import Hierarchy, build_hierarchy, link_graph_connected
+from fxspace.navigation._hierarchy import Hierarchy, build_hierarchy
+from fxspace.navigation._links import link_graph_connected
 from fxspace.navigation._playback import playback
 from fxspace.navigation._routes import is_graph_walk, navigate
+from fxspace.navigation._space import THRESHOLD_CRITERIA
 from fxspace.runs import save_figure_atomic, save_npz_atomic, write_json_atomic
 
 __all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "run", "auto_key_centres"]
@@ -33,14 +39,26 @@ __all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "run", "auto
 
 @dataclasses.dataclass(frozen=True)
 class GraphConfig:
-    """ε: ``threshold`` (same units as the features, mm) or, when 0, ``threshold_factor`` ×
-    the smallest threshold that connects the graph (a sparse graph gives smooth paths)."""
+    """ε: ``threshold`` (same units as the features, mm); ``"from:RUN_DIR"`` — the ε a
+    finished threshold-sweep run chose (one flow from the sweep to navigation); a criterion
+    name (``"max_r"``, the seed paper's, ``"bounded_degree"``, ``"elbow"``) — a sweep here;
+    or, when 0, ``threshold_factor`` × the smallest threshold that connects the graph.
+    The metrics record which (``threshold_source``)."""
 
-    threshold: float = 0.0
+    threshold: float | str = 0.0
     threshold_factor: float = 1.25
     dtype: Literal["float32", "float64"] = "float32"
 
     def validate(self) -> None:
+        if isinstance(self.threshold, str):
+            if not (
+                self.threshold.startswith("from:") or self.threshold in THRESHOLD_CRITERIA
+            ):
+                raise ConfigError(
+                    f"graph.threshold must be a number, 'from:RUN_DIR' or one of "
+                    f"{THRESHOLD_CRITERIA}; got {self.threshold!r}"
+                )
+            return
         if self.threshold < 0:
             raise ConfigError("graph.threshold must be >= 0 (0: use graph.threshold_factor)")
         if self.threshold == 0 and self.threshold_factor < 1.0:
@@ -119,8 +137,8 @@ def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[in
 def build_space(cfg: Config, face):
     """ε-graph, geodesics and 2-D MDS of the frames as the config says (library wiring).
 
-    Returns ``(P, W, geodesics, mds, connecting_threshold, ε)``; raises ``ConfigError``
-    when the configured ε leaves the graph disconnected.
+    Returns ``(P, W, geodesics, mds, connecting_threshold, ε, source)``; raises
+    ``ConfigError`` when the configured ε leaves the graph disconnected.
     """
     try:
         ns = navigation_space(
@@ -133,7 +151,10 @@ def build_space(cfg: Config, face):
     except FxspaceError as e:
         raise ConfigError(f"graph: {e}") from e
     es = ns.space
-    return es.pairwise, es.graph, es.geodesics, es.mds, ns.connecting_threshold, ns.threshold
+    return (
+        es.pairwise, es.graph, es.geodesics, es.mds, ns.connecting_threshold, ns.threshold,
+        ns.threshold_source,
+    )  # fmt: skip
 
 
 def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bool = False):
@@ -160,23 +181,30 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    stage(f"loading frames ({cfg.data.source})")
     face = load_face(cfg.data, seed)
     timings["load_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    P, W, geo, mds, t_conn, eps = build_space(cfg, face)
+    stage(
+        f"{len(face.positions)} frames × {face.positions.shape[1]} markers: "
+        "graph, geodesics and 2-D embedding"
+    )
+    P, W, geo, mds, t_conn, eps, eps_source = build_space(cfg, face)
     r = float(pearson_score(geo.distances, mds.embedding))
     timings["expression_space_s"] = time.perf_counter() - t0
     Y = np.asarray(mds.embedding)
 
     hc = cfg.hierarchy
     t0 = time.perf_counter()
+    stage(f"ε = {eps:.4g} ({eps_source}): fuzzy c-means levels and their links")
     h = build_levels(cfg, Y, geo, seed, restarts=hc.restarts, compare_cold=hc.compare_cold)
     timings["hierarchy_s"] = time.perf_counter() - t0
 
     nc = cfg.navigation
     keys = list(nc.key_centres) or auto_key_centres(h, geo, nc.num_keys)
     t0 = time.perf_counter()
+    stage(f"{len(h.levels)} levels {list(h.sizes)}: route through key centres {keys}")
     routes = navigate(h, geo, keys)
     timings["navigation_s"] = time.perf_counter() - t0
     final = routes[-1]
@@ -192,8 +220,9 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     )
 
     t0 = time.perf_counter()
+    stage("figures" + (" and animation" if nc.animation != "none" else ""))
     if nc.level_figures:
-        for li in range(len(h.levels)):
+        for li in progress(range(len(h.levels)), desc="level figures"):
             rt = next((rr for rr in routes if rr.level == li), None)
             save_figure_atomic(plot_level(h, li, rt), run_dir / f"level_{li:02d}.png")
     save_figure_atomic(plot_levels_grid(h, routes), run_dir / "levels_grid.png")
@@ -268,7 +297,13 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         "frames": int(len(Y)),
         "markers": int(face.positions.shape[1]),
         "takes": list(face.take_names),
+        "missing": {
+            "policy": cfg.data.missing,
+            "max_gap": cfg.data.max_gap,
+            **(face.missing or {}),
+        },
         "threshold": eps,
+        "threshold_source": eps_source,
         "connecting_threshold": t_conn,
         "r": r,
         "num_levels": len(h.levels),

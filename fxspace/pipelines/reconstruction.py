@@ -1,19 +1,24 @@
-"""Control-point reconstruction experiment (issue 4; Hirose & Higuchi).
+"""Control-point reconstruction experiment (issues 4 and 12; Hirose & Higuchi).
 
 A real dense face sequence — the AnimFace markers driving a ~6000-vertex face surface by
-RBF deformation — of 150 frames is cut into segments by the fused lasso (target 8, as in
-the paper), the most complex segment (largest linear-interpolation error) is modelled by
-20–30 control points (kernel k-means, 20 restarts), and the in-between frames are rebuilt
-from the first/last frames and the control points. A sweep over (number of clusters,
-kernel width γ) picks the parameters by BIC (``n·log(E/n) + k·log n``, with n the numbers
-in the segment and k the numbers the model stores); λ is picked inside the segmentation
-(a λ grid solved in one call, the largest λ giving the target number of segments). The
-model is then refined by gradient fitting (optax) and a control point near the left mouth
-corner is moved to add a smirk.
+RBF deformation — of 300 captured frames thinned to 150 as in the paper (the even-numbered
+frames dropped, ``thin = 2``) is cut into segments by the fused lasso (target 8, as in
+the paper), and **every** segment is modelled by 20–30 control points (kernel k-means, 20
+restarts); the stitched scene shares each boundary frame between its two segments.
+A sweep over (number of clusters, kernel width γ) on the most complex segment (largest
+linear-interpolation error) picks the parameters by BIC (``n·log(E/n) + k·log n``, with n
+the numbers in the segment and k the numbers the model stores); λ is picked inside the
+segmentation (a λ grid solved in one call, the largest λ giving the target number of
+segments). The most complex segment is also refined by gradient fitting (optax), and a
+key-framed edit moves the control point under the left mouth corner (a smirk), saved as
+``edits.json`` for the editor (``fxspace studio RUN_DIR``).
 
-Reports linear-interpolation error vs ours (eq. (1)), the compression ratio, the whole
-pipeline's time (compile excluded) and figures: the segmentation, the control-point
-regions, and original / linear / ours / edited at one frame (like the paper's fig. 1).
+Reports linear-interpolation error vs ours (eq. (1)) per segment
+(``error_ratio_segments``) and for the whole scene (``error_ratio_scene``), the scene's
+compression, the whole-scene pipeline's time (compile excluded) and figures: the
+segmentation, per-segment errors, the control-point regions, and original / linear / ours
+/ edited at one frame (like the paper's fig. 1). ``scene.npz`` holds the dense scene, the
+surface's triangles and the fitted scene model.
 A second dense source (vertex sequences of a skinned glTF animation) runs the same
 pipeline when ``gltf_mesh`` is set.
 """
@@ -28,11 +33,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from fxspace._progress import progress
 from fxspace.config import ConfigError
+from fxspace.controlpoints._edits import EditKey, apply_edits, save_edits
 from fxspace.controlpoints._fitting import refine_control_points
 from fxspace.controlpoints._model import (
     compression_ratio,
-    edit_control_point,
     fit_control_points,
     linear_interpolation,
     reconstruct,
@@ -40,6 +46,14 @@ from fxspace.controlpoints._model import (
     storage_size,
 )
 from fxspace.controlpoints._rbf import face_surface, rbf_deform
+from fxspace.controlpoints._scene import (
+    fit_scene,
+    reconstruct_scene,
+    scene_compression_ratio,
+    scene_errors,
+    scene_to_arrays,
+    thin_frames,
+)
 from fxspace.controlpoints._segment import segment_motion, segments_from_boundaries
 from fxspace.data import data_path
 from fxspace.runs import save_figure_atomic, save_npz_atomic
@@ -55,13 +69,14 @@ class Config:
 
     file: str = "face/animface_cheeks.c3d"
     start: int = 300
-    n_frames: int = 150
+    n_frames: int = 300
+    thin: int = 2
     n_vertices: int = 6000
     n_segments: int = 8
     segment_on: str = "velocity"
     min_length: int = 4
     clusters: tuple[int, ...] = (20, 25, 30)
-    gammas: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0)
+    gammas: tuple[float, ...] = (0.25, 0.5, 1.0)
     n_init: int = 20
     max_points: int = 1000
     refine_steps: int = 10
@@ -70,7 +85,7 @@ class Config:
     fit_smoothness: float = 1e-4
     edit_offset_mm: tuple[float, ...] = (6.0, 8.0, 0.0)
     edit_marker: str = "Mouth_Lend"
-    timing_repeats: int = 3
+    timing_repeats: int = 2
     gltf_mesh: str = "CesiumMan"
     gltf_frames: int = 150
     gltf_clusters: int = 25
@@ -99,37 +114,35 @@ def _bic(err: float, n: int, k: int) -> float:
     return n * float(np.log(max(err, 1e-300) / n)) + k * float(np.log(n))
 
 
-def _pipeline(X, cfg: Config, n_clusters: int, gamma: float, key):
-    """segments → most complex segment → control points → reconstruction (timed part)."""
-    seg = segment_motion(X, cfg.n_segments, min_length=cfg.min_length, on=cfg.segment_on)
-    a, b, errs = _most_complex(np.asarray(X), seg.boundaries)
-    S = X[a : b + 1]
-    model, km = fit_control_points(
-        S, n_clusters, gamma=gamma, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
-        refine_steps=cfg.refine_steps,
+def _pipeline(X, cfg: Config, n_clusters: int, gamma: float, key, show_progress=False):
+    """segments → every segment's control points → stitched reconstruction (timed part)."""
+    fit = fit_scene(
+        X, n_clusters, n_segments=cfg.n_segments, min_length=cfg.min_length,
+        segment_on=cfg.segment_on, gamma=gamma, key=key, n_init=cfg.n_init,
+        max_points=cfg.max_points, refine_steps=cfg.refine_steps, show_progress=show_progress,
     )  # fmt: skip
-    Xh = reconstruct(model)
-    err = float(reconstruction_error(S, Xh))
-    return seg, (a, b), errs, model, km, err
+    Xh = reconstruct_scene(fit.model)
+    Xh.block_until_ready()
+    return fit, Xh
 
 
 def _sweep(S, cfg: Config, key) -> list[dict]:
     rows = []
     n = int(np.prod(S.shape))
     lin = float(reconstruction_error(S, linear_interpolation(S[0], S[-1], S.shape[0])))
-    for c in cfg.clusters:
-        for g in cfg.gammas:
-            model, km = fit_control_points(
-                S, c, gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
-                refine_steps=cfg.refine_steps,
-            )  # fmt: skip
-            err = float(reconstruction_error(S, reconstruct(model)))
-            k = storage_size(model)
-            rows.append({
-                "clusters": c, "gamma": g, "error": err, "ratio": err / lin,
-                "compression": compression_ratio(model), "bic": _bic(err, n, k),
-                "kkm_steps": int(km.num_steps), "kkm_converged": bool(km.converged),
-            })  # fmt: skip
+    grid = [(c, g) for c in cfg.clusters for g in cfg.gammas]
+    for c, g in progress(grid, desc="(clusters, γ) sweep"):
+        model, km = fit_control_points(
+            S, c, gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
+            refine_steps=cfg.refine_steps,
+        )  # fmt: skip
+        err = float(reconstruction_error(S, reconstruct(model)))
+        k = storage_size(model)
+        rows.append({
+            "clusters": c, "gamma": g, "error": err, "ratio": err / lin,
+            "compression": compression_ratio(model), "bic": _bic(err, n, k),
+            "kkm_steps": int(km.num_steps), "kkm_converged": bool(km.converged),
+        })  # fmt: skip
     return rows
 
 
@@ -161,31 +174,41 @@ def _gltf_source(cfg: Config, key) -> dict:
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     from fxspace.io import read_markers, write_trc
-    from fxspace.plot import plot_control_points, plot_reconstruction_frames, plot_segmentation
+    from fxspace.plot import (
+        plot_control_points,
+        plot_reconstruction_frames,
+        plot_scene_errors,
+        plot_segmentation,
+    )
 
-    if cfg.n_frames < 3 * cfg.n_segments:
-        raise ConfigError(f"n_frames={cfg.n_frames} too short for n_segments={cfg.n_segments}")
+    if cfg.thin < 1:
+        raise ConfigError(f"thin must be >= 1, got {cfg.thin}")
+    if cfg.n_frames // cfg.thin < 3 * cfg.n_segments:
+        raise ConfigError(
+            f"n_frames/thin = {cfg.n_frames // cfg.thin} too short for n_segments={cfg.n_segments}"
+        )
     jax.config.update("jax_enable_x64", True)
     key = jax.random.PRNGKey(seed)
-    seq = read_markers(data_path(*cfg.file.split("/")))
+    seq = read_markers(data_path(cfg.file))  # relative to the data root; absolute kept
     P = np.asarray(seq.positions, dtype=np.float64)
     if cfg.start + cfg.n_frames > P.shape[0]:
         raise ConfigError(
             f"start + n_frames = {cfg.start + cfg.n_frames} exceeds the {P.shape[0]} frames "
             f"of {cfg.file}"
         )
-    M = P[cfg.start : cfg.start + cfg.n_frames]
+    M = np.asarray(thin_frames(P[cfg.start : cfg.start + cfg.n_frames], cfg.thin))
     if np.isnan(M).any():
         raise ConfigError(
             f"{cfg.file} frames {cfg.start}… have missing markers; pick another start"
         )
+    rate = seq.rate / cfg.thin
 
     # 1. dense sequence: markers → face surface by RBF deformation
     dense_times = []
     for _ in range(2):  # the first call compiles
         t = time.perf_counter()
-        surf = face_surface(P[0], cfg.n_vertices)
-        X = rbf_deform(surf.vertices, P[0], M)
+        surf = face_surface(M[0], cfg.n_vertices)
+        X = rbf_deform(surf.vertices, M[0], M)
         X.block_until_ready()
         dense_times.append(time.perf_counter() - t)
     dense_s = dense_times[-1]
@@ -198,21 +221,29 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     best = min(rows, key=lambda r: r["bic"])
     c, g = int(best["clusters"]), float(best["gamma"])
 
-    # 3. the whole pipeline with the chosen parameters: compile once, then time it
+    # 3. the whole-scene pipeline with the chosen parameters: compile once, then time it
     t = time.perf_counter()
-    _pipeline(X, cfg, c, g, key)
+    _pipeline(X, cfg, c, g, key, show_progress=True)
     first_s = time.perf_counter() - t
     times = []
     for _ in range(max(1, cfg.timing_repeats)):
         t = time.perf_counter()
-        seg, (a, b), seg_errs, model, km, err = _pipeline(X, cfg, c, g, key)
+        fit_s_, Xh = _pipeline(X, cfg, c, g, key)
         times.append(time.perf_counter() - t)
     pipe_s = float(np.median(times))
+    scene = fit_s_.model
+    seg = fit_s_.segmentation
+    errs = scene_errors(X, scene)
+    bounds = scene.boundaries
+    si = int(np.argmax(errs.linear))  # the most complex segment
+    a, b = segments_from_boundaries(bounds)[si]
     S = X[a : b + 1]
     T = S.shape[0]
-    lin = seg_errs[int(np.argmax(seg_errs))]
+    model = scene.segments[si]
+    km = fit_s_.clusterings[si]
+    lin, err = float(errs.linear[si]), float(errs.model[si])
 
-    # 4. gradient refinement (optax) of trajectories + sparse blending weights
+    # 4. gradient refinement (optax) of that segment's trajectories + sparse blend weights
     t = time.perf_counter()
     fit = refine_control_points(
         S, model, steps=cfg.fit_steps, support=cfg.fit_support, smoothness=cfg.fit_smoothness
@@ -220,44 +251,54 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     fit.error.block_until_ready()
     fit_s = time.perf_counter() - t
 
-    # 5. edit: move the control point under the chosen marker (a smirk)
+    # 5. a key-framed edit: move the control point under the chosen marker (a smirk), keyed
+    # at the segment's middle frame (zero at its key frames), saved for the editor
     mi = list(seq.names).index(cfg.edit_marker) if cfg.edit_marker in seq.names else 0
     vi = int(surf.marker_vertex[mi])
     cp = int(model.labels[vi])
-    edited_model = edit_control_point(
-        fit.model, cp, jnp.asarray(cfg.edit_offset_mm), center=(T - 1) / 2, width=(T - 1) / 2
+    keys = [EditKey(si, cp, a + (T - 1) // 2, tuple(float(v) for v in cfg.edit_offset_mm))]
+    edited_scene = apply_edits(scene, keys)
+    Xe = np.asarray(reconstruct_scene(edited_scene))
+    moved = np.linalg.norm(Xe - np.asarray(Xh), axis=2).max(0) > 1e-9
+    save_edits(run_dir / "edits.json", keys, boundaries=bounds.tolist())
+    save_npz_atomic(
+        run_dir / "scene.npz",
+        original=np.asarray(X, np.float32),
+        faces=surf.faces,
+        marker_vertex=surf.marker_vertex,
+        marker_names=np.asarray(seq.names),
+        markers=M,
+        rate=np.float64(rate),
+        gamma=np.float64(g),
+        **scene_to_arrays(scene),
     )
-    ours = reconstruct(fit.model)
-    edited = reconstruct(edited_model)
-    moved = np.linalg.norm(np.asarray(edited - ours), axis=2).max(0) > 1e-9
-    Xe = np.array(X)
-    Xe[a : b + 1] = np.asarray(edited)
-    Me = M + (Xe - np.asarray(X))[:, surf.marker_vertex]
+    Me = M + (Xe - np.asarray(Xh))[:, surf.marker_vertex]
     save_npz_atomic(
         run_dir / "edited_sequence.npz",
         vertices=Xe.astype(np.float32),
         faces=surf.faces,
-        segment=np.array([a, b]),
+        boundaries=bounds,
         markers=Me,
     )
-    edited_seq = type(seq)(Me, seq.names, seq.rate, seq.units)
-    write_trc(run_dir / "edited_markers.trc", edited_seq)
+    write_trc(run_dir / "edited_markers.trc", type(seq)(Me, seq.names, rate, seq.units))
 
     # 6. figures
-    save_figure_atomic(plot_segmentation(seg, rate=seq.rate), run_dir / "segmentation.png")
+    save_figure_atomic(plot_segmentation(seg, rate=rate), run_dir / "segmentation.png")
+    save_figure_atomic(plot_scene_errors(errs, bounds), run_dir / "scene_errors.png")
     save_figure_atomic(
         plot_control_points(np.asarray(S[0]), np.asarray(model.labels)),
         run_dir / "control_points.png",
     )
     fr = (T - 1) // 2
     L = linear_interpolation(S[0], S[-1], T)
+    ours = reconstruct(fit.model)
     km_rec = reconstruct(model)
     fig = plot_reconstruction_frames(
-        [S[fr], L[fr], km_rec[fr], ours[fr], edited[fr]],
+        [S[fr], L[fr], km_rec[fr], ours[fr], Xe[a + fr]],
         ["original", f"linear (E={lin:.3g})",
          f"ours k-means (E={err:.3g})", f"ours fitted (E={float(fit.error):.3g})",
          "edited (smirk)"],
-        faces=surf.faces, reference=np.asarray(S[fr]), up=_up(seq.names, P[0]),
+        faces=surf.faces, reference=np.asarray(S[fr]), up=_up(seq.names, M[0]),
     )  # fmt: skip
     save_figure_atomic(fig, run_dir / "reconstruction.png")
 
@@ -266,14 +307,22 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         gl = _gltf_source(cfg, key)
 
     n_vals = int(np.prod(S.shape))
+    comp = scene_compression_ratio(scene)
     metrics = {
-        "data": {"file": cfg.file, "start": cfg.start, "n_frames": cfg.n_frames,
+        "data": {"file": cfg.file, "start": cfg.start, "n_frames_captured": cfg.n_frames,
+                 "thin": cfg.thin, "n_frames": int(X.shape[0]),
                  "n_vertices": int(X.shape[1]), "n_markers": int(M.shape[1])},
-        "segmentation": {"boundaries": seg.boundaries.tolist(), "lambda": seg.lam,
-                         "n_segments": len(seg.boundaries) - 1,
-                         "linear_error_per_segment": seg_errs},
-        "segment": [a, b], "segment_frames": T,
-        "chosen": {"clusters": c, "gamma": g, "criterion": "BIC"},
+        "segmentation": {"boundaries": bounds.tolist(), "lambda": seg.lam,
+                         "n_segments": len(bounds) - 1,
+                         "linear_error_per_segment": errs.linear.tolist()},
+        "error_ratio_scene": errs.ratio_scene,
+        "error_ratio_segments": errs.ratio.tolist(),
+        "linear_error_scene": errs.linear_scene, "ours_error_scene": errs.model_scene,
+        "ours_error_per_segment": errs.model.tolist(),
+        "scene_compression_ratio": comp,
+        "scene_pipeline_time_s": pipe_s, "scene_pipeline_first_call_s": first_s,
+        "segment": [a, b], "segment_index": si, "segment_frames": T,
+        "chosen": {"clusters": c, "gamma": g, "criterion": "BIC (most complex segment)"},
         "sweep": rows,
         "linear_error": lin, "ours_error": err, "ratio": err / lin,
         "compression_ratio": compression_ratio(model),
@@ -287,19 +336,21 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         "pipeline_time_s": pipe_s, "pipeline_first_call_s": first_s,
         "dense_transfer_time_s": dense_s, "dense_transfer_first_call_s": dense_times[0],
         "pipeline_with_dense_transfer_s": pipe_s + dense_s, "fit_time_s": fit_s,
-        "edit": {"control_point": cp, "marker": cfg.edit_marker,
-                 "offset_mm": list(cfg.edit_offset_mm),
+        "edit": {"segment": si, "control_point": cp, "marker": cfg.edit_marker,
+                 "keys": [k._asdict() for k in keys],
                  "vertices_moved": int(moved.sum()),
                  "cluster_size": int(np.sum(np.asarray(model.labels) == cp))},
-        "targets": {"ratio_le_0.11": err / lin <= 0.11, "pipeline_le_2s": pipe_s <= 2.0,
-                    "pipeline_with_dense_le_2s": pipe_s + dense_s <= 2.0},
+        "targets": {"ratio_scene_le_0.11": errs.ratio_scene <= 0.11,
+                    "ratio_segments_le_0.11": bool(np.all(errs.ratio <= 0.11)),
+                    "scene_pipeline_le_18s": pipe_s <= 18.0},
         "paper": PAPER,
         "gltf": gl,
     }  # fmt: skip
     print(
-        f"[reconstruction] segment {a}-{b} ({T} frames, {X.shape[1]} vertices): linear "
-        f"{lin:.4g}, ours {err:.4g} (ratio {err / lin:.3f}; fitted {float(fit.error) / lin:.3f}), "
-        f"compression {compression_ratio(model):.1f}x, {c} control points, γ={g}; pipeline "
-        f"{pipe_s:.2f} s (+ dense transfer {dense_s:.2f} s; first call {first_s:.2f} s)"
+        f"[reconstruction] scene {X.shape[0]} frames × {X.shape[1]} vertices, "
+        f"{len(bounds) - 1} segments: ratio {errs.ratio_scene:.4f} (segments "
+        f"{np.round(errs.ratio, 3).tolist()}), compression {comp:.1f}x, {c} control points, "
+        f"γ={g}; whole-scene pipeline {pipe_s:.2f} s (+ dense transfer {dense_s:.2f} s; "
+        f"first call {first_s:.2f} s)"
     )
     return metrics

@@ -8,6 +8,7 @@ criterion (reporting all criteria), and writes the 2-D expression space and figu
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from pathlib import Path
 from typing import Literal
@@ -16,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._progress import progress
+from fxspace._progress import progress, stage
 from fxspace.config import ConfigError
 from fxspace.datasets import FaceData, load_face
 from fxspace.expression import connecting_threshold, expression_space
@@ -54,6 +55,12 @@ class GraphConfig:
             raise ConfigError("graph.thresholds must all be > 0")
         if self.batch_size < 1:
             raise ConfigError("graph.batch_size must be >= 1")
+        if not 0.0 < self.upper_quantile <= 1.0:
+            raise ConfigError(f"graph.upper_quantile must be in (0, 1], got {self.upper_quantile}")
+        if not (math.isfinite(self.lower_factor) and self.lower_factor > 0):
+            raise ConfigError(f"graph.lower_factor must be > 0, got {self.lower_factor}")
+        if any(not math.isfinite(t) for t in self.thresholds):
+            raise ConfigError("graph.thresholds must all be finite")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +70,11 @@ class SelectConfig:
 
     criterion: Literal["max_r", "bounded_degree", "elbow"] = "bounded_degree"
     max_mean_degree: float | None = None
+
+    def validate(self) -> None:
+        m = self.max_mean_degree
+        if m is not None and not (math.isfinite(m) and m > 0):
+            raise ConfigError(f"select.max_mean_degree must be a number > 0, got {m}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,16 +119,24 @@ def _sweep_chunks(
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
+    """Run the sweep in ``graph.dtype`` (float64 turns on ``jax_enable_x64`` for the run)."""
+    with jax.enable_x64(cfg.graph.dtype == "float64"):
+        return _run(cfg, run_dir, seed)
+
+
+def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     from fxspace.plot import plot_embedding_panels, plot_sweep
 
     timings = {}
     t0 = time.perf_counter()
+    stage(f"loading frames ({cfg.data.source})")
     face = load_face(cfg.data, seed)
     timings["load_s"] = time.perf_counter() - t0
     dtype = jnp.float32 if cfg.graph.dtype == "float32" else jnp.float64
     X = jnp.asarray(face.positions, dtype)
 
     t0 = time.perf_counter()
+    stage(f"{len(X)} frames × {X.shape[1]} markers: distance features and pairwise distances")
     F = distance_features(X)
     P = jax.block_until_ready(pairwise_distances(F))
     timings["features_pairwise_s"] = time.perf_counter() - t0
@@ -144,6 +164,7 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         raise ConfigError(chosen["error"] + f" ({sweep_message(sw, P)})")
 
     t0 = time.perf_counter()
+    stage(f"ε = {chosen['threshold']:.4g} ({cfg.select.criterion}): final space and figures")
     es = expression_space(None, chosen["threshold"], cfg.dim, pairwise=P, paths=False)
     D, mds, r = es.geodesics.distances, es.mds, float(es.score)
     timings["final_space_s"] = time.perf_counter() - t0
@@ -210,6 +231,9 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     ]
     return {
         "frames": int(len(Y)),
+        "dtype": str(P.dtype),
+        "dim": int(Y.shape[1]),
+        "missing": {"policy": cfg.data.missing, "max_gap": cfg.data.max_gap, **face.missing},
         "markers": int(face.positions.shape[1]),
         "takes": list(face.take_names),
         "connecting_threshold": t_conn,

@@ -14,6 +14,7 @@ if _mpl.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend
 
 from fxspace.plot._controlpoints import plot_control_points as plot_control_points
 from fxspace.plot._controlpoints import plot_reconstruction_frames as plot_reconstruction_frames
+from fxspace.plot._controlpoints import plot_scene_errors as plot_scene_errors
 from fxspace.plot._controlpoints import plot_segmentation as plot_segmentation
 from fxspace.plot._expression import plot_embedding as plot_embedding
 from fxspace.plot._expression import plot_embedding_panels as plot_embedding_panels
@@ -24,6 +25,8 @@ from fxspace.plot._mesh import plot_vs_markers as plot_vs_markers
 from fxspace.plot._motion import plot_clocks as plot_clocks
 from fxspace.plot._motion import plot_filmstrip as plot_filmstrip
 from fxspace.plot._motion import plot_parameter_space as plot_parameter_space
+from fxspace.plot._motion import plot_replacement as plot_replacement
+from fxspace.plot._motion import plot_speed_vs_weight as plot_speed_vs_weight
 from fxspace.plot._navigation import face_frame as face_frame
 from fxspace.plot._navigation import face_wireframe as face_wireframe
 from fxspace.plot._navigation import plot_level as plot_level

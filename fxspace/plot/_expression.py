@@ -20,25 +20,42 @@ def plot_sweep(
     reference: tuple[float, str] | None = (0.9647, "seed paper r = 0.9647"),
     mean_degree: np.ndarray | None = None,
 ) -> Figure:
-    """Pearson r against the threshold ε (log scale); disconnected ε shown as crosses."""
+    """Pearson r against the threshold ε (log scale).
+
+    Disconnected ε (r undefined) are a rug of crosses on the bottom edge of the axes — not
+    at a height that reads as an r value. Criteria that pick the same ε share one line and
+    one legend entry naming all of them, so none hides another.
+    """
     th = np.asarray(thresholds, float)
     r = np.asarray(scores, float)
     conn = np.asarray(connected, bool)
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     ax.plot(th[conn], r[conn], "o-", color="C0", label="Pearson r (connected)")
     if (~conn).any():
-        lo = np.nanmin(r[conn]) if conn.any() else 0.0
         ax.plot(
             th[~conn],
-            np.full((~conn).sum(), lo),
+            np.full((~conn).sum(), 0.03),
             "x",
             color="C3",
-            label="disconnected (r undefined)",
+            transform=ax.get_xaxis_transform(),  # x in data, y in axes fraction
+            clip_on=False,
+            label="disconnected ε (r undefined)",
         )
     if connecting is not None:
         ax.axvline(connecting, color="0.5", ls=":", label=f"connecting ε = {connecting:.4g}")
-    for k, (name, t) in enumerate((marks or {}).items()):
-        ax.axvline(t, color=f"C{k + 1}", ls="--", label=f"{name}: ε = {t:.4g}")
+    groups: dict[float, list[str]] = {}
+    for name, t in (marks or {}).items():
+        key = next((g for g in groups if np.isclose(g, t, rtol=1e-9, atol=0.0)), float(t))
+        groups.setdefault(key, []).append(name)
+    styles = ("--", "-.", (0, (1, 1)), (0, (5, 1, 1, 1)))
+    for k, (t, names) in enumerate(groups.items()):
+        ax.axvline(
+            t,
+            color=f"C{k + 1}",
+            ls=styles[k % len(styles)],
+            lw=1.2 + 0.8 * (len(names) - 1),
+            label=f"{' = '.join(names)}: ε = {t:.4g}",
+        )
     if reference is not None:
         ax.axhline(reference[0], color="0.3", lw=0.8, ls="-.", label=reference[1])
     ax.set_xscale("log")

@@ -1,4 +1,6 @@
-"""Figures for mesh IK (Park, Kang & Kwon): poses, time per frame, time and error vs markers."""
+"""Figures for mesh IK (Park, Kang & Kwon): shaded rest / target / deformed renders
+(Figs. 4–8), time per frame naive vs factored (Fig. 9), time and error vs markers
+(Fig. 10), and the regulariser comparison."""
 
 from __future__ import annotations
 
@@ -8,15 +10,54 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-__all__ = ["plot_ik_poses", "plot_time_per_frame", "plot_vs_markers"]
+__all__ = [
+    "plot_ik_poses",
+    "plot_time_per_frame",
+    "plot_vs_markers",
+    "shade_mesh",
+    "view_basis",
+]
 
 
-def _mesh2d(ax, vertices, faces, color, axes2d=(0, 1)):
-    v = np.asarray(vertices)[:, list(axes2d)]
-    ax.triplot(v[:, 0], v[:, 1], np.asarray(faces), color=color, lw=0.15)
+def view_basis(view_dir, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """``(3, 3)`` rows: screen right, screen up, and the viewing direction (unit)."""
+    d = np.asarray(view_dir, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    u = np.asarray(up, dtype=np.float64)
+    if abs(float(u @ d)) > 0.99:
+        u = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    right = np.cross(d, u)
+    right /= np.linalg.norm(right)
+    return np.stack([right, np.cross(right, d), d])
+
+
+def shade_mesh(ax, vertices, faces, color="0.7", view_dir=(0.0, 0.0, -1.0), up=(0, 1, 0)):
+    """Draw a triangle mesh shaded (Lambert, headlight) in orthographic projection along
+    ``view_dir``, back to front (painter's algorithm); returns the 2-D basis used."""
+    from matplotlib.collections import PolyCollection
+    from matplotlib.colors import to_rgb
+
+    basis = view_basis(view_dir, up)
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    tri = v[f]  # (F, 3, 3)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    lam = np.abs(n @ basis[2])
+    depth = (tri @ basis[2]).mean(axis=1)
+    order = np.argsort(-depth)  # far first
+    xy = tri[order] @ basis[:2].T
+    rgb = np.asarray(to_rgb(color))
+    shade = (0.25 + 0.75 * lam[order])[:, None] * rgb[None]
+    ax.add_collection(PolyCollection(xy, facecolors=shade, edgecolors="none"))
+    lo, hi = xy.reshape(-1, 2).min(0), xy.reshape(-1, 2).max(0)
+    pad = 0.05 * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
+    return basis
 
 
 def plot_ik_poses(
@@ -25,23 +66,25 @@ def plot_ik_poses(
     target: np.ndarray,
     deformed: Mapping[int, tuple[np.ndarray, np.ndarray, np.ndarray]],
     title: str = "",
-    axes2d: tuple[int, int] = (0, 1),
+    view_dir=(0.0, 0.0, -1.0),
+    up=(0.0, 1.0, 0.0),
 ) -> Figure:
-    """Rest / target / deformed mesh for each marker count (like the paper's figures).
+    """Rest / target / deformed mesh for each marker count, shaded (the paper's Figs. 4–8).
 
     ``deformed`` maps a marker count to ``(vertices, marker targets, rest marker positions)``;
-    meshes are drawn as wireframes projected on the ``axes2d`` coordinates.
+    meshes are rendered along ``view_dir`` (the camera the markers were placed from), rest
+    markers blue, targets red.
     """
     rows = sorted(deformed)
-    fig, axs = plt.subplots(len(rows), 3, figsize=(7.5, 2.6 * len(rows)), squeeze=False)
+    fig, axs = plt.subplots(len(rows), 3, figsize=(7.5, 2.8 * len(rows)), squeeze=False)
     for r, k in enumerate(rows):
         verts, tgt, rest_m = deformed[k]
-        _mesh2d(axs[r, 0], rest, faces, "0.5", axes2d)
-        axs[r, 0].scatter(*np.asarray(rest_m)[:, list(axes2d)].T, s=6, c="tab:blue")
-        _mesh2d(axs[r, 1], target, faces, "tab:green", axes2d)
-        axs[r, 1].scatter(*np.asarray(tgt)[:, list(axes2d)].T, s=6, c="tab:red")
-        _mesh2d(axs[r, 2], verts, faces, "tab:orange", axes2d)
-        axs[r, 2].scatter(*np.asarray(tgt)[:, list(axes2d)].T, s=6, c="tab:red")
+        b = shade_mesh(axs[r, 0], rest, faces, "0.75", view_dir, up)
+        axs[r, 0].scatter(*(np.asarray(rest_m) @ b[:2].T).T, s=6, c="tab:blue", zorder=3)
+        shade_mesh(axs[r, 1], target, faces, "tab:green", view_dir, up)
+        axs[r, 1].scatter(*(np.asarray(tgt) @ b[:2].T).T, s=6, c="tab:red", zorder=3)
+        shade_mesh(axs[r, 2], verts, faces, "tab:orange", view_dir, up)
+        axs[r, 2].scatter(*(np.asarray(tgt) @ b[:2].T).T, s=6, c="tab:red", zorder=3)
         axs[r, 0].set_ylabel(f"{k} marker{'s' if k > 1 else ''}")
     for c, name in enumerate(("rest", "target", "deformed (IK)")):
         axs[0, c].set_title(name)
@@ -52,7 +95,7 @@ def plot_ik_poses(
 
 
 def plot_time_per_frame(times_ms: Mapping[str, np.ndarray], title: str = "") -> Figure:
-    """Time per frame (ms) along the animation, one line per gradient form."""
+    """Time per frame (ms) along the animation, one line per gradient form (Fig. 9)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.2))
     for name, t in times_ms.items():
         t = np.asarray(t)
@@ -74,10 +117,12 @@ def plot_vs_markers(
     title: str = "",
     logy: bool = False,
 ) -> Figure:
-    """One line per series against the number of markers (time or vertex error)."""
+    """One line per series against the number of markers (time: Fig. 10; vertex error)."""
     fig, ax = plt.subplots(figsize=(5.5, 3.2))
-    for name, v in values.items():
-        ax.plot(list(counts), list(v), "o-", label=name)
+    styles = [("o", "-"), ("s", "--"), ("^", ":"), ("D", "-."), ("v", "-"), ("x", "--")]
+    for i, (name, v) in enumerate(values.items()):  # distinct styles: equal series stay visible
+        m, ls = styles[i % len(styles)]
+        ax.plot(list(counts), list(v), marker=m, ls=ls, label=name, alpha=0.85)
     ax.set_xscale("log")
     if logy:
         ax.set_yscale("log")

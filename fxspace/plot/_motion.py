@@ -1,4 +1,5 @@
-"""Figures for parametric motion synthesis: parameter spaces, stick-figure filmstrips, clocks."""
+"""Figures for parametric motion synthesis: parameter spaces, stick-figure filmstrips, clocks,
+speed against the joy weight, and the §3.2 re-placement of the upper samples."""
 
 from __future__ import annotations
 
@@ -6,7 +7,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-__all__ = ["plot_parameter_space", "plot_filmstrip", "plot_clocks"]
+__all__ = [
+    "plot_parameter_space",
+    "plot_filmstrip",
+    "plot_clocks",
+    "plot_speed_vs_weight",
+    "plot_replacement",
+]
 
 
 def plot_parameter_space(
@@ -94,5 +101,48 @@ def plot_clocks(clocks: dict, lam=None, title: str = "") -> Figure:
     a2.set_ylabel("upper clock v")
     a1.legend(fontsize=8)
     a2.legend(fontsize=8)
+    fig.suptitle(title)
+    return fig
+
+
+def plot_speed_vs_weight(
+    weights, speeds: dict, ylabel: str = "ground speed (m/s)", title: str = ""
+) -> Figure:
+    """Speed of the synthesised motion against an upper-body weight (Ha & Han §4: a higher
+    joy weight makes the whole walk faster), one line per α (``{α: speeds}``)."""
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    w = np.asarray(weights)
+    for i, (alpha, v) in enumerate(sorted(speeds.items())):
+        ax.plot(w, np.asarray(v), marker="o", c=f"C{i}", label=f"α={alpha:g}")
+    ax.set_xlabel("joy weight (sad = 1 − joy)")
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    return fig
+
+
+def plot_replacement(stale, replaced, exact, title: str = "") -> Figure:
+    """Upper-space samples (root frame) for a new lower parameter: stored ``ṗ`` (grey), the
+    Horn re-placed ones (§3.2, green) and the exact re-sampled ones (black rings), x–z and
+    x–y projections (the paper's Figs. 2 and 5)."""
+    stale, replaced, exact = (np.asarray(a) for a in (stale, replaced, exact))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    for ax, (a, b), lab in zip(axes, [(0, 2), (0, 1)], [("x", "z"), ("x", "y")], strict=True):
+        ax.scatter(stale[:, a], stale[:, b], s=4, c="0.7", label="stored ṗ (old lower)")
+        ax.scatter(replaced[:, a], replaced[:, b], s=4, c="C2", label="re-placed (Horn)")
+        ax.scatter(
+            exact[:, a],
+            exact[:, b],
+            s=12,
+            facecolors="none",
+            edgecolors="k",
+            lw=0.4,
+            label="exact re-sampling",
+        )
+        ax.set_xlabel(f"{lab[0]} (m)")
+        ax.set_ylabel(f"{lab[1]} (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+    axes[0].legend(fontsize=8)
     fig.suptitle(title)
     return fig

@@ -118,8 +118,26 @@ def plot_levels_grid(hierarchy, routes: Sequence | None = None, ncols: int = 4) 
             _draw_level(ax, hierarchy, k, by_level.get(k), label_centres=False)
         else:
             ax.axis("off")
-    fig.tight_layout()
+    fig.legend(handles=_levels_legend(bool(by_level)), loc="lower center", ncol=5, fontsize=8)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     return fig
+
+
+def _levels_legend(with_route: bool) -> list:
+    """Legend handles of :func:`plot_levels_grid` (what each mark in a level means)."""
+    from matplotlib.lines import Line2D
+
+    h = [
+        Line2D([], [], ls="", marker="o", ms=3, color="0.8", label="frame"),
+        Line2D([], [], ls="", marker="o", ms=6, mfc="tab:blue", mec="k", label="cluster centre"),
+        Line2D([], [], ls="--", color="tab:blue", lw=0.8, label="link between centres"),
+    ]
+    if with_route:
+        h += [
+            Line2D([], [], color="tab:red", lw=1.5, label="route"),
+            Line2D([], [], ls="", marker="o", ms=8, mfc="none", mec="tab:red", label="key frame"),
+        ]
+    return h
 
 
 def face_frame(neutral: np.ndarray, names: Sequence[str] | None = None) -> np.ndarray:

@@ -1,244 +1,78 @@
-"""Interactive navigator in the browser (optional extra: ``pip install -e ".[viewer]"``).
+"""Interactive navigator in the browser (Kim & Jung §3.5–3.6; ``pip install -e ".[viewer]"``).
 
-``fxspace view RUN_DIR`` or ``fxspace view configs/navigation.toml`` builds the expression
-space and its hierarchy from the run's (or file's) config and serves a viser page with:
+``fxspace studio RUN_DIR`` (or a navigation config) builds the expression space and its
+hierarchy and serves a viser page with:
 
-- the 2-D expression pad: every frame (grey), the current level's centres (click one to
-  pick it as the next key centre), links (thin blue), the route (red) and a moving cross;
-- a level slider, the key centres picked so far, the candidate centres near the route,
-  buttons to pick by number, undo, clear, refine automatically to the next level, and
-  play/pause the route;
-- the 3-D face (markers joined by a fixed wireframe) of the selected / playing frame.
+- the 2-D expression pad: every frame (grey points; past ``density_above`` frames, their
+  density as one grey image), the shown level's centres (blue) and links
+  (thin blue) at every level, the route (red), the route kept from another level (orange)
+  with its candidate centres (green), and a moving cross; a click anywhere on the pad
+  picks the nearest centre of the shown level (a grid index, not a widget per centre);
+- a level slider (jump to any level), "Restrict to candidates", the key centres, buttons
+  to pick by number, undo (across levels), clear, refine, play/pause, loop, and export of
+  the route (GIF/MP4 + TRC of the path's frames);
+- the face of the selected / playing frame: a shaded dense surface driven by the markers
+  through the RBF transfer, beside the markers.
 
-The navigation logic lives in :class:`NavigatorController` (plain Python, testable without
-a browser); :func:`serve_navigator` wires it to a viser server.
+The state lives in :class:`NavigatorController` (``_nav_controller``, testable without a
+browser); :func:`serve_navigator` draws it and wires the page to it.
 """
 
 from __future__ import annotations
 
-import threading
-import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from fxspace.errors import FxspaceError
-from fxspace.navigation import navigation_space
-from fxspace.navigation._hierarchy import Hierarchy
-from fxspace.navigation._playback import playback, rigid_align
-from fxspace.navigation._routes import (
-    NavigationError,
-    Route,
-    make_route,
-    path_candidates,
-    refine_route,
+from fxspace.navigation._playback import rigid_align
+from fxspace.studio._nav_controller import (
+    DENSITY_ABOVE,
+    NavData,
+    NavigatorController,
+    load_nav_data,
+)
+from fxspace.studio._server import (
+    DenseFace,
+    PadFrame,
+    Player,
+    attach_stop,
+    density_rgba,
+    new_server,
+    ray_plane_z0,
+    run_until_interrupted,
 )
 
-__all__ = ["NavData", "NavigatorController", "load_nav_data", "serve_navigator", "serve"]
-
-_MAX_CLICKABLE = 160
-
-
-@dataclass(frozen=True)
-class NavData:
-    """What the navigator shows: the hierarchy, the frame graph's geodesics, the markers."""
-
-    hierarchy: Hierarchy
-    geodesics: object
-    positions: np.ndarray  # (T, M, 3)
-    marker_names: tuple[str, ...] = ()
-    rate: float = 60.0
+__all__ = [
+    "DENSITY_ABOVE",
+    "NavData",
+    "NavigatorController",
+    "load_nav_data",
+    "serve_navigator",
+    "serve",
+]
 
 
-def load_nav_data(target: str | Path, *, restarts: int = 0) -> NavData:
-    """Build :class:`NavData` from a navigation run folder (its ``config.toml``) or a config
-    file (``experiment = "navigation"``)."""
+def _segments(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    return np.stack([p[i], p[j]], 1).astype(np.float32)
 
-    import jax
 
-    from fxspace.config import ConfigError, config_from_dict, load_toml
-    from fxspace.datasets import FaceData, load_face
-
-    p = Path(target)
-    cfg_path = p / "config.toml" if p.is_dir() else p
-    if not cfg_path.is_file():
-        raise FxspaceError(f"{target}: not a run folder with config.toml nor a config file")
-    raw = load_toml(cfg_path)
-    if raw.get("experiment") != "navigation":
-        raise FxspaceError(
-            f"{cfg_path}: experiment must be 'navigation' to view, got {raw.get('experiment')!r}"
+def _draw_frames(server, ctl: NavigatorController, pf: PadFrame, pad: np.ndarray) -> None:
+    """Every frame on the pad, below everything else: grey points, or (``pad_mode ==
+    "density"``) one image of their 2-D histogram."""
+    if ctl.pad_mode == "points":
+        server.scene.add_point_cloud(
+            "/pad/frames", pad.astype(np.float32), colors=(150, 150, 150), point_size=0.018
         )
-    seed = int(raw.get("seed", 0))
-    data = config_from_dict(FaceData, raw.get("data", {}))
-    graph = dict(raw.get("graph", {}))
-    hier = {k: v for k, v in raw.get("hierarchy", {}).items() if k != "compare_cold"}
-    hier["max_link_centres"] = hier.get("max_link_centres") or None
-    hier["restarts"] = restarts
-    face = load_face(data, seed)
-    try:
-        ns = navigation_space(
-            face.positions,
-            graph.get("threshold") or None,
-            threshold_factor=graph.get("threshold_factor", 1.25),
-            dtype=graph.get("dtype", "float32"),
-            key=jax.random.PRNGKey(seed),
-            hierarchy=hier,
-        )
-    except TypeError as e:
-        raise ConfigError(f"{cfg_path}: [hierarchy] {e}") from e
-    geo = ns.space.geodesics
-    return NavData(
-        ns.hierarchy, geo, np.asarray(face.positions), tuple(face.marker_names), face.rate
-    )
-
-
-class NavigatorController:
-    """The navigator's state and actions, independent of any UI.
-
-    ``level`` is the level shown; ``picks`` the key centres picked there; ``route`` the route
-    through them (None until a pick); ``message`` the last status or error line.
-    """
-
-    def __init__(self, data: NavData):
-        self.data = data
-        self.level = 0
-        self.picks: list[int] = []
-        self.route: Route | None = None
-        self.anchors: tuple[int, ...] | None = None
-        self.message = "click a centre (or type its number) to pick the first key centre"
-        self.selected_frame = int(data.hierarchy.levels[0].center_frames[0])
-        self.play_index = 0
-        self.playing = False
-        self._play = None
-        self._lock = threading.RLock()
-
-    @property
-    def n_levels(self) -> int:
-        return len(self.data.hierarchy.levels)
-
-    def _rebuild(self) -> None:
-        self._play = None
-        self.play_index = 0
-        if not self.picks:
-            self.route = None
-            return
-        self.route = make_route(
-            self.data.hierarchy, self.data.geodesics, self.level, self.picks, anchors=self.anchors
-        )
-
-    def set_level(self, level: int) -> None:
-        with self._lock:
-            level = int(level)
-            if not 0 <= level < self.n_levels:
-                raise NavigationError(f"level must be in [0, {self.n_levels - 1}]")
-            if level != self.level:
-                self.level = level
-                self.picks = []
-                self.anchors = None
-                self._rebuild()
-                self.message = f"level {level}: pick key centres"
-
-    def pick(self, centre: int) -> bool:
-        """Append ``centre`` to the key centres; False (and a message) if not allowed."""
-        with self._lock:
-            lv = self.data.hierarchy.levels[self.level]
-            centre = int(centre)
-            try:
-                make_route(
-                    self.data.hierarchy, self.data.geodesics, self.level, [*self.picks[-1:], centre]
-                )
-            except NavigationError as e:
-                self.message = f"not picked: {e}"
-                return False
-            self.picks.append(centre)
-            self.selected_frame = int(lv.center_frames[centre])
-            self._rebuild()
-            self.message = f"picked centre {centre} (frame {self.selected_frame})"
-            return True
-
-    def undo(self) -> None:
-        with self._lock:
-            if self.picks:
-                self.picks.pop()
-            self._rebuild()
-            self.message = "undone"
-
-    def clear(self) -> None:
-        with self._lock:
-            self.picks = []
-            self.anchors = None
-            self._rebuild()
-            self.message = "cleared"
-
-    def refine(self) -> None:
-        """Automatic refinement of the route to the next level."""
-        with self._lock:
-            if self.route is None:
-                self.message = "pick key centres first"
-                return
-            if self.level + 1 >= self.n_levels:
-                self.message = "already at the finest level: the route is the animation"
-                return
-            r = refine_route(self.data.hierarchy, self.data.geodesics, self.route)
-            self.level = r.level
-            self.picks = list(r.centres)
-            self.anchors = r.anchors
-            self._rebuild()
-            self.message = f"refined to level {self.level}"
-
-    def candidates(self) -> np.ndarray:
-        """Centres of the next level near the current route."""
-        if self.route is None or self.level + 1 >= self.n_levels:
-            return np.zeros(0, int)
-        return path_candidates(self.data.hierarchy, self.level + 1, self.route.frames)
-
-    def playback(self, fps: float = 30.0):
-        if self.route is None:
-            return None
-        if self._play is None:
-            d = self.data
-            self._play = playback(
-                self.route.frames,
-                d.hierarchy.embedding,
-                d.positions,
-                fps=fps,
-                rate=d.rate,
-                duration=max(2.0, len(self.route.frames) / d.rate),
-            )
-        return self._play
-
-    def step(self) -> int | None:
-        """Advance playback by one output frame; returns the frame shown."""
-        with self._lock:
-            pb = self.playback()
-            if pb is None:
-                return None
-            self.play_index = (self.play_index + 1) % len(pb.times)
-            self.selected_frame = int(pb.frame[self.play_index])
-            return self.selected_frame
-
-    def status(self) -> str:
-        lv = self.data.hierarchy.levels[self.level]
-        keys = " → ".join(map(str, self.picks)) if self.picks else "none"
-        n = len(self.route.frames) if self.route is not None else 0
-        cand = self.candidates()
-        cand_s = ", ".join(map(str, cand[:30])) + (" …" if len(cand) > 30 else "")
-        return (
-            f"**Level {self.level}** of {self.n_levels - 1}: {lv.n_clusters} centres  \n"
-            f"Key centres: {keys}  \n"
-            f"Route: {n} frames  \n"
-            f"Candidates at level {self.level + 1}: {cand_s or '—'}  \n"
-            f"Frame: {self.selected_frame}  \n"
-            f"{'Playing' if self.playing else 'Paused'}  \n"
-            f"_{self.message}_"
-        )
-
-
-def _pad_coords(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    centre = (xy.max(0) + xy.min(0)) / 2
-    scale = 2.0 / max(float(np.ptp(xy, axis=0).max()), 1e-12)
-    return centre, scale, np.c_[(xy - centre) * scale, np.zeros(len(xy))]
+        return
+    d = ctl.frame_density()
+    lo, hi = pf.to_pad(d.lo), pf.to_pad(d.hi)
+    # viser's image plane is turned half a turn about x: image row 0 lies at the bottom
+    server.scene.add_image(
+        "/pad/density", density_rgba(d.counts, (110, 110, 110)),
+        render_width=float(hi[0] - lo[0]), render_height=float(hi[1] - lo[1]),
+        format="png", position=(*((lo[:2] + hi[:2]) / 2), -0.01),
+        cast_shadow=False, receive_shadow=False,
+    )  # fmt: skip
 
 
 def serve_navigator(
@@ -249,34 +83,26 @@ def serve_navigator(
     environment_map: bool = True,
     block: bool = True,
     fps: float = 30.0,
+    export_dir: str | Path = "navigator_export",
+    face_vertices: int = 2500,
+    density_above: int = DENSITY_ABOVE,
 ):
     """Serve the navigator for ``data``; ``port=0`` picks a free port (read it with
     ``server.get_port()``). With ``block=False`` returns ``(server, controller)`` at once
-    (stop with ``server.stop()``)."""
-    try:
-        import viser
-    except ImportError as e:
-        raise FxspaceError(
-            f"the navigator needs the optional viewer extra: pip install -e '.[viewer]' ({e})"
-        ) from e
+    (stop with ``server.stop()``). Exports go to ``export_dir``. Past ``density_above``
+    frames the pad shows their density (one image) instead of one point per frame."""
+    from fxspace.plot._navigation import face_frame
 
-    from fxspace.plot._navigation import face_frame, face_wireframe
-
-    ctl = NavigatorController(data)
+    server = new_server(port, host, environment_map)
+    ctl = NavigatorController(data, density_above=density_above)
     h = data.hierarchy
-    xy = np.asarray(h.embedding)
-    _, scale, pad = _pad_coords(xy)
-    server = viser.ViserServer(host=host, port=port, verbose=False)
-    if not environment_map:
-        server.scene.configure_environment_map(None)
-    server.scene.set_up_direction("+y")
+    pf = PadFrame(h.embedding)
+    pad = pf.to_pad(h.embedding)
     # everything lies in the x–y plane, seen from +z: the pad left, the face right
-    server.initial_camera.position = (1.3, 0.0, 4.5)
-    server.initial_camera.look_at = (1.3, 0.0, 0.0)
+    server.initial_camera.position = (1.4, 0.0, 3.6)
+    server.initial_camera.look_at = (1.4, 0.0, 0.0)
     server.initial_camera.up = (0.0, 1.0, 0.0)
-    server.scene.add_point_cloud(
-        "/pad/frames", pad.astype(np.float32), colors=(190, 190, 190), point_size=0.012
-    )
+    _draw_frames(server, ctl, pf, pad)
 
     # the face: markers aligned to the first frame, seen from the front, right of the pad
     P = rigid_align(data.positions, data.positions[0])
@@ -284,36 +110,40 @@ def serve_navigator(
     fc = P[0].mean(0)
     F = (P - fc) @ R.T  # right, up, out
     fscale = 1.6 / max(float(np.ptp(F[..., :2])), 1e-12)
-    Fw = F * fscale + np.array([2.6, 0.0, 0.0])
-    edges = face_wireframe(P[0], data.marker_names or None)
+    offset = np.array([2.6, 0.0, 0.0])
+    face = DenseFace(P[0], face_vertices)
+    marker_scale = 0.45  # the markers, smaller, below-right of the surface
+    moff = np.array([3.45, -0.7, 0.0])
 
-    handles: dict = {"centres": []}
     gui_status = server.gui.add_markdown(ctl.status())
     level_slider = server.gui.add_slider(
-        "Level",
-        min=0,
-        max=max(ctl.n_levels - 1, 1),
-        step=1,
-        initial_value=0,
+        "Level", min=0, max=max(ctl.n_levels - 1, 1), step=1, initial_value=0,
         disabled=ctl.n_levels < 2,
-    )
+    )  # fmt: skip
+    restrict_box = server.gui.add_checkbox("Restrict to candidates", initial_value=ctl.restrict)
     pick_text = server.gui.add_text("Centre", initial_value="0")
     pick_btn = server.gui.add_button("Pick centre")
     undo_btn = server.gui.add_button("Undo")
     clear_btn = server.gui.add_button("Clear")
     refine_btn = server.gui.add_button("Refine")
     play_btn = server.gui.add_button("Play / Pause")
+    loop_box = server.gui.add_checkbox("Loop", initial_value=ctl.loop)
+    fmt = server.gui.add_dropdown("Export as", ("gif", "mp4", "none"), initial_value="gif")
+    export_btn = server.gui.add_button("Export route")
 
     def draw_face(frame: int) -> None:
-        pts = Fw[frame].astype(np.float32)
-        server.scene.add_point_cloud("/face/markers", pts, colors=(220, 60, 60), point_size=0.03)
-        if len(edges):
-            server.scene.add_line_segments(
-                "/face/wire", pts[edges], colors=(70, 70, 70), thickness=0.004
-            )
+        V = (face.vertices(P[frame]) - fc) @ R.T * fscale + offset
+        server.scene.add_mesh_simple(
+            "/face/surface", V.astype(np.float32), face.faces, color=(230, 190, 170),
+            side="double", flat_shading=False,
+        )  # fmt: skip
+        server.scene.add_point_cloud(
+            "/face/markers", (F[frame] * fscale * marker_scale + moff).astype(np.float32),
+            colors=(220, 60, 60), point_size=0.025,
+        )  # fmt: skip
 
-    def draw_cross(frame_xy: np.ndarray) -> None:
-        q = np.r_[frame_xy, 0.0]
+    def draw_cross(q2: np.ndarray) -> None:
+        q = np.r_[q2[:2], 0.0]
         d = 0.06
         seg = np.array([[q - [d, 0, 0], q + [d, 0, 0]], [q - [0, d, 0], q + [0, d, 0]]])
         server.scene.add_line_segments(
@@ -322,67 +152,71 @@ def serve_navigator(
 
     def draw_level() -> None:
         lv = h.levels[ctl.level]
-        for hd in handles["centres"]:
-            hd.remove()
-        handles["centres"] = []
         cp = pad[lv.center_frames]
-        if lv.links is not None and lv.n_clusters <= 400:
+        server.scene.remove_by_name("/pad/links")
+        if ctl.centres_by_density:  # the density image shows them; clicks still pick
+            server.scene.remove_by_name("/pad/centres")
+            return
+        if lv.links is not None:
             i, j = np.nonzero(np.triu(lv.links, 1))
             if len(i):
                 server.scene.add_line_segments(
-                    "/pad/links",
-                    np.stack([cp[i], cp[j]], 1).astype(np.float32),
-                    colors=(80, 120, 220),
-                    thickness=0.003,
-                )
-            else:
-                server.scene.remove_by_name("/pad/links")
-        else:
-            server.scene.remove_by_name("/pad/links")
-        if lv.n_clusters <= _MAX_CLICKABLE:
-            server.scene.remove_by_name("/pad/centres_cloud")
-            r = 0.035 if lv.n_clusters <= 40 else 0.02
-            for k in range(lv.n_clusters):
-                hd = server.scene.add_icosphere(
-                    f"/pad/centre_{k}", radius=r, color=(40, 100, 200), position=tuple(cp[k])
-                )
-                hd.on_click(lambda _e, k=k: on_pick(k))
-                handles["centres"].append(hd)
-        else:
-            server.scene.add_point_cloud(
-                "/pad/centres_cloud", cp.astype(np.float32), colors=(40, 100, 200), point_size=0.02
-            )
+                    "/pad/links", _segments(cp, i, j), colors=(80, 120, 220),
+                    thickness=0.003 if lv.n_clusters <= 400 else 0.0015,
+                )  # fmt: skip
+        size = 0.035 if lv.n_clusters <= 40 else (0.025 if lv.n_clusters <= 400 else 0.014)
+        server.scene.add_point_cloud(
+            "/pad/centres", cp.astype(np.float32), colors=(40, 100, 200), point_size=size
+        )
 
     def draw_route() -> None:
-        server.scene.remove_by_name("/pad/route")
-        server.scene.remove_by_name("/pad/keys")
-        if ctl.route is not None and len(ctl.route.frames) > 1:
-            p = pad[ctl.route.frames]
+        for name in ("/pad/route", "/pad/keys", "/pad/guide", "/pad/candidates"):
+            server.scene.remove_by_name(name)
+        g = ctl.guide
+        if g is not None and g is not ctl.route and len(g.frames) > 1:
+            p = pad[g.frames]
             server.scene.add_line_segments(
-                "/pad/route",
-                np.stack([p[:-1], p[1:]], 1).astype(np.float32),
-                colors=(220, 40, 40),
-                thickness=0.008,
-            )
-        if ctl.route is not None:
+                "/pad/guide", np.stack([p[:-1], p[1:]], 1).astype(np.float32),
+                colors=(240, 150, 40), thickness=0.006,
+            )  # fmt: skip
+        cand = ctl.candidates()
+        if len(cand):
             server.scene.add_point_cloud(
-                "/pad/keys",
-                pad[ctl.route.key_frames].astype(np.float32),
-                colors=(220, 40, 40),
-                point_size=0.05,
-            )
+                "/pad/candidates",
+                (pad[h.levels[ctl.level].center_frames[cand]] + [0, 0, 0.01]).astype(np.float32),
+                colors=(40, 180, 80), point_size=0.03,
+            )  # fmt: skip
+        r = ctl.route
+        if r is not None and len(r.frames) > 1:
+            p = pad[r.frames]
+            server.scene.add_line_segments(
+                "/pad/route", np.stack([p[:-1], p[1:]], 1).astype(np.float32),
+                colors=(220, 40, 40), thickness=0.008,
+            )  # fmt: skip
+        if r is not None:
+            server.scene.add_point_cloud(
+                "/pad/keys", (pad[r.key_frames] + [0, 0, 0.02]).astype(np.float32),
+                colors=(220, 40, 40), point_size=0.04,
+            )  # fmt: skip
 
     def refresh(full: bool = False) -> None:
         if full:
             draw_level()
         draw_route()
         draw_face(ctl.selected_frame)
-        draw_cross(pad[ctl.selected_frame, :2])
+        draw_cross(pad[ctl.selected_frame])
         gui_status.content = ctl.status()
+        if int(level_slider.value) != ctl.level:
+            level_slider.value = ctl.level
 
-    def on_pick(k: int) -> None:
-        ctl.pick(k)
-        refresh()
+    @server.scene.on_click()
+    def _(event) -> None:
+        hit = ray_plane_z0(event.ray_origin, event.ray_direction)
+        if hit is None or hit[0] > 1.3:  # the face side of the scene
+            return
+        before = ctl.level
+        ctl.pick_at(pf.to_space(hit[:2]))
+        refresh(full=ctl.level != before)
 
     @level_slider.on_update
     def _(_e) -> None:
@@ -390,24 +224,29 @@ def serve_navigator(
             ctl.set_level(int(level_slider.value))
             refresh(full=True)
 
+    @restrict_box.on_update
+    def _(_e) -> None:
+        ctl.set_restrict(bool(restrict_box.value))
+        refresh()
+
+    @loop_box.on_update
+    def _(_e) -> None:
+        ctl.loop = bool(loop_box.value)
+
     @pick_btn.on_click
     def _(_e) -> None:
         try:
             k = int(str(pick_text.value).strip())
         except ValueError:
             ctl.message = f"not a centre number: {pick_text.value!r}"
-            refresh()
-            return
-        if not 0 <= k < h.levels[ctl.level].n_clusters:
-            ctl.message = f"centre {k} does not exist at level {ctl.level}"
-            refresh()
-            return
-        on_pick(k)
+        else:
+            ctl.pick(k)
+        refresh()
 
     @undo_btn.on_click
     def _(_e) -> None:
         ctl.undo()
-        refresh()
+        refresh(full=True)
 
     @clear_btn.on_click
     def _(_e) -> None:
@@ -418,11 +257,7 @@ def serve_navigator(
     def _(_e) -> None:
         before = ctl.level
         ctl.refine()
-        if ctl.level != before:
-            level_slider.value = ctl.level
-            refresh(full=True)
-        else:
-            refresh()
+        refresh(full=ctl.level != before)
 
     @play_btn.on_click
     def _(_e) -> None:
@@ -431,49 +266,32 @@ def serve_navigator(
             ctl.message = "pick key centres first"
         refresh()
 
-    stop = threading.Event()
+    @export_btn.on_click
+    def _(_e) -> None:
+        try:
+            ctl.export(export_dir, str(fmt.value))
+        except Exception as e:  # shown to the user, not raised into the server thread
+            ctl.message = f"export failed: {e}"
+        refresh()
 
-    def player() -> None:
-        while not stop.is_set():
-            if ctl.playing:
-                try:
-                    ctl.step()
-                    pb = ctl.playback()
-                    if pb is not None and not stop.is_set():
-                        draw_face(ctl.selected_frame)
-                        draw_cross((pb.xy[ctl.play_index] - (xy.max(0) + xy.min(0)) / 2) * scale)
-                        gui_status.content = ctl.status()
-                except Exception:  # the server is going down
-                    if stop.is_set():
-                        return
-                    raise
-            stop.wait(1.0 / fps)
+    def tick() -> None:
+        ctl.step()
+        pb = ctl.playback()
+        if pb is not None:
+            draw_face(ctl.selected_frame)
+            draw_cross(pf.to_pad(pb.xy[ctl.play_index]))
+            gui_status.content = ctl.status()
 
     refresh(full=True)
-    thread = threading.Thread(target=player, daemon=True)
-    thread.start()
-    orig_stop = server.stop
-
-    def stop_all() -> None:
-        stop.set()
-        thread.join(timeout=5.0)
-        orig_stop()
-
-    server.stop = stop_all  # type: ignore[method-assign]
-    if not block:
-        return server, ctl
-    print(f"fxspace navigator on http://{host}:{server.get_port()} (Ctrl-C to stop)")
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.stop()
+    attach_stop(server, Player(tick, lambda: ctl.playing, fps))
+    if block:
+        run_until_interrupted(server, "navigator", host)
     return server, ctl
 
 
 def serve(target: str | Path, port: int = 8080, **kwargs):
-    """``fxspace view TARGET``: build the navigator from a run folder or config and serve it."""
-    print(f"fxspace view: building the expression space and hierarchy of {target} …")
+    """``fxspace studio TARGET`` for a navigation run or config: build and serve."""
+    print(f"fxspace studio: building the expression space and hierarchy of {target} …")
+    p = Path(target)
+    kwargs.setdefault("export_dir", (p if p.is_dir() else Path(".")) / "navigator_export")
     return serve_navigator(load_nav_data(target), port=port, **kwargs)

@@ -145,11 +145,16 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
 
     m = json.loads((run_dir / "metrics.json").read_text())
     assert m["ratio"] < 0.11 and m["segmentation"]["n_segments"] == 8
+    assert m["error_ratio_scene"] < 0.11 and len(m["error_ratio_segments"]) == 8
+    assert max(m["error_ratio_segments"]) < 0.11 and m["scene_pipeline_time_s"] > 0
     for name in (
         "reconstruction.png",
         "segmentation.png",
+        "scene_errors.png",
         "edited_sequence.npz",
         "edited_markers.trc",
+        "scene.npz",
+        "edits.json",
     ):
         assert (run_dir / name).is_file()
     seq = fx.io.read_markers(run_dir / "edited_markers.trc")

@@ -235,3 +235,27 @@ def test_json_gltf_with_embedded_buffer_reads_the_same(tmp_path, toy):
     np.testing.assert_array_equal(m.faces, toy.faces)
     t = np.linspace(0, 2, 5)
     np.testing.assert_allclose(m.animation_vertices("wave", t), toy.animation_vertices("wave", t))
+
+
+def test_ik_poses_written_as_bvh_round_trip(data_dir, tmp_path):
+    """IK poses → BVH → read_bvh → forward kinematics gives the IK joint origins."""
+    import jax.numpy as jnp
+
+    mesh = fx.io.read_gltf(data_dir / "mesh" / "CesiumMan.glb")
+    rng = np.random.default_rng(0)
+    ang = rng.normal(0, 0.3, (3, mesh.num_joints, 3))
+    tr = rng.normal(0, 0.1, (3, 3))
+    path = fx.io.write_ik_bvh(tmp_path / "ik.bvh", mesh, ang, tr, rate=24.0)
+    mot = fx.io.read_bvh(path)
+    assert mot.num_frames == 3 and mot.names == mesh.joint_names
+    assert abs(mot.rate - 24.0) < 1e-4  # BVH stores the frame time in text
+    model = fx.ik_model(mesh, fx.place_markers(mesh.vertices, mesh.faces, 2, seed=0))
+    origins = np.stack(
+        [
+            np.asarray(fx.ik_forward(model, fx.Pose(jnp.asarray(a), jnp.asarray(t))).origins)
+            for a, t in zip(ang, tr, strict=True)
+        ]
+    )
+    np.testing.assert_allclose(np.asarray(fx.forward_kinematics(mot)), origins, atol=1e-5)
+    with pytest.raises(FxspaceError, match="finite"):
+        fx.io.write_ik_bvh(tmp_path / "bad.bvh", mesh, ang * np.nan, tr)

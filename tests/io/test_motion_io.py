@@ -226,3 +226,116 @@ def test_real_cmu_files(data_dir):
     assert b.num_frames == 994
     assert b.channels[b.index("LeftShoulder")] == ("Zrotation", "Xrotation", "Yrotation")
     assert b.channels[0][:3] == ("Xposition", "Yposition", "Zposition")
+
+
+# ----------------------------------------------------------------- position channels on any joint
+BVH6 = """HIERARCHY
+ROOT Root
+{
+\tOFFSET 0.0 0.0 0.0
+\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+\tJOINT Hips
+\t{
+\t\tOFFSET 0.0 90.0 0.0
+\t\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+\t\tJOINT Spine
+\t\t{
+\t\t\tOFFSET 15.0 0.0 0.0
+\t\t\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+\t\t\tEnd Site
+\t\t\t{
+\t\t\t\tOFFSET 0.0 10.0 0.0
+\t\t\t}
+\t\t}
+\t\tJOINT Leg
+\t\t{
+\t\t\tOFFSET 0.0 -10.0 8.0
+\t\t\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+\t\t\tEnd Site
+\t\t\t{
+\t\t\t\tOFFSET 0.0 -40.0 0.0
+\t\t\t}
+\t\t}
+\t}
+}
+MOTION
+Frames: 3
+Frame Time: 0.0333333
+0 0 0 0 0 0 1.0 91.0 -50.0 80.0 -6.0 1.0 16.0 0.5 0.0 10.0 20.0 -30.0 0.0 -10.0 8.0 5.0 5.0 5.0
+0 0 0 0 0 0 2.0 92.0 -45.0 85.0 -4.0 2.0 16.0 0.5 0.0 -20.0 40.0 15.0 0.0 -10.0 8.0 0.0 -30.0 0.0
+0 0 0 0 0 0 3.0 90.5 -40.0 90.0 -2.0 3.0 16.0 0.5 0.0 0.0 0.0 0.0 0.0 -10.0 8.0 45.0 0.0 10.0
+"""
+
+
+def _reference_fk(parents, channels, offsets, data):
+    """Independent BVH forward kinematics with scipy: position channels replace the OFFSET,
+    rotation channels compose intrinsically in file order."""
+    T = data.shape[0]
+    J = len(parents)
+    X = np.zeros((T, J, 3))
+    Rw = [None] * J
+    col = 0
+    for j, chans in enumerate(channels):
+        t = np.tile(np.asarray(offsets[j], float), (T, 1))
+        rot_cols, order = [], ""
+        for i, c in enumerate(chans):
+            if c.endswith("position"):
+                t[:, "XYZ".index(c[0])] = data[:, col + i]
+            else:
+                rot_cols.append(col + i)
+                order += c[0]
+        col += len(chans)
+        R = (
+            Rotation.from_euler(order.upper(), data[:, rot_cols], degrees=True)
+            if order
+            else Rotation.identity(T)
+        )
+        p = parents[j]
+        if p < 0:
+            X[:, j], Rw[j] = t, R
+        else:
+            X[:, j] = X[:, p] + Rw[p].apply(t)
+            Rw[j] = Rw[p] * R
+    return X
+
+
+def test_bvh_position_channels_on_every_joint(tmp_path):
+    p = _bad(tmp_path, BVH6, "six.bvh")
+    m = fx.io.read_bvh(p, scale=0.01)
+    assert m.names == ("Root", "Hips", "Spine", "Spine_end", "Leg", "Leg_end")
+    data = np.asarray([[float(x) for x in ln.split()] for ln in BVH6.splitlines()[-3:]])
+    offsets = [[0, 0, 0], [0, 90, 0], [15, 0, 0], [0, 10, 0], [0, -10, 8], [0, -40, 0]]
+    ref = _reference_fk(m.parents, m.channels, offsets, data) * 0.01
+    X = np.asarray(fx.motion.forward_kinematics(m))
+    # every joint below the root exactly; the root's varying child translation is folded into
+    # the root, which therefore sits at the child's position minus its rest OFFSET
+    np.testing.assert_allclose(X[:, 1:], ref[:, 1:], atol=1e-6)
+    np.testing.assert_allclose(X[:, 0], ref[:, 1] - [0.0, 0.9, 0.0], atol=1e-6)
+    # constant per-joint translations became the offsets (replacing the file's OFFSET)
+    np.testing.assert_allclose(m.offsets[m.index("Spine")], [0.16, 0.005, 0.0], atol=1e-12)
+    # write → read keeps every joint's world position
+    q = fx.io.read_bvh(fx.io.write_bvh(tmp_path / "six_out.bvh", m, scale=0.01), scale=0.01)
+    np.testing.assert_allclose(fx.motion.forward_kinematics(q)[:, 1:], ref[:, 1:], atol=1e-5)
+
+
+def test_bvh_varying_translation_off_the_root_chain_is_an_error(tmp_path):
+    lines = BVH6.splitlines()
+    lines[-1] = lines[-1].replace("16.0 0.5 0.0", "17.0 0.5 0.0")  # Spine stretches
+    with pytest.raises(CorruptFileError, match="'Spine' has time-varying position"):
+        fx.io.read_bvh(_bad(tmp_path, "\n".join(lines) + "\n"))
+
+
+def test_real_bandai_file(data_dir):
+    p = data_dir / "body" / "bandai" / "dataset-2_walk_normal_001.bvh.gz"
+    m = fx.io.read_bvh(p, scale=0.01)
+    assert m.num_frames == 273 and len(m.names) == 27 and m.rate == pytest.approx(30.0, 1e-4)
+    assert all(len(c) == 6 for c in m.channels if c)
+    text = gzip.decompress(p.read_bytes()).decode().splitlines()
+    offsets = [[float(v) for v in ln.split()[1:]] for ln in text if ln.strip().startswith("OFFSET")]
+    k = next(i for i, ln in enumerate(text) if ln.startswith("Frame Time"))
+    data = np.asarray([[float(v) for v in ln.split()] for ln in text[k + 1 :] if ln.strip()])
+    ref = _reference_fk(m.parents, m.channels, offsets, data) * 0.01
+    np.testing.assert_allclose(fx.motion.forward_kinematics(m)[:, 1:], ref[:, 1:], atol=1e-5)
+    # dropping the static root keeps the world positions of all other joints
+    d = fx.motion.drop_root(m)
+    np.testing.assert_allclose(fx.motion.forward_kinematics(d), ref[:, 1:], atol=1e-5)

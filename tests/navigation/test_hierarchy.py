@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import fxspace as fx
-from fxspace.navigation._hierarchy import _components
+from fxspace.navigation._links import _components
 
 
 def _curve(n=120, seed=0):

@@ -189,7 +189,7 @@ def test_real_animface_subsample(data_dir):
 
 
 @pytest.mark.slow
-def test_pipeline_on_synthetic_face(tmp_path):
+def test_pipeline_on_synthetic_face(tmp_path, capsys, monkeypatch):
     import json
 
     from fxspace.pipelines import run_dict
@@ -201,9 +201,17 @@ def test_pipeline_on_synthetic_face(tmp_path):
         "hierarchy": {"c0": 8, "restarts": 0},
         "navigation": {"animation_frames": 4, "level_figures": False},
     }
+    monkeypatch.delenv("FXSPACE_QUIET", raising=False)
     (d,) = run_dict(raw, tmp_path / "run", force=True)
     m = json.loads((d / "metrics.json").read_text())
     assert m["centres_per_level"] == [8, 16, 32, 64, 80]
+    # the missing-data counts (none in the synthetic face) and a line per stage
+    assert m["missing"]["policy"] == "fill" and m["missing"]["max_gap"] == 10
+    err = capsys.readouterr().err
+    assert err.count("[fxspace] ") >= 5
+    for line in ("loading frames", "geodesics and 2-D embedding", "fuzzy c-means levels",
+                 "route through key centres", "figures"):  # fmt: skip
+        assert line in err
     assert m["path_is_graph_walk"] is True
     assert (d / "navigation.gif").stat().st_size > 0
     assert (d / "levels_grid.png").stat().st_size > 0

@@ -60,6 +60,180 @@ def test_controller_pick_refine_play(data):
         ctl.set_level(99)
 
 
+def test_click_picks_the_nearest_centre_at_every_level(data, rng):
+    ctl = NavigatorController(data, restrict=False)
+    h = data.hierarchy
+    for li, lv in enumerate(h.levels):
+        ctl.set_level(li)
+        for q in rng.normal(size=(5, 2)) * 6:
+            ctl.clear()
+            k, ok = ctl.pick_at(q)
+            pos = h.embedding[lv.center_frames]
+            d = np.linalg.norm(pos - q, axis=1)
+            assert d[k] == pytest.approx(d.min(), abs=1e-12)
+            assert ok and ctl.picks == [k] and ctl.route.level == li
+
+
+def test_level_change_keeps_the_route_and_holds_picks_to_candidates(data):
+    ctl = NavigatorController(data)
+    a, b, _ = _linked_and_unlinked(data.hierarchy.levels[0])
+    assert ctl.pick(a) and ctl.pick(b)
+    r0 = ctl.route
+    ctl.set_level(2)
+    assert ctl.route is r0 and ctl.guide is r0  # kept, shown, and guiding
+    cand = ctl.candidates()
+    assert len(cand) > 0
+    np.testing.assert_array_equal(cand, fx.path_candidates(data.hierarchy, 2, r0.frames))
+    assert "Candidates here (near the level-0 route)" in ctl.status()
+    other = next(k for k in range(data.hierarchy.levels[2].n_clusters) if k not in cand)
+    assert not ctl.pick(other) and "not near the route" in ctl.message
+    # a click far from the route snaps to the nearest candidate while restricted
+    far = data.hierarchy.embedding[data.hierarchy.levels[2].center_frames[other]]
+    k, ok = ctl.pick_at(far)
+    assert ok and k in cand and ctl.route.level == 2 and ctl.route.centres == (k,)
+    # undo across levels: the pick, then the level change
+    ctl.undo()
+    assert ctl.level == 2 and ctl.picks == [] and ctl.route is r0
+    ctl.undo()
+    assert ctl.level == 0 and ctl.picks == [a, b] and ctl.route is r0 and ctl.guide is None
+    # the toggle frees the picks
+    ctl.set_restrict(False)
+    ctl.set_level(2)
+    assert ctl.pick(other)
+
+
+def test_refine_across_three_levels_and_back(data):
+    ctl = NavigatorController(data)
+    a, b, _ = _linked_and_unlinked(data.hierarchy.levels[0])
+    ctl.pick(a)
+    ctl.pick(b)
+    r0 = ctl.route
+    routes = [r0]
+    for lvl in (1, 2, 3):
+        ctl.refine()
+        assert ctl.level == lvl and ctl.route.level == lvl and ctl.guide is routes[-1]
+        assert ctl.route.anchors == r0.anchors  # the animator's key frames are kept
+        assert fx.is_graph_walk(ctl.route.frames, data.geodesics.distances)
+        routes.append(ctl.route)
+    for lvl in (2, 1, 0):
+        ctl.undo()
+        assert ctl.level == lvl and ctl.route is routes[lvl]
+    ctl.undo()
+    ctl.undo()
+    assert ctl.route is None and "nothing to undo" not in ctl.message
+    ctl.undo()
+    assert ctl.message == "nothing to undo"
+
+
+def test_play_once_and_export(data, tmp_path):
+    ctl = NavigatorController(data, loop=False)
+    a, b, _ = _linked_and_unlinked(data.hierarchy.levels[0])
+    ctl.pick(a)
+    ctl.pick(b)
+    ctl.playing = True
+    n = len(ctl.playback().times)
+    for _ in range(n + 2):
+        ctl.step()
+    assert not ctl.playing and ctl.play_index == n - 1
+    paths = ctl.export(tmp_path, "gif")
+    names = {p.name for p in paths}
+    assert {"route.trc", "route.json", "route.gif"} <= names
+    seq = fx.io.read_markers(tmp_path / "route.trc")
+    assert seq.positions.shape == (len(ctl.route.frames), data.positions.shape[1], 3)
+    # rigidly aligned copies of the route's frames: the shape (pairwise distances) is kept
+    F = np.asarray(fx.distance_features(jnp.asarray(seq.positions)))
+    F0 = np.asarray(fx.distance_features(jnp.asarray(data.positions[ctl.route.frames])))
+    np.testing.assert_allclose(F, F0, atol=1e-6)
+
+
+def _many_frames(T=30_000, c=8, seed=0):
+    """A large 2-D embedding (a dense blob plus a uniform spread) with a tiny hierarchy
+    built directly: a level of ``c`` centres on a ring of links and a finest level of
+    every frame (no memberships, no links), no geodesics."""
+    from fxspace.navigation import Hierarchy, Level
+
+    rng = np.random.default_rng(seed)
+    xy = np.concatenate([rng.uniform(-10, 10, (T // 2, 2)), rng.normal(4, 0.3, (T // 2, 2))])
+    cf = rng.choice(T, c, replace=False)
+    links = np.zeros((c, c), bool)
+    links[np.arange(c), (np.arange(c) + 1) % c] = True
+    links |= links.T
+    mem = np.full((T, c), 1.0 / c)
+    lv = Level(c, xy[cf], mem, cf, 0.0, 0, True, -1, float("nan"), links,
+               np.zeros_like(links), 1.0, 0.0)  # fmt: skip
+    fine = lv._replace(n_clusters=T, centers=xy, memberships=np.zeros((0, 0)),
+                       center_frames=np.arange(T), links=None, bridges=None)  # fmt: skip
+    return NavData(Hierarchy((lv, fine), xy), None, np.zeros((T, 3, 3)))
+
+
+def test_many_frames_are_drawn_by_density():
+    from fxspace.studio._navigator import DENSITY_ABOVE
+
+    d = _many_frames()
+    xy = d.hierarchy.embedding
+    assert len(xy) > DENSITY_ABOVE
+    ctl = NavigatorController(d, density_bins=64)
+    assert ctl.pad_mode == "density" and "shown by density  " in ctl.status()
+    assert not ctl.centres_by_density
+    g = ctl.frame_density()
+    assert g.counts.shape == (64, 64) and g.counts.sum() == len(xy)
+    # reference: numpy's histogram over the same box; rows are y, columns x
+    ref, _, _ = np.histogram2d(
+        xy[:, 0], xy[:, 1], bins=64, range=[[g.lo[0], g.hi[0]], [g.lo[1], g.hi[1]]]
+    )
+    np.testing.assert_array_equal(g.counts, ref.T.astype(int))
+    # the densest cell holds the blob at (4, 4)
+    i, j = np.unravel_index(np.argmax(g.counts), g.counts.shape)
+    cell = (g.hi - g.lo) / 64
+    centre = g.lo + (np.array([j, i]) + 0.5) * cell
+    np.testing.assert_allclose(centre, [4.0, 4.0], atol=2 * cell.max())
+    assert ctl.frame_density() is g  # computed once
+    # picking still works on the pad: the nearest centre of the level
+    q = np.array([-9.0, 9.0])
+    k, ok = ctl.pick_at(q)
+    pos = xy[d.hierarchy.levels[0].center_frames]
+    assert ok and k == int(np.argmin(np.linalg.norm(pos - q, axis=1)))
+    # at the finest level (every frame a centre) the centres are shown by density too
+    ctl.set_level(1)
+    assert ctl.centres_by_density and "(centres too)" in ctl.status()
+    assert ctl.nearest_centre(q) == int(np.argmin(np.linalg.norm(xy - q, axis=1)))
+    # below the threshold (or with a higher one) the frames are points
+    assert NavigatorController(d, density_above=len(xy)).pad_mode == "points"
+
+
+def test_density_image_rows_and_opacity():
+    from fxspace.studio._server import density_rgba, frame_density
+
+    g = frame_density(np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 1.0]]), bins=2)
+    np.testing.assert_array_equal(g.counts, [[1, 0], [0, 2]])  # row 0: low y
+    img = density_rgba(g.counts)
+    assert img.shape == (2, 2, 4) and img.dtype == np.uint8
+    assert img[0, 1, 3] == img[1, 0, 3] == 0 and img[1, 1, 3] == 255
+    assert 0 < img[0, 0, 3] < 255
+    with pytest.raises(fx.FxspaceError, match="xy"):
+        frame_density(np.zeros((0, 2)))
+
+
+def test_server_draws_density_not_points(data):
+    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
+    from fxspace.studio._navigator import serve_navigator
+
+    server, ctl = serve_navigator(
+        data, port=0, environment_map=False, block=False, density_above=10
+    )
+    try:
+        assert ctl.pad_mode == "density"
+        nodes = server.scene._handle_from_node_name
+        assert "/pad/density" in nodes and "/pad/frames" not in nodes
+        assert "/pad/centres" in nodes
+        # the image covers the frames' box on the pad (whose longer side is 2), below z = 0
+        img = nodes["/pad/density"]
+        assert max(img.render_width, img.render_height) == pytest.approx(2.0)
+        assert img.position[2] < 0
+    finally:
+        server.stop()
+
+
 def _chromium() -> str | None:
     return (
         os.environ.get("FXSPACE_CHROMIUM")
@@ -141,3 +315,86 @@ def test_load_nav_data_from_config(tmp_path):
     bad.write_text('experiment = "threshold_sweep"\n')
     with pytest.raises(fx.FxspaceError, match="navigation"):
         load_nav_data(bad)
+
+
+@pytest.mark.browser
+def test_browser_click_on_the_pad_picks_the_nearest_centre(data):
+    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
+    pw = pytest.importorskip(
+        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
+    )
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
+    from fxspace.studio._navigator import serve_navigator
+
+    server, ctl = serve_navigator(data, port=0, environment_map=False, block=False)
+    last = len(data.hierarchy.levels) - 1
+    ctl.set_level(last)  # the finest level: every frame is a centre
+    try:
+        with pw.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1200, "height": 700})
+                page.goto(f"http://127.0.0.1:{server.get_port()}")
+                page.get_by_text("Key centres: none").wait_for(timeout=60_000)
+                canvas = page.locator("canvas").first
+                canvas.wait_for(timeout=30_000)
+                box = canvas.bounding_box()
+                for _ in range(40):  # the scene accepts clicks once the camera is set
+                    page.mouse.click(box["x"] + 0.3 * box["width"], box["y"] + 0.5 * box["height"])
+                    page.wait_for_timeout(250)
+                    if ctl.picks:
+                        break
+                assert ctl.picks, ctl.message
+                k = ctl.picks[0]
+                assert k == ctl.index(last).nearest(ctl.last_click)
+                page.get_by_text(f"Key centres: {k}", exact=False).wait_for(timeout=20_000)
+                assert ctl.route is not None and ctl.route.level == last
+            finally:
+                browser.close()
+    finally:
+        server.stop()
+
+
+@pytest.mark.slow
+def test_animface_2400_click_finest_and_refine_across_three_levels(data_dir):
+    """The seed paper's scale: 2400 AnimFace frames. A click at the finest level picks the
+    nearest of its 2400 centres; a route picked at level 0 is refined across three levels,
+    kept through level changes, and a finer-level pick is held to its candidates."""
+    from fxspace.datasets import FaceData, load_face
+    from fxspace.navigation import navigation_space
+
+    face = load_face(FaceData(source="animface", max_frames=2400), 0)
+    ns = navigation_space(face.positions, None, key=jax.random.PRNGKey(0),
+                          hierarchy={"restarts": 0})  # fmt: skip
+    d = NavData(ns.hierarchy, ns.space.geodesics, np.asarray(face.positions),
+                tuple(face.marker_names), face.rate)  # fmt: skip
+    h = d.hierarchy
+    finest = len(h.levels) - 1
+    assert h.levels[finest].n_clusters == len(face.positions) >= 2400
+    ctl = NavigatorController(d, restrict=False)
+    ctl.set_level(finest)
+    target = h.embedding[h.levels[finest].center_frames[1234]] + 1e-6
+    k, ok = ctl.pick_at(target)
+    assert ok and k == 1234 and ctl.route.level == finest
+    ctl.clear()
+    ctl.set_level(0)
+    ctl.set_restrict(True)
+    lv0 = h.levels[0]
+    a = 0
+    b = int(lv0.neighbours(a)[0])
+    assert ctl.pick(a) and ctl.pick(b)
+    r0 = ctl.route
+    for lvl in (1, 2, 3):
+        ctl.refine()
+        assert ctl.route is not None and ctl.route.level == lvl
+        assert ctl.route.anchors == r0.anchors
+    r3 = ctl.route
+    ctl.set_level(finest)  # jump: the route is kept and guides the picks
+    assert ctl.route is r3 and len(ctl.candidates()) > 0
+    k, ok = ctl.pick_at(h.embedding[r3.frames[len(r3.frames) // 2]])
+    assert ok and k in set(ctl.candidates().tolist())
+    for _ in range(2):
+        ctl.undo()
+    assert ctl.level == 3 and ctl.route is r3

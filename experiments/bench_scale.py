@@ -1,0 +1,229 @@
+"""Scale benchmark (issue 14): the expression space past one dense matrix.
+
+``python experiments/bench_scale.py --frames N`` runs the whole chain at N frames (the
+synthetic face by default; ``--source animface`` resamples the real AnimFace capture to N
+frames) and prints one table, per stage: wall time and peak resident memory (sampled
+every 20 ms while the stage runs; the process baseline is printed apart).
+
+ours:   features → sparse neighbourhood graph → max-min landmarks + landmark geodesics →
+        landmark MDS → landmark score, then the navigation at scale: FCM levels
+        (10, 20, 40, … centres), links on the sparse graph and a route between centres.
+peers:  the route a user would otherwise take in the same run — scipy Dijkstra from the
+        same landmarks on the same graph, scikit-learn's k-NN graph, and scikit-learn
+        ``Isomap`` end to end (its own landmark-free graph) where it fits in memory.
+quality (where the exact method fits, ``--exact-max``): exact all-pairs geodesics on the
+        same graph (scipy Dijkstra), the exact classical MDS, and Pearson r of each
+        embedding against the exact geodesics, plus r between the landmark and the exact
+        embeddings' distances.
+
+Exits non-zero if any stage fails. Usage:
+``python experiments/bench_scale.py --frames 2400 [--source animface] [--landmarks 256]
+[--k 10] [--levels 4] [--exact-max 5000] [--isomap-max 10000] [--json out.json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+import traceback
+
+import numpy as np
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+class Stage:
+    """Time a stage and sample the peak RSS while it runs."""
+
+    rows: list[dict] = []
+    failed: list[str] = []
+
+    def __init__(self, name: str, group: str = "ours"):
+        self.name, self.group = name, group
+
+    def __enter__(self):
+        self.peak = _rss_mb()
+        self._stop = threading.Event()
+
+        def sample():
+            while not self._stop.wait(0.02):
+                self.peak = max(self.peak, _rss_mb())
+
+        self._t = threading.Thread(target=sample, daemon=True)
+        self._t.start()
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        dt = time.perf_counter() - self.t0
+        self._stop.set()
+        self._t.join()
+        self.peak = max(self.peak, _rss_mb())
+        ok = exc_type is None
+        row = {"stage": self.name, "group": self.group, "s": dt, "peak_mb": self.peak, "ok": ok}
+        Stage.rows.append(row)
+        if not ok:
+            Stage.failed.append(self.name)
+            row["error"] = "".join(traceback.format_exception_only(exc_type, exc)).strip()
+            print(f"  stage {self.name} FAILED: {row['error']}", file=sys.stderr, flush=True)
+        return True  # keep going; the exit code reports the failure
+
+
+def _frames(T: int, source: str, seed: int = 0) -> tuple[np.ndarray, str]:
+    from fxspace.datasets import FaceData, load_face
+
+    if source == "animface":
+        face = load_face(FaceData(source="animface", target_frames=T), seed)
+        return face.positions, "AnimFace (resampled)"
+    from fxspace.synthetic import synthetic_face
+
+    return synthetic_face(n_frames=T, seed=seed).sequence.positions, "synthetic face"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--frames", type=int, default=2400)
+    ap.add_argument("--source", choices=["synthetic", "animface"], default="synthetic")
+    ap.add_argument("--landmarks", type=int, default=256)
+    ap.add_argument("--k", type=int, default=10, help="neighbours chosen by each frame")
+    ap.add_argument("--levels", type=int, default=4, help="FCM levels: 10, 20, 40, …")
+    ap.add_argument("--exact-max", type=int, default=5000)
+    ap.add_argument("--isomap-max", type=int, default=10000)
+    ap.add_argument("--no-navigation", action="store_true")
+    ap.add_argument("--no-peers", action="store_true")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+
+    import jax
+    import jax.numpy as jnp
+
+    import fxspace as fx
+    from fxspace.expression import to_scipy
+
+    T, L = a.frames, min(a.landmarks, a.frames)
+    X, source = _frames(T, a.source, a.seed)
+    base = _rss_mb()
+    print(
+        f"T = {T} frames of {source} ({X.shape[1]} markers), k = {a.k}, L = {L} landmarks, "
+        f"{jax.device_count()} × {jax.devices()[0].platform}, float32; baseline RSS "
+        f"{base:.0f} MB (other agents may share the CPU: times are noisy)",
+        flush=True,
+    )
+    out: dict = {"T": T, "source": source, "k": a.k, "L": L}
+    pos = jnp.asarray(X, jnp.float32)
+    F = g = geo = mds = None
+
+    with Stage("features"):
+        F = jax.block_until_ready(jax.jit(fx.distance_features)(pos))
+    with Stage("graph"):
+        g = fx.neighbourhood_graph(F, k=a.k)
+        jax.block_until_ready(g.weights)
+        out["max_degree"] = int(g.indices.shape[1])
+        out["mean_degree"] = float(np.mean(g.degree))
+    with Stage("landmark geodesics"):
+        fx.expression.check_sparse_connected(g)
+        geo = fx.farthest_point_landmarks(g, L)
+    with Stage("landmark MDS"):
+        mds = fx.landmark_mds(geo, dim=2)
+        jax.block_until_ready(mds.embedding)
+    with Stage("score"):
+        out["r_landmark_pairs"] = float(fx.landmark_score(geo, mds.embedding))
+    chain = [
+        r
+        for r in Stage.rows
+        if r["stage"] in ("graph", "landmark geodesics", "landmark MDS", "score")
+    ]
+    out["chain_s"] = sum(r["s"] for r in chain)
+    out["chain_peak_mb"] = max(r["peak_mb"] for r in chain)
+
+    if not a.no_navigation and mds is not None:
+        from fxspace.navigation._scale import sparse_hierarchy, sparse_route
+
+        h = None
+        with Stage("hierarchy + links"):
+            h = sparse_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed))
+            out["levels"] = [int(lv.n_clusters) for lv in h]
+            out["links"] = [int(np.triu(lv.links, 1).sum()) for lv in h]
+        with Stage("route"):
+            lv = h[-1]
+            keys = lv.center_frames[np.linspace(0, lv.n_clusters - 1, 4).astype(int)]
+            out["route_frames"] = int(len(sparse_route(g, keys)))
+
+    if not a.no_peers and g is not None and geo is not None:
+        from scipy.sparse.csgraph import dijkstra
+
+        csr = to_scipy(g)
+        lm = np.asarray(geo.landmarks)
+        with Stage("scipy Dijkstra, same landmarks", "peer"):
+            Dp = dijkstra(csr, directed=False, indices=lm)
+            out["max_rel_diff_vs_scipy"] = float(
+                np.max(np.abs(np.asarray(geo.distances, np.float64) - Dp) / np.maximum(Dp, 1e-9))
+            )
+        if T <= 50000:
+            from sklearn.neighbors import kneighbors_graph
+
+            with Stage("sklearn k-NN graph", "peer"):
+                kneighbors_graph(np.asarray(F), a.k, mode="distance", n_jobs=-1)
+        if T <= a.isomap_max:
+            from sklearn.manifold import Isomap
+
+            with Stage("sklearn Isomap (dense)", "peer"):
+                iso = Isomap(n_neighbors=a.k, n_components=2, path_method="D", n_jobs=-1)
+                Yiso = iso.fit_transform(np.asarray(F, np.float64))
+
+    if T <= a.exact_max and g is not None and mds is not None:
+        from scipy.sparse.csgraph import dijkstra
+
+        with Stage("exact geodesics (quality)", "exact"):
+            Dex = dijkstra(to_scipy(g), directed=False).astype(np.float32)
+        with Stage("exact classical MDS (quality)", "exact"):
+            cm = fx.classical_mds(jnp.asarray(Dex), dim=2)
+            jax.block_until_ready(cm.embedding)
+        Dj = jnp.asarray(Dex)
+        out["r_exact_embedding"] = float(fx.pearson_score(Dj, cm.embedding))
+        out["r_landmark_embedding"] = float(fx.pearson_score(Dj, mds.embedding))
+        E = fx.pairwise_distances(cm.embedding)
+        out["r_landmark_vs_exact_embedding"] = float(fx.pearson_score(E, mds.embedding))
+        if "Yiso" in locals():
+            out["r_isomap_embedding"] = float(fx.pearson_score(Dj, jnp.asarray(Yiso, Dj.dtype)))
+
+    print(f"\n{'stage':<34} {'group':<6} {'time s':>8} {'peak MB':>9}")
+    for r in Stage.rows:
+        flag = "" if r["ok"] else "  FAILED"
+        print(f"{r['stage']:<34} {r['group']:<6} {r['s']:>8.2f} {r['peak_mb']:>9.0f}{flag}")
+    if "chain_s" in out:
+        print(
+            f"{'chain: graph → landmarks → MDS → r':<34} {'ours':<6} {out['chain_s']:>8.2f} "
+            f"{out['chain_peak_mb']:>9.0f}"
+        )
+    peer = {r["stage"]: r["s"] for r in Stage.rows if r["ok"]}
+    if "scipy Dijkstra, same landmarks" in peer and "landmark geodesics" in peer:
+        out["ratio_landmark_geodesics"] = (
+            peer["scipy Dijkstra, same landmarks"] / peer["landmark geodesics"]
+        )
+    if "sklearn Isomap (dense)" in peer and "chain_s" in out:
+        out["ratio_isomap_vs_chain"] = peer["sklearn Isomap (dense)"] / out["chain_s"]
+    for key in sorted(out):
+        if key.startswith(("r_", "ratio_", "max_", "mean_", "levels", "links", "route")):
+            v = out[key]
+            print(f"{key}: {v:.4f}" if isinstance(v, float) else f"{key}: {v}")
+    out["stages"] = Stage.rows
+    if a.json:
+        from fxspace.runs import write_json_atomic
+
+        write_json_atomic(a.json, out)
+    if Stage.failed:
+        print(f"FAILED stages: {Stage.failed}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,281 @@
+"""Whole-scene control points (Hirose & Higuchi §1–2): segment the whole capture, one
+control-point model per segment, stitched at the shared boundary frames.
+
+With boundaries ``0 = b_0 < … < b_s = T − 1`` (:func:`fxspace.segment_motion`), segment
+``i`` covers frames ``b_i … b_{i+1}`` inclusive; its model stores its first and last frame
+(the scene's key frames) and ``c`` control-point trajectories. A boundary frame is the
+last frame of one segment and the first of the next, stored once, so the stitched
+sequence is continuous there by construction (both models reproduce that frame
+exactly). The baseline is the scene's linear interpolation between the same key frames
+(piecewise linear), and the paper's error (eq. (1)) is reported per segment and for the
+scene:
+
+    E_scene = Σ_t Σ_i ‖x_i(t) − x̂_i(t)‖²  (each frame once; 0 at the key frames).
+
+Storage: the ``s + 1`` key frames (``(s+1)·N·3``), every segment's control trajectories
+(``c·(T_i − 2)·3``) and labels (``N``) or sparse weights. The paper thinned its 300-frame
+capture to 150 frames by dropping the even-numbered frames (:func:`thin_frames`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
+
+from fxspace._progress import progress
+from fxspace.cluster._kernel_kmeans import KernelKMeansResult
+from fxspace.controlpoints._fitting import refine_control_points
+from fxspace.controlpoints._model import (
+    ControlPointModel,
+    fit_control_points,
+    linear_interpolation,
+    reconstruct,
+    reconstruction_error,
+    storage_size,
+)
+from fxspace.controlpoints._segment import (
+    Segmentation,
+    segment_motion,
+    segments_from_boundaries,
+)
+from fxspace.errors import FxspaceError
+
+__all__ = [
+    "SceneModel",
+    "SceneFit",
+    "SceneErrors",
+    "thin_frames",
+    "fit_scene",
+    "reconstruct_scene",
+    "linear_scene",
+    "scene_errors",
+    "scene_storage_size",
+    "scene_compression_ratio",
+    "segment_of_frame",
+    "scene_to_arrays",
+    "scene_from_arrays",
+]
+
+
+class SceneModel(NamedTuple):
+    """A whole scene as per-segment control-point models.
+
+    **Fields:** ``boundaries`` ``(s + 1,)`` frames from 0 to T−1; ``segments`` one
+    :class:`ControlPointModel` per segment (segment ``i`` spans ``boundaries[i] …
+    boundaries[i+1]`` inclusive).
+    """
+
+    boundaries: Int[np.ndarray, " s1"]
+    segments: tuple[ControlPointModel, ...]
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.boundaries[-1]) + 1
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.segments[0].first.shape[0])
+
+
+class SceneFit(NamedTuple):
+    """Result of :func:`fit_scene`: ``model``, the ``segmentation`` (None when boundaries
+    were given), each segment's kernel k-means ``clusterings``, and each segment's
+    gradient-refinement ``num_steps``/``converged`` (0/True when not refined)."""
+
+    model: SceneModel
+    segmentation: Segmentation | None
+    clusterings: tuple[KernelKMeansResult, ...]
+    num_steps: tuple[int, ...]
+    converged: tuple[bool, ...]
+
+
+class SceneErrors(NamedTuple):
+    """Eq. (1) per segment (``linear``, ``model``, ``ratio``) and for the whole scene."""
+
+    linear: np.ndarray
+    model: np.ndarray
+    ratio: np.ndarray
+    linear_scene: float
+    model_scene: float
+    ratio_scene: float
+
+
+def thin_frames(X: Float[ArrayLike, "T ..."], step: int = 2) -> Float[Array, "T2 ..."]:
+    """Keep every ``step``-th frame, starting at the first: with ``step = 2`` the paper's
+    thinning (300 → 150 frames at 60 Hz, the even-numbered frames — counting from 1 —
+    dropped)."""
+    if int(step) < 1:
+        raise FxspaceError(f"step must be >= 1; got {step}")
+    return jnp.asarray(X)[:: int(step)]
+
+
+def _check_boundaries(boundaries, T: int) -> np.ndarray:
+    b = np.asarray(boundaries, dtype=np.int64)
+    if b.ndim != 1 or len(b) < 2 or b[0] != 0 or b[-1] != T - 1 or np.any(np.diff(b) < 2):
+        raise FxspaceError(
+            f"boundaries must run from 0 to T−1 = {T - 1}, increasing by >= 2 frames (every "
+            f"segment needs an in-between frame); got {b.tolist()}"
+        )
+    return b
+
+
+def fit_scene(
+    X: Float[ArrayLike, "T N 3"],
+    n_clusters: int = 25,
+    *,
+    boundaries: Int[ArrayLike, " s1"] | None = None,
+    n_segments: int = 8,
+    min_length: int = 4,
+    segment_on: str = "velocity",
+    gamma: float | None = None,
+    key: PRNGKeyArray | None = None,
+    n_init: int = 20,
+    max_points: int | None = 1000,
+    refine_steps: int = 10,
+    fit_steps: int = 0,
+    fit_support: int = 3,
+    fit_smoothness: float = 1e-4,
+    show_progress: bool = False,
+) -> SceneFit:
+    """Segment the whole sequence and model every segment by control points.
+
+    **Arguments:**
+
+    - `X`: ``(T, N, 3)`` the dense scene (e.g. :func:`fxspace.rbf_deform` of a capture).
+    - `n_clusters`: control points per segment (capped at the vertex count).
+    - `boundaries`: given segment boundaries; ``None`` → :func:`fxspace.segment_motion`
+      with `n_segments`, `min_length` and `segment_on`.
+    - `gamma`, `n_init`, `max_points`, `refine_steps`: :func:`fxspace.fit_control_points`.
+    - `fit_steps`: > 0 refines every segment by :func:`fxspace.refine_control_points`
+      (Adam; `fit_support`, `fit_smoothness`).
+    - `key`: PRNG key (split per segment).
+
+    **Returns:** :class:`SceneFit`.
+
+    **Example:**
+
+    ```python
+    fit = fx.fit_scene(X, 25, n_segments=8, key=jax.random.key(0))
+    X_hat = fx.reconstruct_scene(fit.model)           # continuous at the boundaries
+    err = fx.scene_errors(X, fit.model)               # err.ratio_scene, err.ratio
+    ```
+    """
+    X = jnp.asarray(X)
+    if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 3:
+        raise FxspaceError(f"X must be (frames >= 3, vertices, 3); got {X.shape}")
+    T, N, _ = X.shape
+    seg = None
+    if boundaries is None:
+        seg = segment_motion(X, n_segments, min_length=min_length, on=segment_on)  # type: ignore[arg-type]
+        boundaries = seg.boundaries
+    b = _check_boundaries(boundaries, T)
+    key = jax.random.PRNGKey(0) if key is None else key
+    keys = jax.random.split(key, len(b) - 1)
+    models, kms, steps, conv = [], [], [], []
+    spans = segments_from_boundaries(b)
+    it = progress(spans, desc="control points per segment") if show_progress else spans
+    for i, (a, e) in enumerate(it):
+        S = X[a : e + 1]
+        model, km = fit_control_points(
+            S, min(int(n_clusters), N), gamma=gamma, key=keys[i], n_init=n_init,
+            max_points=max_points, refine_steps=refine_steps,
+        )  # fmt: skip
+        n_steps, ok = 0, True
+        if fit_steps > 0:
+            fr = refine_control_points(
+                S, model, steps=fit_steps, support=min(fit_support, model.controls.shape[0]),
+                smoothness=fit_smoothness,
+            )  # fmt: skip
+            model, n_steps, ok = fr.model, int(fr.num_steps), bool(fr.converged)
+        models.append(model)
+        kms.append(km)
+        steps.append(n_steps)
+        conv.append(ok)
+    return SceneFit(SceneModel(b, tuple(models)), seg, tuple(kms), tuple(steps), tuple(conv))
+
+
+def _stitch(parts: list[Array]) -> Array:
+    return jnp.concatenate([parts[0]] + [p[1:] for p in parts[1:]], axis=0)
+
+
+def reconstruct_scene(scene: SceneModel) -> Float[Array, "T N 3"]:
+    """The stitched sequence: every segment's :func:`fxspace.reconstruct`, each shared
+    boundary frame once. O(T·N·c)."""
+    return _stitch([reconstruct(m) for m in scene.segments])
+
+
+def linear_scene(X: Float[ArrayLike, "T N 3"], boundaries: Int[ArrayLike, " s1"]) -> Array:
+    """The baseline: linear interpolation between the key frames ``X[boundaries]``."""
+    X = jnp.asarray(X)
+    b = _check_boundaries(boundaries, X.shape[0])
+    return _stitch(
+        [linear_interpolation(X[a], X[e], e - a + 1) for a, e in segments_from_boundaries(b)]
+    )
+
+
+def scene_errors(X: Float[ArrayLike, "T N 3"], scene: SceneModel) -> SceneErrors:
+    """Eq. (1) of linear interpolation and of the model, per segment and for the scene."""
+    X = jnp.asarray(X)
+    if X.shape[0] != scene.n_frames or X.shape[1] != scene.n_vertices:
+        raise FxspaceError(
+            f"X {X.shape} does not match the scene ({scene.n_frames} frames, "
+            f"{scene.n_vertices} vertices)"
+        )
+    lin, mod = [], []
+    for (a, e), m in zip(segments_from_boundaries(scene.boundaries), scene.segments, strict=True):
+        S = X[a : e + 1]
+        lin.append(float(reconstruction_error(S, linear_interpolation(S[0], S[-1], len(S)))))
+        mod.append(float(reconstruction_error(S, reconstruct(m))))
+    lin_a, mod_a = np.asarray(lin), np.asarray(mod)
+    ratio = np.where(lin_a > 0, mod_a / np.where(lin_a > 0, lin_a, 1.0), 0.0)
+    ls, ms = float(lin_a.sum()), float(mod_a.sum())
+    return SceneErrors(lin_a, mod_a, ratio, ls, ms, ms / ls if ls > 0 else 0.0)
+
+
+def scene_storage_size(scene: SceneModel) -> int:
+    """Numbers stored for the scene: shared key frames once, plus each segment's controls
+    and labels/weights (see :func:`fxspace.storage_size`)."""
+    N = scene.n_vertices
+    per = sum(storage_size(m) - 2 * N * 3 for m in scene.segments)
+    return (len(scene.boundaries)) * N * 3 + per
+
+
+def scene_compression_ratio(scene: SceneModel) -> float:
+    """Numbers in the dense scene (T·N·3) over :func:`scene_storage_size`."""
+    return scene.n_frames * scene.n_vertices * 3 / scene_storage_size(scene)
+
+
+def segment_of_frame(boundaries: Int[ArrayLike, " s1"], frame: int) -> tuple[int, int]:
+    """``(segment, local frame)`` of scene ``frame``: the segment whose in-between frames
+    contain it; a boundary frame is a stored key frame and belongs to the segment it
+    starts (the last frame to the last segment), at local frame 0 (or its end)."""
+    b = np.asarray(boundaries, dtype=np.int64)
+    f = int(frame)
+    if not 0 <= f <= int(b[-1]):
+        raise FxspaceError(f"frame must be in [0, {int(b[-1])}]; got {frame}")
+    s = int(np.searchsorted(b, f, side="right") - 1)
+    s = min(s, len(b) - 2)
+    return s, f - int(b[s])
+
+
+def scene_to_arrays(scene: SceneModel) -> dict[str, np.ndarray]:
+    """Flat arrays of a scene (for ``np.savez``); inverse :func:`scene_from_arrays`."""
+    out: dict[str, np.ndarray] = {"boundaries": np.asarray(scene.boundaries, np.int64)}
+    for i, m in enumerate(scene.segments):
+        for f in ControlPointModel._fields:
+            out[f"seg{i}_{f}"] = np.asarray(getattr(m, f))
+    return out
+
+
+def scene_from_arrays(arrays) -> SceneModel:
+    """The :class:`SceneModel` stored by :func:`scene_to_arrays` (e.g. an ``np.load``)."""
+    b = np.asarray(arrays["boundaries"], np.int64)
+    segs = tuple(
+        ControlPointModel(*(jnp.asarray(arrays[f"seg{i}_{f}"]) for f in ControlPointModel._fields))
+        for i in range(len(b) - 1)
+    )
+    return SceneModel(b, segs)

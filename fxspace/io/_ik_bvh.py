@@ -1,0 +1,98 @@
+"""Write mesh-IK poses (per-joint Euler angles on a glTF skeleton) as BVH.
+
+A :class:`fxspace.Pose` rotates joint ``j`` by ``R_rest,j · R_x R_y R_z(θ_j)`` and moves
+the skeleton by a world translation. BVH has no rest rotations and no scales, so the
+writer bakes them: each joint's BVH rotation is the full local rotation
+``R_rest,j · E(θ_j)`` (the base transform's rotation in front for the root), each offset
+is the rest translation times the parent's accumulated uniform scale, and the root
+position is ``base · t_root + translation``. Skeletons with several roots or non-uniform
+scales are refused. Round trip: ``fx.io.read_bvh`` + ``fx.forward_kinematics`` give the
+IK joint origins.
+
+Example: ``fx.io.write_ik_bvh("pose.bvh", mesh, res.pose.angles, res.pose.translation)``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fxspace.errors import FxspaceError
+from fxspace.motion._types import Motion
+from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fxspace.mesh._types import SkinnedMesh
+
+__all__ = ["ik_poses_to_motion", "write_ik_bvh"]
+
+_ROT = ("Xrotation", "Yrotation", "Zrotation")
+
+
+def ik_poses_to_motion(
+    mesh: SkinnedMesh, angles: np.ndarray, translation: np.ndarray, rate: float = 30.0
+) -> Motion:
+    """A :class:`fxspace.io.Motion` of IK poses ``angles (T, J, 3)``, ``translation (T, 3)``."""
+    ang = np.asarray(angles, np.float64)
+    tr = np.asarray(translation, np.float64)
+    nj = mesh.num_joints
+    if ang.ndim == 2:
+        ang, tr = ang[None], tr.reshape(1, 3)
+    if ang.shape[1:] != (nj, 3) or tr.shape != (ang.shape[0], 3):
+        raise FxspaceError(f"angles must be (T, {nj}, 3) and translation (T, 3)")
+    if not (np.isfinite(ang).all() and np.isfinite(tr).all()):
+        raise FxspaceError("angles and translation must be finite to export")
+    parents = np.asarray(mesh.parents)
+    if (parents < 0).sum() != 1 or parents[0] != -1:
+        raise FxspaceError(f"{mesh.name}: BVH needs a single root joint (joint 0)")
+    s = np.asarray(mesh.rest_scales, np.float64)
+    if np.any(np.abs(s - s[:, :1]) > 1e-5 * np.abs(s).max(axis=1, keepdims=True)):
+        raise FxspaceError(f"{mesh.name}: non-uniform joint scales cannot be written as BVH")
+    base = np.asarray(mesh.base_transforms[0], np.float64)
+    sigma_b = float(np.cbrt(abs(np.linalg.det(base[:3, :3]))))
+    cum = np.zeros(nj)  # accumulated uniform scale of each joint's frame
+    for j in range(nj):
+        cum[j] = (sigma_b if parents[j] < 0 else cum[parents[j]]) * s[j, 0]
+    t_rest = np.asarray(mesh.rest_translations, np.float64)
+    offsets = np.zeros((nj, 3))
+    for j in range(1, nj):
+        offsets[j] = cum[parents[j]] * t_rest[j]
+    r_rest = np.asarray(quat_to_matrix(quat_normalize(mesh.rest_rotations), order="xyzw"))
+    local = r_rest[None] @ np.asarray(euler_to_matrix(ang, "XYZ"))  # (T, J, 3, 3)
+    local[:, 0] = (base[:3, :3] / sigma_b) @ local[:, 0]
+    quats = np.asarray(matrix_to_quat(local, order="wxyz"))
+    root = base[:3, :3] @ t_rest[0] + base[:3, 3] + tr
+    channels = tuple(
+        ("Xposition", "Yposition", "Zposition", *_ROT) if j == 0 else _ROT for j in range(nj)
+    )
+    return Motion(
+        names=tuple(mesh.joint_names),
+        parents=tuple(int(p) for p in parents),
+        offsets=offsets,
+        root_translation=root,
+        rotations=quats,
+        rate=float(rate),
+        channels=channels,
+    )
+
+
+def write_ik_bvh(
+    path: str | Path,
+    mesh: SkinnedMesh,
+    angles: np.ndarray,
+    translation: np.ndarray,
+    rate: float = 30.0,
+) -> Path:
+    """Write IK poses (one frame ``(J, 3)`` or ``(T, J, 3)``) of ``mesh`` as BVH.
+
+    **Arguments:** `path` (``.bvh``/``.bvh.gz``), `mesh` (the skinned mesh the poses
+    belong to), `angles`/`translation` (:class:`fxspace.Pose` fields, stacked over
+    frames), `rate` (frames per second).
+
+    **Returns:** the path written (atomically).
+    """
+    from fxspace.io._bvh import write_bvh
+
+    return write_bvh(path, ik_poses_to_motion(mesh, angles, translation, rate))

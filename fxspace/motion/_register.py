@@ -1,0 +1,136 @@
+"""Registration for decoupled synthesis (Ha & Han §3.1): frame features, DTW warps against
+the first example ``M_1``, alignment curves ``λ`` between two reference clips, and small
+clip utilities (dropping a static root joint, cutting gait cycles)."""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from fxspace.motion._dtw import dtw, dtw_batch, warp_from_path
+from fxspace.motion._fk import fk_arrays
+from fxspace.motion._splice import heading_quat
+from fxspace.rotations import quat_conj, quat_mul, quat_rotate
+
+__all__ = [
+    "pose_features",
+    "register_dtw",
+    "alignment_curve",
+    "smooth_warp",
+    "drop_root",
+    "gait_window",
+]
+
+
+def pose_features(motion, joints: tuple[int, ...]) -> Float[Array, "T d"]:
+    """Per-frame features for DTW: joints ``joints`` relative to the root, expressed in the
+    root's heading frame (yaw only), flattened — invariant to where the clip is on the
+    ground and where it faces."""
+    X = fk_arrays(motion.parents, motion.offsets, motion.root_translation, motion.rotations)[0]
+    h = heading_quat(motion.rotations[:, 0])
+    rel = X[:, np.asarray(joints)] - X[:, :1]
+    return quat_rotate(quat_conj(h)[:, None], rel).reshape(X.shape[0], -1)
+
+
+def smooth_warp(warp: Float[Array, " N"], window: int = 5) -> Float[Array, " N"]:
+    """A DTW warp made smooth and strictly increasing: a centred moving average over
+    ``window`` frames (end points kept), plus a ramp of 1e-3 frames per frame, rescaled to the
+    original end points. Staircase warps otherwise have zero slopes (``dT/dC`` infinite in
+    eq. 1)."""
+    w = np.asarray(warp, np.float64)
+    n = w.size
+    if n < 3:
+        return w
+    k = max(1, min(window, n) // 2)
+    pad = np.concatenate([np.full(k, w[0]), w, np.full(k, w[-1])])
+    s = np.convolve(pad, np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
+    s = np.maximum.accumulate(s) + 1e-3 * np.arange(n)
+    s = w[0] + (s - s[0]) * (w[-1] - w[0]) / max(s[-1] - s[0], 1e-12)
+    return s
+
+
+def register_dtw(features: list, smooth: int = 5) -> Float[Array, "E N"]:
+    """Warps ``C_i`` of every example against the first one (the reference ``M_1``, as in the
+    paper): DTW of each clip's features ``(T_i, d)`` to ``features[0]``, the matched frames
+    averaged per reference frame (:func:`warp_from_path`), smoothed (:func:`smooth_warp`).
+    One compiled batched DTW for all examples. Returns ``(E, N)`` with ``N = len(features[0])``.
+    """
+    lens = [int(np.shape(f)[0]) for f in features]
+    T = max(lens)
+    F = np.stack([np.concatenate([f, np.repeat(f[-1:], T - len(f), 0)]) for f in features])
+    warps = _register(jnp.asarray(F[0]), jnp.asarray(F), jnp.asarray(lens), lens[0])
+    return np.stack([smooth_warp(w, smooth) for w in np.asarray(warps)])
+
+
+@partial(jax.jit, static_argnums=3)
+def _register(ref, F, lens, n_ref: int):
+    res = dtw_batch(ref, F, True, jnp.full(lens.shape, n_ref), lens)
+    return jax.vmap(lambda p: warp_from_path(p, n_ref))(res.path)
+
+
+def alignment_curve(
+    lower_features: Float[Array, "N d"], upper_features: Float[Array, "M d"], smooth: int = 5
+) -> Float[Array, " N"]:
+    """``λ``: lower reference frame ↦ upper reference frame, by DTW of the two reference clips'
+    (lower-body) features; smoothed and strictly increasing (:func:`smooth_warp`)."""
+    path = dtw(jnp.asarray(lower_features), jnp.asarray(upper_features)).path
+    return smooth_warp(np.asarray(warp_from_path(path, int(np.shape(lower_features)[0]))), smooth)
+
+
+def drop_root(motion):
+    """Remove a root joint that only carries its single child (e.g. the Bandai Namco BVH's
+    ``joint_Root``): the child becomes the root, with the old root's rotation composed into
+    its own and its world position as the root translation. Forward kinematics is unchanged
+    for every remaining joint."""
+    if sum(1 for p in motion.parents if p == 0) != 1 or motion.parents[1] != 0:
+        raise ValueError("drop_root needs a root whose only child is joint 1")
+    rot = np.asarray(motion.rotations)
+    off = np.asarray(motion.offsets)
+    X = fk_arrays(motion.parents, off, np.asarray(motion.root_translation), rot)[0]
+    q1 = np.asarray(quat_mul(rot[:, 0], rot[:, 1]))
+    rot = np.concatenate([q1[:, None], rot[:, 2:]], axis=1)
+    offsets = off[1:].copy()
+    return dataclasses.replace(
+        motion,
+        names=motion.names[1:],
+        parents=tuple(max(p - 1, -1) for p in motion.parents[1:]),
+        offsets=offsets,
+        root_translation=np.asarray(X[:, 1]) - offsets[0],
+        rotations=rot,
+        channels=motion.channels[1:],
+    )
+
+
+def gait_window(motion, foot: str, n_cycles: int = 2, skip: int = 1):
+    """The frames of ``n_cycles`` full gait cycles, from one touch-down of ``foot`` to the
+    ``n_cycles``-th next one, after skipping the first ``skip`` touch-downs (the start of a
+    walk). Touch-downs are local minima of the foot's height that lie within 3 cm of the
+    clip's lowest foot height, at least 8 frames apart. Raises ``ValueError`` when the clip
+    holds too few cycles."""
+    X = fk_arrays(
+        motion.parents,
+        np.asarray(motion.offsets),
+        np.asarray(motion.root_translation),
+        np.asarray(motion.rotations),
+    )[0]
+    h = np.asarray(X[:, motion.index(foot), 1])
+    low = h.min() + 0.03
+    down = [
+        t
+        for t in range(1, len(h) - 1)
+        if h[t] <= h[t - 1] and h[t] < h[t + 1] and h[t] < low and h[t - 1] >= h[t]
+    ]
+    # keep the first frame of each contact phase: a touch-down follows a swing (h >= low)
+    starts = [t for t in range(1, len(h)) if h[t] < low <= h[t - 1]]
+    starts = starts or down
+    sel = starts[skip : skip + n_cycles + 1]
+    if len(sel) < n_cycles + 1:
+        raise ValueError(
+            f"gait_window: {len(starts)} touch-downs of {foot!r}, need {skip + n_cycles + 1}"
+        )
+    return motion.frames(slice(sel[0], sel[-1] + 1))

@@ -1,0 +1,325 @@
+"""Decoupled parametric synthesis (Ha & Han): two parametric spaces, one pure step per
+animation frame with the clocks of eqs. (1)–(3) and the §3.2 re-placement of the upper
+space's samples when the lower-body parameter changes.
+
+Every public function here is jitted (eager calls compile once per shape, then run fast);
+they trace inside other jitted code as usual.
+
+The upper parameter is expressed in the character's *root frame*: relative to the root's
+ground position (x, z; heights kept) and rotated into its heading (yaw) frame, as the paper
+stores ``ṗ_i`` ("translated and rotated so that the root frame coincides with the origin").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
+from fxspace.motion._fk import fk_arrays
+from fxspace.motion._horn import absolute_orientation, apply_rigid
+from fxspace.motion._splice import heading_quat, splice_pose
+from fxspace.motion._timewarp import advance_clock, align_clocks, invert_curve
+from fxspace.rotations import quat_conj, quat_rotate
+
+__all__ = [
+    "SynthesisSpaces",
+    "SynthState",
+    "Pose",
+    "build_spaces",
+    "init_state",
+    "synthesize_step",
+    "synthesize",
+    "replace_samples",
+    "exact_upper_params",
+    "upper_param_of",
+    "lower_param_of",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class SynthesisSpaces:
+    """The two parametric spaces ``P_L`` and ``P_U`` (a JAX pytree; see :func:`build_spaces`).
+
+    Arrays: ``lower``/``upper`` example sets (warps against their first example), ``lam``
+    ``(N_L,)`` the alignment curve, ``offsets`` the skeleton's rest offsets, the lower samples
+    ``lower_weights`` ``(S_L, E_L)`` / ``lower_params`` ``(S_L, d)``, the upper samples
+    ``upper_weights`` ``(S_U, E_U)`` / ``upper_params`` ``(S_U, 3)`` (``ṗ``: root frame, for
+    the initial lower blend ``lower_w0``), ``lower_time`` / ``upper_time`` (reference frames
+    where each parameter is measured), ``posture_transfer``. Static: ``parents``, ``mask``
+    (upper-body joints), ``spine`` (splice joint), ``lower_joint``/``lower_dims``,
+    ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
+    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``.
+    """
+
+    lower: ExampleSet
+    upper: ExampleSet
+    lam: Float[Array, " NL"]
+    offsets: Float[Array, "J 3"]
+    lower_weights: Float[Array, "SL EL"]
+    lower_params: Float[Array, "SL d"]
+    upper_weights: Float[Array, "SU EU"]
+    upper_params: Float[Array, "SU 3"]
+    lower_w0: Float[Array, " EL"]
+    lower_time: Float[Array, ""]
+    upper_time: Float[Array, ""]
+    posture_transfer: Float[Array, ""]
+    parents: tuple[int, ...]
+    mask: tuple[bool, ...]
+    spine: int
+    lower_joint: int
+    lower_dims: tuple[int, ...]
+    upper_joint: int
+    k_replace: int
+    knn_k: int
+    min_slope: float
+
+
+jax.tree_util.register_dataclass(
+    SynthesisSpaces,
+    data_fields=[
+        "lower", "upper", "lam", "offsets", "lower_weights", "lower_params", "upper_weights",
+        "upper_params", "lower_w0", "lower_time", "upper_time", "posture_transfer",
+    ],
+    meta_fields=[
+        "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
+        "knn_k", "min_slope",
+    ],
+)  # fmt: skip
+
+
+class SynthState(NamedTuple):
+    """``t_lower``/``t_upper``: the reference clocks ``T_L``, ``T_U``; ``lower_param``: the
+    lower parameter the upper samples were last re-placed for; ``upper_params`` ``(S_U, 3)``:
+    those re-placed sample parameters; ``lower_weights``: the current lower blend."""
+
+    t_lower: Float[Array, ""]
+    t_upper: Float[Array, ""]
+    lower_param: Float[Array, " d"]
+    upper_params: Float[Array, "SU 3"]
+    lower_weights: Float[Array, " EL"]
+
+
+class Pose(NamedTuple):
+    """One output frame: local joint quaternions ``(J, 4)`` and the root translation ``(3,)``."""
+
+    rotations: Float[Array, "J 4"]
+    root: Float[Array, " 3"]
+
+
+def _fk1(sp: SynthesisSpaces, root, q):
+    return fk_arrays(sp.parents, sp.offsets, root[None], q[None])[0][0]
+
+
+def _to_root_frame(x, X_root, q_root):
+    rel = (x - X_root) * jnp.asarray([1.0, 0.0, 1.0]) + x * jnp.asarray([0.0, 1.0, 0.0])
+    return quat_rotate(quat_conj(heading_quat(q_root)), rel)
+
+
+@jax.jit
+def lower_param_of(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, " d"]:
+    """The lower parameter of a lower blend: joint ``lower_joint``'s world position (dims
+    ``lower_dims``) at reference time ``lower_time`` (start-aligned clips)."""
+    q, r = blend_pose(sp.lower, w_lower, sp.lower_time)
+    return _fk1(sp, r, q)[sp.lower_joint][jnp.asarray(sp.lower_dims)]
+
+
+@jax.jit
+def upper_param_of(
+    sp: SynthesisSpaces, w_lower: Float[Array, " EL"], w_upper: Float[Array, " EU"]
+) -> Float[Array, " 3"]:
+    """The *real* upper parameter (§3.2) of upper blend ``w_upper`` spliced onto lower blend
+    ``w_lower``: joint ``upper_joint`` in the root frame when the upper clock is at
+    ``upper_time`` — the lower clock is then at ``λ⁻¹(upper_time)`` (eq. 3)."""
+    t_l = invert_curve(sp.lam, sp.upper_time)
+    qL, rL = blend_pose(sp.lower, w_lower, t_l)
+    qU, _ = blend_pose(sp.upper, w_upper, sp.upper_time)
+    q = splice_pose(qL, qU, jnp.asarray(sp.mask), sp.spine, sp.posture_transfer)
+    X = _fk1(sp, rL, q)
+    return _to_root_frame(X[sp.upper_joint], X[0], q[0])
+
+
+@jax.jit
+def exact_upper_params(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, "S 3"]:
+    """Re-sampling from scratch (the exact, slow route the paper rejects): the real
+    parameter of every upper sample for lower blend ``w_lower``."""
+    return jax.vmap(lambda w: upper_param_of(sp, w_lower, w))(sp.upper_weights)
+
+
+@jax.jit
+def replace_samples(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, "S 3"]:
+    """§3.2 re-placement: the real parameters ``p_1..p_k`` of the first ``k = k_replace``
+    samples for the new lower blend, Horn's rigid transform taking the stored ``ṗ_1..ṗ_k``
+    onto them (least squares), applied to all ``n`` stored ``ṗ_i``. O(k) splices + O(n)."""
+    k = sp.k_replace
+    real = jax.vmap(lambda w: upper_param_of(sp, w_lower, w))(sp.upper_weights[:k])
+    tf = absolute_orientation(sp.upper_params[:k], real)
+    return apply_rigid(tf, sp.upper_params)
+
+
+def _lower_weights(sp, lower_param):
+    return knn_blend_weights(lower_param, sp.lower_params, sp.lower_weights, sp.knn_k).weights
+
+
+@jax.jit
+def init_state(sp: SynthesisSpaces, lower_param: Float[Array, " d"]) -> SynthState:
+    """Clocks at the start (``T_L = 0``, ``T_U = λ(0)``) and the upper samples re-placed
+    for ``lower_param``."""
+    lower_param = jnp.asarray(lower_param, sp.lam.dtype)
+    wL = _lower_weights(sp, lower_param)
+    params = replace_samples(sp, wL) if sp.upper_joint >= 0 else sp.upper_params
+    z = jnp.zeros((), sp.lam.dtype)
+    return SynthState(z, sp.lam[0] + z, lower_param, params, wL)
+
+
+@jax.jit
+def synthesize_step(
+    spaces: SynthesisSpaces,
+    state: SynthState,
+    upper_param: Float[Array, " p"],
+    lower_param: Float[Array, " d"],
+    alpha: float | Float[Array, ""] = 0.5,
+    dt: float | Float[Array, ""] = 1.0,
+) -> tuple[SynthState, Pose]:
+    """One animation frame of decoupled synthesis (Ha & Han §3): pure, jittable, runs under
+    ``lax.scan``; both parameters may change every frame.
+
+    1. Lower blend ``w_L`` by k-NN interpolation of ``lower_param`` over the lower samples.
+    2. If ``lower_param`` differs from the one of the last re-placement, the upper samples
+       are re-placed (§3.2, :func:`replace_samples`; ``lax.cond``, so only then).
+    3. Upper blend ``w_U``: k-NN of ``upper_param`` (root frame) over the re-placed samples —
+       or, for a space without parameterisation (``upper_joint = -1``), ``upper_param`` is
+       the weight vector itself (normalised).
+    4. The pose at the current clocks: both blends (every example at ``C_i(T)``), spliced.
+    5. Clocks: eq. (1) for each set, then eqs. (2)–(3) with ``alpha``
+       (:func:`align_clocks`); ``T_L`` stops at the lower reference clip's end.
+
+    **Returns:** ``(state, pose)`` with ``pose`` the frame at the *incoming* clocks.
+
+    Example: ``state = init_state(sp, p_L)``; ``state, pose = synthesize_step(sp, state,
+    p_U, p_L, 0.5, 1.0)``.
+    """
+    dtype = spaces.lam.dtype
+    lower_param = jnp.asarray(lower_param, dtype)
+    alpha = jnp.asarray(alpha, dtype)
+    wL = _lower_weights(spaces, lower_param)
+    if spaces.upper_joint >= 0:
+        changed = jnp.any(lower_param != state.lower_param)
+        params = jax.lax.cond(
+            changed, lambda: replace_samples(spaces, wL), lambda: state.upper_params
+        )
+        wU = knn_blend_weights(
+            jnp.asarray(upper_param, dtype), params, spaces.upper_weights, spaces.knn_k
+        ).weights
+    else:
+        params = state.upper_params
+        wU = jnp.maximum(jnp.asarray(upper_param, dtype), 0.0)
+        wU = wU / jnp.maximum(jnp.sum(wU), 1e-12)
+    qL, rL = blend_pose(spaces.lower, wL, state.t_lower)
+    qU, _ = blend_pose(spaces.upper, wU, state.t_upper)
+    q = splice_pose(qL, qU, jnp.asarray(spaces.mask), spaces.spine, spaces.posture_transfer)
+    ms = spaces.min_slope
+    tl = state.t_lower + advance_clock(state.t_lower, spaces.lower.warps, wL, dt, ms)  # eq. 1
+    tu = state.t_upper + advance_clock(state.t_upper, spaces.upper.warps, wU, dt, ms)
+    tl, tu = align_clocks(jnp.minimum(tl, spaces.lam.shape[0] - 1.0), tu, spaces.lam, alpha)
+    return SynthState(tl, tu, lower_param, params, wL), Pose(q, rL)
+
+
+@jax.jit
+def synthesize(
+    spaces: SynthesisSpaces,
+    upper_params: Float[Array, "F p"],
+    lower_params: Float[Array, "F d"],
+    alpha: float | Float[Array, " F"] = 0.5,
+    dt: float = 1.0,
+) -> tuple[SynthState, Pose, Float[Array, "F 2"]]:
+    """``F`` frames by ``lax.scan`` of :func:`synthesize_step` (parameters per frame).
+
+    **Returns:** ``(final_state, poses, clocks)`` — ``poses`` stacked ``(F, J, 4)`` /
+    ``(F, 3)``, ``clocks`` ``(F, 2)`` the ``(T_L, T_U)`` of each output frame."""
+    F = upper_params.shape[0]
+    alphas = jnp.broadcast_to(jnp.asarray(alpha, spaces.lam.dtype), (F,))
+    state = init_state(spaces, lower_params[0])
+
+    def body(s, inp):
+        pu, pl, a = inp
+        s2, pose = synthesize_step(spaces, s, pu, pl, a, dt)
+        return s2, (pose, jnp.stack([s.t_lower, s.t_upper]))
+
+    final, (poses, clocks) = jax.lax.scan(body, state, (upper_params, lower_params, alphas))
+    return final, poses, clocks
+
+
+def build_spaces(
+    lower: ExampleSet,
+    upper: ExampleSet,
+    lam: Float[Array, " NL"],
+    parents: tuple[int, ...],
+    offsets: Float[Array, "J 3"],
+    *,
+    mask,
+    spine: int,
+    lower_joint: int,
+    lower_dims: tuple[int, ...],
+    lower_time: float,
+    upper_joint: int,
+    upper_time: float,
+    key: Array,
+    n_samples: int = 1000,
+    knn_k: int = 6,
+    k_replace: int = 10,
+    posture_transfer: float = 1.0,
+    concentration: float = 0.5,
+    max_active: int = 3,
+    min_slope: float = 0.05,
+) -> SynthesisSpaces:
+    """Sample both parameter spaces (Kovar & Gleicher 2004: ``n_samples`` random sparse
+    blends, the examples first) and evaluate their parameters in one vmapped call each: the
+    lower parameter (:func:`lower_param_of`) and the upper one in the root frame, spliced
+    onto the first lower example (``ṗ_i``, §3.2). ``upper_joint = -1`` builds an upper space
+    without parameterisation (weights set by the user). ``k_replace`` (§3.2's ``k``, 8–12 in
+    the paper) must not exceed the number of upper samples."""
+    kL, kU = jax.random.split(key)
+    EL, EU = lower.warps.shape[0], upper.warps.shape[0]
+    WL = sample_blend_weights(kL, EL, max(n_samples, EL), concentration, max_active)
+    WU = sample_blend_weights(kU, EU, max(n_samples, EU), concentration, max_active)
+    if upper_joint >= 0 and not 3 <= k_replace <= WU.shape[0]:
+        raise ValueError(f"k_replace must lie in [3, {WU.shape[0]}], got {k_replace}")
+    dtype = jnp.result_type(float)
+    w0 = jnp.zeros(EL, dtype).at[0].set(1.0)
+    sp = SynthesisSpaces(
+        lower=lower,
+        upper=upper,
+        lam=jnp.asarray(lam, dtype),
+        offsets=jnp.asarray(offsets, dtype),
+        lower_weights=WL,
+        lower_params=jnp.zeros((WL.shape[0], len(lower_dims)), dtype),
+        upper_weights=WU,
+        upper_params=jnp.zeros((WU.shape[0], 3), dtype),
+        lower_w0=w0,
+        lower_time=jnp.asarray(lower_time, dtype),
+        upper_time=jnp.asarray(upper_time, dtype),
+        posture_transfer=jnp.asarray(posture_transfer, dtype),
+        parents=tuple(int(p) for p in parents),
+        mask=tuple(bool(b) for b in np.asarray(mask)),
+        spine=int(spine),
+        lower_joint=int(lower_joint),
+        lower_dims=tuple(int(d) for d in lower_dims),
+        upper_joint=int(upper_joint),
+        k_replace=int(k_replace),
+        knn_k=int(knn_k),
+        min_slope=float(min_slope),
+    )
+    return _sample_params(sp)
+
+
+@jax.jit
+def _sample_params(sp: SynthesisSpaces) -> SynthesisSpaces:
+    PL = jax.vmap(lambda w: lower_param_of(sp, w))(sp.lower_weights)
+    PU = exact_upper_params(sp, sp.lower_w0) if sp.upper_joint >= 0 else sp.upper_params
+    return dataclasses.replace(sp, lower_params=PL, upper_params=PU)

@@ -1,0 +1,436 @@
+"""Mesh-IK studio (Park, Kang & Kwon's interactive system) in the browser (viser).
+
+``serve_ik(TARGET)`` (TARGET: a ``.glb``, a ``mesh_ik`` run folder or config) serves a
+page with the skinned mesh shaded; as in the paper, "one or more markers are selected on
+the surface of the model and their target positions are set":
+
+- **click on the surface** to add a marker on the clicked triangle (only triangles facing
+  the camera, the paper's visibility test; or type a triangle index and press
+  *Add marker*);
+- each marker's target is a **draggable gizmo**; the mesh follows on every drag event
+  (one warm-started :func:`fxspace.solve_ik` per event), or type a target and press
+  *Move target*;
+- *Remove marker*; *Play / Pause* plays the mesh's own animation and tracks it with the
+  current markers (their targets follow the animated surface, IK warm-started per frame);
+- *Export BVH* writes the current pose, or the tracked frames, as BVH
+  (:func:`fxspace.io.write_ik_bvh`).
+
+The state and actions live in :class:`IKController` (plain Python, testable without a
+browser); :func:`serve_ik` draws and wires it.
+
+Example: ``server, ctl = serve_ik("CesiumMan.glb", port=0, block=False)``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fxspace.errors import FxspaceError
+from fxspace.mesh import (
+    MarkerSet,
+    Pose,
+    ik_model,
+    marker_positions,
+    pose_vertices,
+    solve_ik,
+    triangle_normals,
+)
+
+__all__ = ["IKController", "load_ik_mesh", "serve_ik"]
+
+
+def load_ik_mesh(target):
+    """The skinned mesh of ``target``: a ``.glb``/``.gltf`` file, a ``mesh_ik`` config or
+    run folder (its first mesh), or an already-read :class:`fxspace.SkinnedMesh`;
+    returns ``(mesh, animation name or None)``."""
+    from fxspace.io import read_gltf
+    from fxspace.mesh import SkinnedMesh
+
+    if isinstance(target, SkinnedMesh):
+        return target, (target.animation_names[0] if target.animations else None)
+    p = Path(target)
+    if p.suffix.lower() in (".glb", ".gltf"):
+        mesh = read_gltf(p)
+        return mesh, (mesh.animation_names[0] if mesh.animations else None)
+    from fxspace.config import load_toml
+    from fxspace.data import data_path
+
+    cfg = p / "config.toml" if p.is_dir() else p
+    if not cfg.is_file():
+        raise FxspaceError(f"{target}: not a .glb, a mesh_ik run folder or a mesh_ik config")
+    raw = load_toml(cfg)
+    if raw.get("experiment") != "mesh_ik":
+        raise FxspaceError(f"{cfg}: experiment must be 'mesh_ik', got {raw.get('experiment')!r}")
+    spec = (raw.get("meshes") or ["CesiumMan:Anim_0"])[0]
+    stem, _, anim = spec.partition(":")
+    mesh = read_gltf(data_path("mesh", f"{stem}.glb"))
+    return mesh, (anim or (mesh.animation_names[0] if mesh.animations else None))
+
+
+class IKController:
+    """The IK studio's state and actions, independent of any UI.
+
+    ``markers`` (triangle, barycentric) and ``targets`` ``(K, 3)``; ``pose`` the current
+    :class:`fxspace.Pose`; ``vertices`` the posed mesh; ``recorded`` the poses tracked
+    while playing; ``message`` the last status line.
+    """
+
+    def __init__(self, mesh, animation: str | None = None, fps: float = 30.0):
+        self.mesh = mesh
+        self.animation = animation
+        self.fps = fps
+        self.faces = np.asarray(mesh.faces)
+        nj = mesh.num_joints
+        self.pose = Pose(jnp.zeros((nj, 3)), jnp.zeros(3))
+        self.triangles: list[int] = []
+        self.barycentric: list[np.ndarray] = []
+        self.targets = np.zeros((0, 3))
+        self.recorded: list[Pose] = []
+        self.time = 0.0
+        self.playing = False
+        self.last_result = None
+        self.message = "click the mesh (or type a triangle) to add a marker"
+        self._model = None
+        self._posed = jax.jit(lambda p: pose_vertices(mesh, p))
+        self.vertices = np.asarray(self._posed(self.pose))
+        self._lock = threading.RLock()
+
+    # ------------------------------------------------------------------ markers
+    @property
+    def num_markers(self) -> int:
+        return len(self.triangles)
+
+    def marker_set(self) -> MarkerSet:
+        return MarkerSet(
+            jnp.asarray(np.asarray(self.triangles, np.int32)),
+            jnp.asarray(np.asarray(self.barycentric).reshape(-1, 3)),
+        )
+
+    def marker_points(self) -> np.ndarray:
+        """Current marker positions on the posed mesh ``(K, 3)``."""
+        if not self.triangles:
+            return np.zeros((0, 3))
+        return np.asarray(marker_positions(self.vertices, self.faces, self.marker_set()))
+
+    def visible(self, view_dir) -> np.ndarray:
+        """Triangles of the posed mesh facing a camera looking along ``view_dir``."""
+        n = np.asarray(triangle_normals(self.vertices, self.faces))
+        return n @ np.asarray(view_dir, dtype=np.float64) < 0
+
+    def add_marker(self, triangle: int, barycentric=None, view_dir=None) -> int:
+        """Add a marker on ``triangle`` (centre unless ``barycentric``), its target at its
+        current position; with ``view_dir``, only a triangle facing that camera."""
+        with self._lock:
+            t = int(triangle)
+            if not 0 <= t < len(self.faces):
+                raise FxspaceError(f"triangle {t} does not exist (0..{len(self.faces) - 1})")
+            if t in self.triangles:
+                raise FxspaceError(f"triangle {t} already holds a marker (one per triangle)")
+            if view_dir is not None and not self.visible(view_dir)[t]:
+                raise FxspaceError(f"triangle {t} faces away from the camera; pick a visible one")
+            b = np.full(3, 1 / 3) if barycentric is None else np.asarray(barycentric, float)
+            if b.shape != (3,) or np.any(b < -1e-9) or abs(b.sum() - 1) > 1e-6:
+                raise FxspaceError("barycentric must be 3 non-negative numbers summing to 1")
+            self.triangles.append(t)
+            self.barycentric.append(b)
+            self.targets = np.vstack([self.targets, self.marker_points()[-1:]])
+            self._model = None
+            self.message = f"marker {self.num_markers - 1} on triangle {t}"
+            return self.num_markers - 1
+
+    def pick(self, ray_origin, ray_direction) -> int | None:
+        """Add a marker where the ray first hits a triangle facing it (Möller–Trumbore);
+        returns the marker index, or None when the ray misses the mesh."""
+        o = np.asarray(ray_origin, np.float64)
+        d = np.asarray(ray_direction, np.float64)
+        tri = self.vertices[self.faces]
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        p = np.cross(d, e2)
+        det = np.einsum("fc,fc->f", e1, p)
+        facing = np.einsum("fc,c->f", np.cross(e1, e2), d) < 0
+        ok = np.abs(det) > 1e-14
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = o - tri[:, 0]
+        u = np.einsum("fc,fc->f", s, p) * inv
+        q = np.cross(s, e1)
+        v = np.einsum("c,fc->f", d, q) * inv
+        t = np.einsum("fc,fc->f", e2, q) * inv
+        hit = ok & facing & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+        free = np.ones(len(self.faces), bool)
+        free[self.triangles] = False
+        hit &= free
+        if not hit.any():
+            self.message = "no free visible triangle under the cursor"
+            return None
+        f = int(np.flatnonzero(hit)[np.argmin(t[hit])])
+        return self.add_marker(f, np.array([1 - u[f] - v[f], u[f], v[f]]))
+
+    def remove_marker(self, index: int) -> None:
+        with self._lock:
+            if not 0 <= index < self.num_markers:
+                raise FxspaceError(f"marker {index} does not exist ({self.num_markers} markers)")
+            del self.triangles[index]
+            del self.barycentric[index]
+            self.targets = np.delete(self.targets, index, axis=0)
+            self._model = None
+            self.message = f"removed marker {index}; {self.num_markers} left"
+
+    # ------------------------------------------------------------------ solving
+    def _ik(self):
+        if self._model is None:
+            self._model = ik_model(self.mesh, self.marker_set(), dtype=jnp.float32)
+        return self._model
+
+    def solve(self):
+        """One warm-started IK solve towards the current targets; updates the pose."""
+        with self._lock:
+            if not self.num_markers:
+                self.message = "add a marker first"
+                return None
+            t0 = time.perf_counter()
+            res = solve_ik(self._ik(), jnp.asarray(self.targets, jnp.float32), self.pose)
+            if bool(res.converged) or int(res.status) != 2:
+                self.pose = res.pose
+                self.vertices = np.asarray(self._posed(self.pose))
+            self.last_result = res
+            ms = 1e3 * (time.perf_counter() - t0)
+            self.message = (
+                f"solved in {int(res.num_steps)} steps, {ms:.1f} ms, marker RMS "
+                f"{float(res.residual):.3g}"
+            )
+            return res
+
+    def move_target(self, index: int, position) -> None:
+        """Set marker ``index``'s target and re-solve (warm start)."""
+        with self._lock:
+            if not 0 <= index < self.num_markers:
+                raise FxspaceError(f"marker {index} does not exist ({self.num_markers} markers)")
+            pos = np.asarray(position, np.float64).reshape(3)
+            if not np.all(np.isfinite(pos)):
+                raise FxspaceError(f"target must be 3 finite numbers, got {position!r}")
+            self.targets[index] = pos
+            self.solve()
+
+    # ------------------------------------------------------------------ animation
+    def set_time(self, t: float) -> None:
+        """Targets from the mesh's animation at time ``t`` (the markers on the animated
+        surface), solve, and record the pose (tracking)."""
+        if self.animation is None:
+            self.message = "this mesh has no animation"
+            return
+        with self._lock:
+            self.time = float(t)
+            if not self.num_markers:
+                self.vertices = self.mesh.animation_vertices(self.animation, [self.time])[0]
+                return
+            v = self.mesh.animation_vertices(self.animation, [self.time])[0]
+            self.targets = np.asarray(marker_positions(v, self.faces, self.marker_set()))
+            self.solve()
+            self.recorded.append(self.pose)
+
+    def step(self) -> float:
+        """Advance the animation by one frame (wrapping) and track it."""
+        t0, t1 = self.mesh.animation_range(self.animation)
+        t = self.time + 1.0 / self.fps
+        self.set_time(t0 if t > t1 else t)
+        return self.time
+
+    def export_bvh(self, path) -> Path:
+        """Write the recorded frames (or the current pose) as BVH."""
+        from fxspace.io import write_ik_bvh
+
+        poses = self.recorded or [self.pose]
+        ang = np.stack([np.asarray(p.angles) for p in poses])
+        tr = np.stack([np.asarray(p.translation) for p in poses])
+        out = write_ik_bvh(path, self.mesh, ang, tr, rate=self.fps)
+        self.message = f"wrote {len(poses)} frame(s) to {out}"
+        return out
+
+    def status(self) -> str:
+        return (
+            f"**Markers: {self.num_markers}**  \n{'Playing' if self.playing else 'Paused'}"
+            f" t = {self.time:.2f} s  \n{self.message}"
+        )
+
+
+def serve_ik(
+    target,
+    port: int = 8080,
+    *,
+    open_browser: bool = False,
+    host: str = "127.0.0.1",
+    block: bool = True,
+    environment_map: bool = True,
+    export_path: str | Path = "ik_pose.bvh",
+):
+    """Serve the IK studio for ``target`` (see :func:`load_ik_mesh`); ``port=0`` picks a
+    free port (``server.get_port()``). With ``block=False`` returns ``(server, controller)``
+    at once (stop with ``server.stop()``)."""
+    try:
+        import viser
+    except ImportError as e:
+        raise FxspaceError(
+            f"the IK studio needs the optional viewer extra: pip install -e '.[viewer]' ({e})"
+        ) from e
+    mesh, anim = load_ik_mesh(target)
+    ctl = IKController(mesh, anim)
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    if not environment_map:
+        server.scene.configure_environment_map(None)
+    server.scene.set_up_direction("+y")
+    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+    centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+    server.initial_camera.position = tuple(centre + np.array([0.0, 0.0, 1.5 * size]))
+    server.initial_camera.look_at = tuple(centre)
+    server.initial_camera.up = (0.0, 1.0, 0.0)
+    gizmo_scale = 0.08 * size
+    handles: dict = {"gizmos": []}
+    gui_status = server.gui.add_markdown(ctl.status())
+    tri_text = server.gui.add_text("Triangle", initial_value="0")
+    add_btn = server.gui.add_button("Add marker")
+    idx_text = server.gui.add_text("Marker", initial_value="0")
+    tgt_text = server.gui.add_text("Target x y z", initial_value="")
+    move_btn = server.gui.add_button("Move target")
+    rm_btn = server.gui.add_button("Remove marker")
+    play_btn = server.gui.add_button("Play / Pause", disabled=anim is None)
+    export_btn = server.gui.add_button("Export BVH")
+
+    def draw_mesh() -> None:
+        h = server.scene.add_mesh_simple(
+            "/mesh", ctl.vertices.astype(np.float32), ctl.faces, color=(200, 170, 140)
+        )
+        h.on_click(on_mesh_click)
+
+    def draw_markers(gizmos: bool = True) -> None:
+        pts = ctl.marker_points().astype(np.float32)
+        if len(pts):
+            server.scene.add_point_cloud(
+                "/markers", pts, colors=(30, 90, 220), point_size=0.01 * size
+            )
+            server.scene.add_point_cloud(
+                "/targets",
+                ctl.targets.astype(np.float32),
+                colors=(220, 40, 40),
+                point_size=0.012 * size,
+            )
+        else:
+            server.scene.remove_by_name("/markers")
+            server.scene.remove_by_name("/targets")
+        if not gizmos:
+            return
+        for g in handles["gizmos"]:
+            g.remove()
+        handles["gizmos"] = []
+        for i, p in enumerate(ctl.targets):
+            g = server.scene.add_transform_controls(
+                f"/target_{i}", scale=gizmo_scale, disable_rotations=True, position=tuple(p)
+            )
+            g.on_update(lambda _e, i=i, g=g: on_drag(i, g))
+            handles["gizmos"].append(g)
+
+    def refresh(gizmos: bool = True) -> None:
+        draw_mesh()
+        draw_markers(gizmos)
+        gui_status.content = ctl.status()
+
+    def on_mesh_click(e) -> None:
+        try:
+            ctl.pick(e.ray_origin, e.ray_direction)
+        except FxspaceError as err:
+            ctl.message = str(err)
+        refresh()
+
+    def on_drag(i: int, g) -> None:
+        ctl.move_target(i, np.asarray(g.position))
+        refresh(gizmos=False)
+
+    @add_btn.on_click
+    def _(e) -> None:
+        try:
+            cam = e.client.camera if e.client is not None else None
+            view = None if cam is None else np.asarray(cam.look_at) - np.asarray(cam.position)
+            ctl.add_marker(int(str(tri_text.value).strip()), view_dir=view)
+        except (FxspaceError, ValueError) as err:
+            ctl.message = str(err)
+        refresh()
+
+    @move_btn.on_click
+    def _(_e) -> None:
+        try:
+            i = int(str(idx_text.value).strip())
+            ctl.move_target(i, [float(x) for x in str(tgt_text.value).replace(",", " ").split()])
+        except (FxspaceError, ValueError) as err:
+            ctl.message = str(err)
+        refresh()
+
+    @rm_btn.on_click
+    def _(_e) -> None:
+        try:
+            ctl.remove_marker(int(str(idx_text.value).strip()))
+        except (FxspaceError, ValueError) as err:
+            ctl.message = str(err)
+        refresh()
+
+    @play_btn.on_click
+    def _(_e) -> None:
+        ctl.playing = not ctl.playing
+        if ctl.playing:
+            ctl.recorded = []
+        gui_status.content = ctl.status()
+
+    @export_btn.on_click
+    def _(_e) -> None:
+        try:
+            ctl.export_bvh(export_path)
+        except (FxspaceError, OSError) as err:
+            ctl.message = str(err)
+        gui_status.content = ctl.status()
+
+    stop = threading.Event()
+
+    def player() -> None:
+        while not stop.is_set():
+            if ctl.playing:
+                try:
+                    ctl.step()
+                    if not stop.is_set():
+                        refresh(gizmos=False)
+                except Exception:  # the server is going down
+                    if stop.is_set():
+                        return
+                    raise
+            stop.wait(1.0 / ctl.fps)
+
+    refresh()
+    thread = threading.Thread(target=player, daemon=True)
+    thread.start()
+    orig_stop = server.stop
+
+    def stop_all() -> None:
+        stop.set()
+        thread.join(timeout=5.0)
+        orig_stop()
+
+    server.stop = stop_all  # type: ignore[method-assign]
+    url = f"http://{host}:{server.get_port()}"
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(url)
+    if not block:
+        return server, ctl
+    print(f"fxspace IK studio on {url} (Ctrl-C to stop)")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    return server, ctl

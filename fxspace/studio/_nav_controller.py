@@ -1,0 +1,432 @@
+"""The navigator's state and actions (Kim & Jung §3.5–3.6), independent of any UI.
+
+The animator picks key centres at any level (a click anywhere on the 2-D pad picks the
+nearest centre of the shown level, through a grid index, so the finest level with
+thousands of centres stays responsive), jumps to any level, re-picks near the current
+route (the *candidates*; by default picks at a finer level are held to them), refines
+automatically, goes back (undo across levels), plays and exports the route.
+
+Changing level keeps the route: it becomes the *guide* whose candidates are shown at the
+new level, and the route picked there replaces it as the shown route.
+
+Past :data:`DENSITY_ABOVE` frames the pad shows the frames as a density image (a 2-D
+histogram of the embedding, one texture) instead of one point per frame
+(:attr:`NavigatorController.pad_mode`); centres, links and the route are drawn on top.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, NamedTuple
+
+import numpy as np
+
+from fxspace.errors import FxspaceError
+from fxspace.navigation import GridIndex, navigation_space
+from fxspace.navigation._hierarchy import Hierarchy
+from fxspace.navigation._playback import playback, rigid_align
+from fxspace.navigation._routes import (
+    NavigationError,
+    Route,
+    make_route,
+    path_candidates,
+    refine_route,
+)
+from fxspace.studio._server import FrameDensity, frame_density
+
+__all__ = ["DENSITY_ABOVE", "NavData", "NavigatorController", "load_nav_data"]
+
+DENSITY_ABOVE = 20_000
+"""Above this many frames the pad draws their density, not one point per frame."""
+
+
+@dataclass(frozen=True)
+class NavData:
+    """What the navigator shows: the hierarchy, the frame graph's geodesics, the markers,
+    and where ε came from."""
+
+    hierarchy: Hierarchy
+    geodesics: object
+    positions: np.ndarray  # (T, M, 3)
+    marker_names: tuple[str, ...] = ()
+    rate: float = 60.0
+    threshold: float = float("nan")
+    threshold_source: str = ""
+
+
+def load_nav_data(target: str | Path, *, restarts: int = 0) -> NavData:
+    """Build :class:`NavData` from a navigation run folder (its ``config.toml``) or a config
+    file (``experiment = "navigation"``), through :func:`fxspace.navigation_space`."""
+    import jax
+
+    from fxspace.config import ConfigError, config_from_dict, load_toml
+    from fxspace.datasets import FaceData, load_face
+
+    p = Path(target)
+    cfg_path = p / "config.toml" if p.is_dir() else p
+    if not cfg_path.is_file():
+        raise FxspaceError(f"{target}: not a run folder with config.toml nor a config file")
+    raw = load_toml(cfg_path)
+    if raw.get("experiment") != "navigation":
+        raise FxspaceError(
+            f"{cfg_path}: experiment must be 'navigation' to view, got {raw.get('experiment')!r}"
+        )
+    seed = int(raw.get("seed", 0))
+    data = config_from_dict(FaceData, raw.get("data", {}))
+    graph = dict(raw.get("graph", {}))
+    hier = {k: v for k, v in raw.get("hierarchy", {}).items() if k != "compare_cold"}
+    hier["max_link_centres"] = hier.get("max_link_centres") or None
+    hier["restarts"] = restarts
+    face = load_face(data, seed)
+    try:
+        ns = navigation_space(
+            face.positions,
+            graph.get("threshold") or None,
+            threshold_factor=graph.get("threshold_factor", 1.25),
+            dtype=graph.get("dtype", "float32"),
+            key=jax.random.PRNGKey(seed),
+            hierarchy=hier,
+        )
+    except TypeError as e:
+        raise ConfigError(f"{cfg_path}: [hierarchy] {e}") from e
+    return NavData(
+        ns.hierarchy, ns.space.geodesics, np.asarray(face.positions),
+        tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source,
+    )  # fmt: skip
+
+
+class _State(NamedTuple):
+    level: int
+    picks: tuple[int, ...]
+    route: Route | None
+    guide: Route | None
+    anchors: tuple[int, ...] | None
+    message: str
+
+
+class NavigatorController:
+    """The navigator's state and actions.
+
+    ``level`` is the level shown; ``picks`` the key centres picked there; ``route`` the
+    route shown (built from ``picks``, or the route kept from another level); ``guide``
+    the route the current picks refine (its candidates are shown); ``restrict`` holds
+    finer-level picks to the candidates; ``loop`` replays the route; ``message`` the
+    last status or error line. ``pad_mode`` says how the pad shows the frames:
+    ``"points"`` (one per frame) up to ``density_above`` frames, else ``"density"`` (a
+    ``density_bins × density_bins`` histogram, :meth:`frame_density`).
+    """
+
+    def __init__(
+        self,
+        data: NavData,
+        *,
+        restrict: bool = True,
+        loop: bool = True,
+        density_above: int = DENSITY_ABOVE,
+        density_bins: int = 256,
+    ):
+        self.data = data
+        self.density_above = int(density_above)
+        self.density_bins = int(density_bins)
+        self._density: FrameDensity | None = None
+        self.level = 0
+        self.picks: list[int] = []
+        self.route: Route | None = None
+        self.guide: Route | None = None
+        self.anchors: tuple[int, ...] | None = None
+        self.restrict = restrict
+        self.loop = loop
+        self.message = "click the pad (or type a centre's number) to pick the first key centre"
+        self.selected_frame = int(data.hierarchy.levels[0].center_frames[0])
+        self.play_index = 0
+        self.playing = False
+        self.last_click: np.ndarray | None = None
+        self._play = None
+        self._history: list[_State] = []
+        self._index: dict[int, GridIndex] = {}
+        self._lock = threading.RLock()
+
+    # -- state ---------------------------------------------------------------------------
+    @property
+    def n_levels(self) -> int:
+        return len(self.data.hierarchy.levels)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.data.hierarchy.embedding)
+
+    @property
+    def pad_mode(self) -> Literal["points", "density"]:
+        """How the pad shows the frames: one point each, or their density."""
+        return "density" if self.n_frames > self.density_above else "points"
+
+    @property
+    def centres_by_density(self) -> bool:
+        """True when the shown level has more than ``density_above`` centres (the finest
+        levels, where centres are nearly the frames): the pad then shows them through the
+        frames' density, without a point per centre nor links; clicks still pick the
+        nearest centre."""
+        return self.data.hierarchy.levels[self.level].n_clusters > self.density_above
+
+    def frame_density(self) -> FrameDensity:
+        """The frames' 2-D histogram on the pad (computed once): ``counts`` is
+        ``(density_bins, density_bins)``, row i the i-th band of y, column j of x."""
+        if self._density is None:
+            self._density = frame_density(self.data.hierarchy.embedding, self.density_bins)
+        return self._density
+
+    def _snapshot(self) -> _State:
+        return _State(
+            self.level, tuple(self.picks), self.route, self.guide, self.anchors, self.message
+        )
+
+    def _push(self) -> None:
+        self._history.append(self._snapshot())
+
+    def _restore(self, s: _State) -> None:
+        self.level, self.picks, self.route = s.level, list(s.picks), s.route
+        self.guide, self.anchors = s.guide, s.anchors
+        self._play = None
+        self.play_index = 0
+
+    def _rebuild(self) -> None:
+        self._play = None
+        self.play_index = 0
+        if self.picks:
+            self.route = make_route(
+                self.data.hierarchy, self.data.geodesics, self.level, self.picks,
+                anchors=self.anchors,
+            )  # fmt: skip
+        else:
+            self.route = self.guide
+
+    def index(self, level: int | None = None) -> GridIndex:
+        """The spatial index of the centres of ``level`` (built once per level)."""
+        lv = self.level if level is None else int(level)
+        if lv not in self._index:
+            h = self.data.hierarchy
+            self._index[lv] = GridIndex(h.embedding[h.levels[lv].center_frames])
+        return self._index[lv]
+
+    # -- actions -------------------------------------------------------------------------
+    def set_level(self, level: int) -> None:
+        """Jump to any level; the route is kept (it guides the picks there)."""
+        with self._lock:
+            level = int(level)
+            if not 0 <= level < self.n_levels:
+                raise NavigationError(f"level must be in [0, {self.n_levels - 1}]")
+            if level == self.level:
+                return
+            self._push()
+            self.guide = self.route
+            self.level = level
+            self.picks = []
+            self.anchors = None
+            self._rebuild()
+            n = len(self.candidates())
+            self.message = f"level {level}: pick key centres" + (
+                f" ({n} candidates near the route)" if self.guide is not None else ""
+            )
+
+    def _restricted(self) -> bool:
+        return self.restrict and self.guide is not None and self.level > self.guide.level
+
+    def pick(self, centre: int) -> bool:
+        """Append ``centre`` to the key centres; False (and a message) if not allowed."""
+        with self._lock:
+            lv = self.data.hierarchy.levels[self.level]
+            centre = int(centre)
+            if not 0 <= centre < lv.n_clusters:
+                self.message = f"centre {centre} does not exist at level {self.level}"
+                return False
+            if self._restricted():
+                cand = self.candidates()
+                if centre not in set(cand.tolist()):
+                    self.message = (
+                        f"not picked: centre {centre} is not near the route of level "
+                        f"{self.guide.level} (candidates: {_short(cand)}); untick "  # type: ignore[union-attr]
+                        "'Restrict to candidates' to pick freely"
+                    )
+                    return False
+            try:
+                make_route(
+                    self.data.hierarchy, self.data.geodesics, self.level,
+                    [*self.picks[-1:], centre],
+                )  # fmt: skip
+            except NavigationError as e:
+                self.message = f"not picked: {e}"
+                return False
+            self._push()
+            self.picks.append(centre)
+            self.selected_frame = int(lv.center_frames[centre])
+            self._rebuild()
+            self.message = f"picked centre {centre} (frame {self.selected_frame})"
+            return True
+
+    def nearest_centre(self, xy) -> int:
+        """The centre of the shown level nearest the 2-D point ``xy``; while picks are held
+        to the candidates, the nearest candidate."""
+        if self._restricted():
+            cand = self.candidates()
+            if len(cand):
+                h = self.data.hierarchy
+                p = h.embedding[h.levels[self.level].center_frames[cand]]
+                return int(cand[np.argmin(np.sum((p - np.asarray(xy)) ** 2, axis=1))])
+        return self.index().nearest(xy)
+
+    def pick_at(self, xy) -> tuple[int, bool]:
+        """A click on the pad at expression-space point ``xy``: pick the nearest centre."""
+        with self._lock:
+            self.last_click = np.asarray(xy, np.float64)
+            k = self.nearest_centre(xy)
+            return k, self.pick(k)
+
+    def undo(self) -> None:
+        """Go back one action (a pick, a level change, a refinement, a clear)."""
+        with self._lock:
+            if not self._history:
+                self.message = "nothing to undo"
+                return
+            s = self._history.pop()
+            self._restore(s)
+            self.message = f"undone (level {self.level})"
+
+    def clear(self) -> None:
+        with self._lock:
+            self._push()
+            self.picks, self.anchors, self.guide = [], None, None
+            self._rebuild()
+            self.message = "cleared"
+
+    def set_restrict(self, on: bool) -> None:
+        self.restrict = bool(on)
+        self.message = "picks held to the candidates" if on else "picks free at every level"
+
+    def refine(self) -> None:
+        """Automatic refinement of the route to the next level."""
+        with self._lock:
+            if self.route is None:
+                self.message = "pick key centres first"
+                return
+            if self.route.level + 1 >= self.n_levels:
+                self.message = "already at the finest level: the route is the animation"
+                return
+            self._push()
+            r = refine_route(self.data.hierarchy, self.data.geodesics, self.route)
+            self.guide = self.route
+            self.level = r.level
+            self.picks = list(r.centres)
+            self.anchors = r.anchors
+            self._rebuild()
+            self.message = f"refined to level {self.level}"
+
+    def candidates(self) -> np.ndarray:
+        """Centres of the shown level near the guide route (empty without a guide)."""
+        if self.guide is None:
+            return np.zeros(0, int)
+        return path_candidates(self.data.hierarchy, self.level, self.guide.frames)
+
+    def next_candidates(self) -> np.ndarray:
+        """Centres of the next level near the shown route."""
+        if self.route is None or self.level + 1 >= self.n_levels:
+            return np.zeros(0, int)
+        return path_candidates(self.data.hierarchy, self.level + 1, self.route.frames)
+
+    # -- playback and export -------------------------------------------------------------
+    def playback(self, fps: float = 30.0):
+        if self.route is None:
+            return None
+        if self._play is None:
+            d = self.data
+            self._play = playback(
+                self.route.frames, d.hierarchy.embedding, d.positions, fps=fps, rate=d.rate,
+                duration=max(2.0, len(self.route.frames) / d.rate),
+            )  # fmt: skip
+        return self._play
+
+    def step(self) -> int | None:
+        """Advance playback by one output frame (wrapping when ``loop``, else stopping at
+        the end); returns the frame shown."""
+        with self._lock:
+            pb = self.playback()
+            if pb is None:
+                return None
+            nxt = self.play_index + 1
+            if nxt >= len(pb.times):
+                if not self.loop:
+                    self.playing = False
+                    return self.selected_frame
+                nxt = 0
+            self.play_index = nxt
+            self.selected_frame = int(pb.frame[self.play_index])
+            return self.selected_frame
+
+    def export(self, out_dir: str | Path, animation: str = "gif") -> list[Path]:
+        """Write the route: ``route.trc`` (the markers of the path's frames, rigidly
+        aligned, at the capture rate), ``route.json`` and ``route.gif``/``.mp4``."""
+        from fxspace.io import MarkerSequence, write_trc
+        from fxspace.plot import write_navigation_animation
+        from fxspace.runs import write_json_atomic
+
+        with self._lock:
+            if self.route is None:
+                raise NavigationError("no route to export: pick key centres first")
+            route, pb = self.route, self.playback()
+        d = self.data
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        names = d.marker_names or tuple(f"M{i}" for i in range(d.positions.shape[1]))
+        P = rigid_align(d.positions[route.frames], d.positions[route.frames[0]])
+        paths = [write_trc(out / "route.trc", MarkerSequence(P, names, d.rate, "mm"))]
+        paths.append(write_json_atomic(out / "route.json", {
+            "level": route.level, "centres": list(route.centres),
+            "key_frames": route.key_frames, "frames": route.frames,
+            "threshold": d.threshold, "threshold_source": d.threshold_source,
+        }))  # fmt: skip
+        if animation != "none":
+            paths.append(
+                write_navigation_animation(
+                    out / f"route.{animation}", pb, d.hierarchy.embedding,
+                    names=d.marker_names or None, max_frames=120,
+                    title=f"level {route.level}: {len(route.frames)} frames",
+                )  # fmt: skip
+            )
+        self.message = "exported " + ", ".join(p.name for p in paths)
+        return [Path(p) for p in paths]
+
+    def status(self) -> str:
+        lv = self.data.hierarchy.levels[self.level]
+        keys = " → ".join(map(str, self.picks)) if self.picks else "none"
+        n = len(self.route.frames) if self.route is not None else 0
+        rl = f" (level {self.route.level})" if self.route is not None else ""
+        cand = self.candidates()
+        dens = (
+            f"Frames: {self.n_frames}, shown by density"
+            f"{' (centres too)' if self.centres_by_density else ''}  \n"
+            if self.pad_mode == "density"
+            else ""
+        )
+        guide = (
+            f"Candidates here (near the level-{self.guide.level} route): {_short(cand) or '—'}"
+            f"{' — picks held to them' if self._restricted() else ''}  \n"
+            if self.guide is not None
+            else ""
+        )
+        return (
+            f"**Level {self.level}** of {self.n_levels - 1}: {lv.n_clusters} centres  \n"
+            f"{dens}"
+            f"Key centres: {keys}  \n"
+            f"Route: {n} frames{rl}  \n"
+            f"{guide}"
+            f"Candidates at level {self.level + 1}: {_short(self.next_candidates()) or '—'}  \n"
+            f"Frame: {self.selected_frame}  \n"
+            f"{'Playing' if self.playing else 'Paused'}  \n"
+            f"_{self.message}_"
+        )
+
+
+def _short(a: np.ndarray, n: int = 30) -> str:
+    a = np.asarray(a)
+    return ", ".join(map(str, a[:n].tolist())) + (" …" if len(a) > n else "")

@@ -1,0 +1,183 @@
+"""Helpers shared by the studio apps: the viser server, a dense face driven by markers,
+a 2-D pad in scene coordinates, a player thread, blocking until Ctrl-C."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from fxspace.errors import FxspaceError
+
+__all__ = [
+    "DenseFace",
+    "FrameDensity",
+    "PadFrame",
+    "Player",
+    "density_rgba",
+    "frame_density",
+    "new_server",
+    "ray_plane_z0",
+    "run_until_interrupted",
+]
+
+
+def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = True):
+    """A viser server bound to ``host`` (``port=0``: a free port), or a clear error when the
+    viewer extra is missing."""
+    try:
+        import viser
+    except ImportError as e:
+        raise FxspaceError(
+            f"the studio apps need the optional viewer extra: pip install -e '.[viewer]' ({e})"
+        ) from e
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    if not environment_map:
+        server.scene.configure_environment_map(None)
+        # without the image-based light, a soft ambient + a key light from the viewer
+        server.scene.add_light_ambient("/lights/ambient", intensity=0.8)
+        server.scene.add_light_point("/lights/key", intensity=12.0, position=(0.5, 1.5, 4.0))
+    server.scene.set_up_direction("+y")
+    return server
+
+
+class DenseFace:
+    """A dense triangulated face surface driven by markers through the RBF transfer
+    (:func:`fxspace.face_surface`, :func:`fxspace.rbf_transfer_matrix`):
+    ``v(t) = v(0) + A (m(t) − m(0))``; one ``(N × M)·(M × 3)`` product per frame."""
+
+    def __init__(self, rest_markers: np.ndarray, n_vertices: int = 2500):
+        import jax.numpy as jnp
+
+        from fxspace.controlpoints import face_surface, rbf_transfer_matrix
+
+        m0 = np.asarray(rest_markers, dtype=np.float64)
+        surf = face_surface(m0, n_vertices)
+        self.rest_markers = m0
+        self.rest = np.asarray(surf.vertices, np.float64)
+        self.faces = np.asarray(surf.faces, np.int32)
+        self.A = np.asarray(rbf_transfer_matrix(jnp.asarray(self.rest), jnp.asarray(m0)))
+
+    def vertices(self, markers: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` surface for one frame of markers ``(M, 3)``."""
+        return self.rest + self.A @ (np.asarray(markers, np.float64) - self.rest_markers)
+
+
+class PadFrame:
+    """Maps 2-D expression-space points to the pad (scene x–y plane, size ~2) and back."""
+
+    def __init__(self, xy: np.ndarray):
+        xy = np.asarray(xy, np.float64)
+        self.centre = (xy.max(0) + xy.min(0)) / 2
+        self.scale = 2.0 / max(float(np.ptp(xy, axis=0).max()), 1e-12)
+
+    def to_pad(self, xy: np.ndarray) -> np.ndarray:
+        p = (np.asarray(xy, np.float64) - self.centre) * self.scale
+        return np.concatenate([p, np.zeros(p.shape[:-1] + (1,))], axis=-1)
+
+    def to_space(self, pad_xy: np.ndarray) -> np.ndarray:
+        return np.asarray(pad_xy, np.float64)[..., :2] / self.scale + self.centre
+
+
+class FrameDensity(NamedTuple):
+    """Frames per cell of a regular grid over the 2-D embedding's bounding box.
+
+    - `counts`: ``(bins, bins)`` int; ``counts[i, j]`` counts the frames with y in the
+      i-th row (ascending y) and x in the j-th column (ascending x): an image whose row 0
+      is the bottom of the pad.
+    - `lo`, `hi`: ``(2,)`` the box's lower-left and upper-right corners (x, y).
+    """
+
+    counts: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+def frame_density(xy: np.ndarray, bins: int = 256) -> FrameDensity:
+    """The 2-D histogram of the frames ``xy`` ``(T, 2)`` on a ``bins × bins`` grid over their
+    bounding box; O(T) time, O(bins²) memory (what the pad draws instead of T points)."""
+    xy = np.asarray(xy, np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) == 0:
+        raise FxspaceError(f"xy must be a non-empty (T, 2) array, got shape {xy.shape}")
+    if int(bins) < 1:
+        raise FxspaceError(f"bins must be ≥ 1, got {bins}")
+    lo, hi = xy.min(0), xy.max(0)
+    hi = np.where(hi > lo, hi, lo + 1e-12)  # a flat axis: one cell wide
+    b = int(bins)
+    cell = np.clip(((xy - lo) / (hi - lo) * b).astype(np.int64), 0, b - 1)
+    counts = np.bincount(cell[:, 1] * b + cell[:, 0], minlength=b * b).reshape(b, b)
+    return FrameDensity(counts, lo, hi)
+
+
+def density_rgba(counts: np.ndarray, rgb=(90, 90, 90)) -> np.ndarray:
+    """``(H, W, 4)`` uint8 image of ``counts``: colour ``rgb``, opacity rising with
+    log(1 + count) (empty cells transparent); rows in the order of ``counts``."""
+    c = np.log1p(np.asarray(counts, np.float64))
+    a = c / max(float(c.max()), 1e-12)
+    alpha = np.where(a > 0, 0.25 + 0.75 * a, 0.0)
+    img = np.empty(c.shape + (4,), np.uint8)
+    img[..., :3] = np.asarray(rgb, np.uint8)
+    img[..., 3] = np.round(255 * alpha).astype(np.uint8)
+    return img
+
+
+def ray_plane_z0(origin, direction) -> np.ndarray | None:
+    """Where the ray ``origin + s·direction`` (s > 0) meets the plane z = 0 (None if never)."""
+    o = np.asarray(origin, np.float64)
+    d = np.asarray(direction, np.float64)
+    if abs(d[2]) < 1e-12:
+        return None
+    s = -o[2] / d[2]
+    return None if s <= 0 else o + s * d
+
+
+class Player:
+    """Calls ``tick()`` every ``1/fps`` s on a daemon thread while ``active()`` is true."""
+
+    def __init__(self, tick: Callable[[], None], active: Callable[[], bool], fps: float = 30.0):
+        self._tick, self._active, self._dt = tick, active, 1.0 / fps
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if self._active():
+                try:
+                    self._tick()
+                except Exception:  # the server is going down
+                    if self._stop.is_set():
+                        return
+                    raise
+            self._stop.wait(self._dt)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+def attach_stop(server: Any, *players: Player) -> None:
+    """Make ``server.stop()`` also stop the players first."""
+    orig = server.stop
+
+    def stop_all() -> None:
+        for p in players:
+            p.stop()
+        orig()
+
+    server.stop = stop_all
+
+
+def run_until_interrupted(server: Any, what: str, host: str) -> None:
+    """Print the address and block until Ctrl-C, then stop the server."""
+    print(f"fxspace {what} on http://{host}:{server.get_port()} (Ctrl-C to stop)")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()

@@ -1,0 +1,53 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fxspace as fx
+from fxspace.cluster import sparse_fuzzy_cmeans
+from fxspace.errors import FxspaceError
+
+
+def _blobs(rng, n=600, c=6):
+    centers = rng.uniform(-10, 10, (c, 2))
+    lab = rng.integers(0, c, n)
+    return centers[lab] + 0.5 * rng.standard_normal((n, 2)), centers
+
+
+def test_all_centres_kept_equals_dense_fcm(rng):
+    x, _ = _blobs(rng)
+    v0 = fx.kmeanspp_init(jnp.asarray(x), 6, jax.random.key(1))
+    dense = fx.fuzzy_cmeans(x, 6, init_centers=v0, tol=0.0, max_steps=40, check_every=1)
+    sp = sparse_fuzzy_cmeans(x, 6, nearest=6, init_centers=v0, tol=0.0, max_steps=40)
+    np.testing.assert_allclose(np.asarray(sp.centers), np.asarray(dense.centers), atol=1e-8)
+    U = np.zeros((len(x), 6))
+    np.put_along_axis(U, np.asarray(sp.indices), np.asarray(sp.memberships), axis=1)
+    np.testing.assert_allclose(U, np.asarray(dense.memberships), atol=1e-8)
+    assert np.isclose(float(sp.objective), float(dense.objective), rtol=1e-8)
+
+
+def test_few_nearest_centres_find_the_blobs(rng):
+    x, truth = _blobs(rng, 3000, 8)
+    sp = sparse_fuzzy_cmeans(x, 8, nearest=3, key=jax.random.key(0), max_steps=200)
+    assert sp.indices.shape == (3000, 3) and sp.memberships.shape == (3000, 3)  # O(n·p)
+    np.testing.assert_allclose(np.asarray(sp.memberships).sum(axis=1), 1.0, rtol=1e-10)
+    got = np.asarray(sp.centers)
+    err = np.sqrt(((truth[:, None] - got[None]) ** 2).sum(-1)).min(axis=1)
+    assert np.all(err < 0.5) and bool(sp.converged) and int(sp.num_steps) < 200
+    dense = fx.fuzzy_cmeans(x, 8, init_centers=sp.centers, max_steps=200)
+    assert abs(float(sp.objective) - float(dense.objective)) < 0.05 * float(dense.objective)
+
+
+def test_jit_and_bad_arguments(rng):
+    x, _ = _blobs(rng, 200, 3)
+    f = jax.jit(lambda v: sparse_fuzzy_cmeans(x, 3, nearest=2, init_centers=v).centers)
+    v0 = jnp.asarray(x[:3])
+    np.testing.assert_allclose(
+        np.asarray(f(v0)), np.asarray(sparse_fuzzy_cmeans(x, 3, nearest=2, init_centers=v0).centers)
+    )
+    with pytest.raises(FxspaceError, match="n_clusters"):
+        sparse_fuzzy_cmeans(x, 0, key=jax.random.key(0))
+    with pytest.raises(FxspaceError, match="key"):
+        sparse_fuzzy_cmeans(x, 3)
+    with pytest.raises(FxspaceError, match="fuzzifier"):
+        sparse_fuzzy_cmeans(x, 3, m=1.0, key=jax.random.key(0))

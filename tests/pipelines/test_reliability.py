@@ -1,0 +1,244 @@
+"""Issue 10, cases 3, 4 and 6: caches keyed by content, settings honoured or rejected,
+clean failures at the edges (CLI, config paths, permissions)."""
+
+import json
+import os
+import stat
+
+import numpy as np
+import pytest
+
+import fxspace as fx
+from fxspace.cli import main
+from fxspace.config import ConfigError
+from fxspace.pipelines import run_config, run_dict
+from fxspace.runs import read_status, run_key, write_json_atomic
+
+SMALL = {
+    "experiment": "threshold_sweep",
+    "seed": 3,
+    "data": {"source": "synthetic", "synthetic_frames": 100, "synthetic_markers": 12},
+    "graph": {"num_thresholds": 3, "batch_size": 3},
+}
+
+
+def _with(**patch):
+    raw = json.loads(json.dumps(SMALL))
+    for k, v in patch.items():
+        head, _, key = k.partition("__")
+        if key:
+            raw.setdefault(head, {})[key] = v
+        else:
+            raw[head] = v
+    return raw
+
+
+def _metrics(d):
+    return json.loads((d / "metrics.json").read_text())
+
+
+def test_changed_config_never_reuses_or_overwrites(tmp_path, capsys):
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    first = _metrics(d)
+    assert read_status(d)["status"] == "complete"
+    changed = _with(data__synthetic_noise_mm=5.0)
+    # a finished run of another config is not overwritten without --force
+    with pytest.raises(ConfigError, match=r"different config.*synthetic_noise_mm.*--force"):
+        run_dict(changed, tmp_path / "a")
+    assert _metrics(d) == first
+    # --force recomputes: no chunk of the old cache is served
+    (d2,) = run_dict(changed, tmp_path / "a", force=True)
+    again = _metrics(d2)
+    (fresh,) = run_dict(changed, tmp_path / "fresh")
+    assert again["sweep"] == _metrics(fresh)["sweep"]
+    assert again["sweep"] != first["sweep"]
+
+
+def test_interrupted_run_with_changed_config_does_not_reuse_cache(tmp_path):
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    (d / "metrics.json").unlink()  # an interrupted run: cache present, no metrics
+    changed = _with(data__synthetic_noise_mm=5.0)
+    (d2,) = run_dict(changed, tmp_path / "a")
+    (fresh,) = run_dict(changed, tmp_path / "fresh")
+    assert _metrics(d2)["sweep"] == _metrics(fresh)["sweep"]
+
+
+def test_force_clears_the_cache(tmp_path):
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    entries = sorted((d / "cache").glob("sweep_*.json"))
+    assert entries
+    poisoned = {"thresholds": [1.0], "scores": [0.5]}
+    write_json_atomic(entries[0], poisoned)
+    run_dict(SMALL, tmp_path / "a", force=True)
+    assert json.loads(entries[0].read_text()) != poisoned
+
+
+def test_run_key_covers_config_data_and_code(tmp_path):
+    f = tmp_path / "x.trc"
+    f.write_text("a")
+    k = run_key("cfg", [f], code="c1")
+    assert run_key("cfg2", [f], code="c1") != k
+    assert run_key("cfg", [f], code="c2") != k
+    f.write_text("b")
+    assert run_key("cfg", [f], code="c1") != k
+
+
+def test_failed_run_leaves_a_marker(tmp_path, monkeypatch):
+    import fxspace.pipelines.threshold_sweep as ts
+
+    def boom(*a, **k):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(ts, "_run", boom)
+    with pytest.raises(RuntimeError):
+        run_dict(SMALL, tmp_path / "f")
+    st = read_status(tmp_path / "f")
+    assert st["status"] == "failed" and "disk on fire" in st["error"]
+    assert not (tmp_path / "f" / "metrics.json").exists()
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ts, "_run", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_dict(SMALL, tmp_path / "i")
+    assert read_status(tmp_path / "i")["status"] == "interrupted"
+
+
+def test_sweep_honours_dim_and_dtype(tmp_path):
+    (d,) = run_dict(_with(dim=3, graph__dtype="float64"), tmp_path / "x")
+    m = _metrics(d)
+    assert m["dtype"] == "float64" and m["dim"] == 3 and len(m["eigenvalues"]) == 3
+    emb = np.load(d / "expression_space.npz")["embedding"]
+    assert emb.shape == (100, 3)
+    (d32,) = run_dict(_with(graph__dtype="float32"), tmp_path / "y")
+    assert _metrics(d32)["dtype"] == "float32"
+
+
+@pytest.mark.parametrize(
+    "patch, match",
+    [
+        ({"select__max_mean_degree": -10}, "max_mean_degree"),
+        ({"select__max_mean_degree": float("nan")}, "max_mean_degree"),
+        ({"graph__upper_quantile": 2.0}, "upper_quantile"),
+        ({"seed": -1}, "seed"),
+        ({"data__max_gap": -1}, "max_gap"),
+        ({"data__missing": "zero"}, "missing"),
+        ({"graph__thresholds": [1.0, float("inf")]}, "finite"),
+        ({"graph__unknown": 1}, "unknown config key"),
+    ],
+)
+def test_bad_values_rejected(tmp_path, patch, match):
+    with pytest.raises(ConfigError, match=match):
+        run_dict(_with(**patch), tmp_path / "r")
+    assert not (tmp_path / "r").exists()
+
+
+def test_sweep_validated_before_the_first_run(tmp_path):
+    raw = dict(SMALL, sweep={"select.max_mean_degree": [50.0, -10.0]})
+    with pytest.raises(ConfigError, match="max_mean_degree.*sweep run"):
+        run_dict(raw, tmp_path)
+    assert not any(tmp_path.iterdir())  # nothing ran
+
+
+def test_missing_data_counts_in_metrics(tmp_path):
+    syn = fx.synthetic.synthetic_face(n_frames=150, n_markers=12, seed=0).sequence
+    pos = np.asarray(syn.positions).copy()
+    pos[40:44, 2] = np.nan  # filled (4 ≤ max_gap)
+    pos[90:120, 5] = np.nan  # 30 frames: dropped
+    f = tmp_path / "take.trc"
+    fx.io.write_trc(f, fx.io.MarkerSequence(pos, syn.names, syn.rate, syn.units))
+    raw = {
+        "experiment": "threshold_sweep",
+        "data": {"source": "files", "paths": ["take.trc"], "missing": "fill", "max_gap": 5},
+        "graph": {"num_thresholds": 3, "batch_size": 3},
+    }
+    cfg = tmp_path / "cfg" / "c.toml"
+    cfg.parent.mkdir()
+    from fxspace.config import dumps_toml
+
+    # relative paths resolve against the config file's folder (not the working directory)
+    (cfg.parent / "take.trc").write_bytes(f.read_bytes())
+    cfg.write_text(dumps_toml(raw))
+    (d,) = run_config(cfg, tmp_path / "out")
+    m = _metrics(d)["missing"]
+    assert m["policy"] == "fill" and m["filled_frames"] == 4 and m["dropped_frames"] == 30
+    frames = np.load(d / "expression_space.npz")["frame"]
+    assert len(frames) == 120 and not np.isin(np.arange(90, 120), frames).any()
+    assert "/cfg/take.trc" in (d / "config.toml").read_text()  # resolved, absolute
+    raw["data"]["paths"] = [str(f)]  # absolute paths are kept
+    (d2,) = run_dict(raw, tmp_path / "abs")
+    assert str(f) in (d2 / "config.toml").read_text()
+    raw["data"]["paths"] = ["nope.trc"]
+    cfg.write_text(dumps_toml(raw))
+    with pytest.raises(ConfigError, match=r"nope.trc does not exist.*config file"):
+        run_config(cfg, tmp_path / "o2")
+    raw["data"]["missing"] = "raise"
+    raw["data"]["paths"] = ["take.trc"]
+    cfg.write_text(dumps_toml(raw))
+    with pytest.raises(fx.FxspaceError, match=r"frames 40–43"):
+        run_config(cfg, tmp_path / "o3")
+
+
+def test_outputs_are_group_readable(tmp_path):
+    old = os.umask(0o022)
+    try:
+        (d,) = run_dict(SMALL, tmp_path / "p")
+    finally:
+        os.umask(old)
+    for f in ("metrics.json", "config.toml", "r_vs_threshold.png", "expression_space.npz"):
+        mode = stat.S_IMODE((d / f).stat().st_mode)
+        assert mode & stat.S_IRGRP and mode & stat.S_IROTH, (f, oct(mode))
+
+
+# --- CLI edges -------------------------------------------------------------------------
+
+
+def test_cli_error_is_one_line_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('experiment = "threshold_sweep"\nseed = -1\n')
+    assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("fxspace: error:") and "seed" in err and "\n" not in err
+
+
+def test_cli_unwritable_out_names_path(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    from fxspace.config import dumps_toml
+
+    cfg.write_text(dumps_toml(SMALL))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["run", str(cfg), "--out", str(blocker / "sub")]) == 2
+    err = capsys.readouterr().err
+    assert str(blocker) in err and "Traceback" not in err
+
+
+def test_cli_ctrl_c(tmp_path, capsys, monkeypatch):
+    import fxspace.pipelines as pl
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pl, "run_config", interrupted)
+    assert main(["run", str(tmp_path / "c.toml")]) == 130
+    assert "interrupted; rerun to resume" in capsys.readouterr().err
+
+
+def test_cli_version_and_bench_list(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and fx.__version__ in capsys.readouterr().out
+    assert main(["bench"]) == 0
+    out = capsys.readouterr().out
+    assert "geodesic" in out and "distances" in out
+
+
+def test_cli_demo_real_has_its_own_folder(monkeypatch):
+    import fxspace.pipelines as pl
+
+    seen = []
+    monkeypatch.setattr(pl, "run_dict", lambda raw, out, force: seen.append(str(out)) or [])
+    main(["demo", "--real"])
+    main(["demo"])
+    assert seen == ["runs/demo_real", "runs/demo"]

@@ -1,0 +1,129 @@
+"""The IK studio: the controller without a browser, then the real page in headless
+Chromium (skipped, with the reason, where viser, playwright or Chromium is absent)."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+import fxspace as fx
+from fxspace.studio._ik import IKController
+
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+
+@pytest.fixture(scope="module")
+def mesh(data_dir):
+    return fx.io.read_gltf(data_dir / "mesh" / "RiggedSimple.glb")
+
+
+def _front_triangles(ctl, k, seed=0):
+    vis = np.flatnonzero(ctl.visible((0.0, 0.0, -1.0)))
+    return np.random.default_rng(seed).choice(vis, k, replace=False)
+
+
+def test_controller_markers_drag_and_track(mesh, tmp_path):
+    ctl = IKController(mesh, mesh.animation_names[0])
+    tris = _front_triangles(ctl, 3)
+    for t in tris:
+        ctl.add_marker(int(t), view_dir=(0.0, 0.0, -1.0))
+    assert ctl.num_markers == 3
+    back = int(np.flatnonzero(~ctl.visible((0.0, 0.0, -1.0)))[0])
+    with pytest.raises(fx.FxspaceError, match="faces away"):
+        ctl.add_marker(back, view_dir=(0.0, 0.0, -1.0))
+    with pytest.raises(fx.FxspaceError, match="already holds"):
+        ctl.add_marker(int(tris[0]))
+    # drag marker 0's target sideways: the marker follows, the mesh moves
+    v0 = ctl.vertices.copy()
+    p0 = ctl.marker_points()[0]
+    size = float(np.ptp(mesh.vertices, axis=0).max())
+    goal = p0 + np.array([0.1 * size, 0.0, 0.0])
+    ctl.move_target(0, goal)
+    assert np.linalg.norm(ctl.marker_points()[0] - goal) < 0.5 * np.linalg.norm(p0 - goal)
+    assert np.abs(ctl.vertices - v0).max() > 1e-3 * size
+    # a click ray straight down -z onto a visible triangle's centre adds a marker there
+    free = [t for t in _front_triangles(ctl, 20, seed=1) if t not in ctl.triangles]
+    c = ctl.vertices[ctl.faces[free[0]]].mean(0)
+    k = ctl.pick(c + np.array([0, 0, 10.0 * size]), (0.0, 0.0, -1.0))
+    assert k == 3 and np.linalg.norm(ctl.marker_points()[3] - c) < 1e-4 * size
+    assert ctl.pick(c + np.array([100.0 * size, 0, 0]), (0.0, 0.0, -1.0)) is None
+    ctl.remove_marker(3)
+    assert ctl.num_markers == 3
+    # track two animation frames with the current markers, then export them as BVH
+    ctl.set_time(0.5)
+    ctl.step()
+    assert len(ctl.recorded) == 2 and float(ctl.last_result.residual) < 0.05 * size
+    out = ctl.export_bvh(tmp_path / "track.bvh")
+    mot = fx.io.read_bvh(out)
+    assert mot.num_frames == 2 and mot.num_joints == mesh.num_joints
+
+
+def _chromium() -> str | None:
+    return (
+        os.environ.get("FXSPACE_CHROMIUM")
+        or shutil.which("chromium")
+        or shutil.which("chromium-browser")
+    )
+
+
+@pytest.mark.browser
+def test_browser_ik_studio(mesh, tmp_path):
+    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
+    pw = pytest.importorskip(
+        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
+    )
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
+    from fxspace.studio._ik import serve_ik
+
+    server, ctl = serve_ik(
+        mesh, port=0, environment_map=False, block=False, export_path=tmp_path / "pose.bvh"
+    )
+    tris = _front_triangles(ctl, 2)
+    size = float(np.ptp(mesh.vertices, axis=0).max())
+    try:
+        with pw.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page()
+                page.goto(f"http://127.0.0.1:{server.get_port()}")
+                page.get_by_text("Markers: 0").wait_for(timeout=60_000)
+
+                def box(label):
+                    return page.locator(
+                        f"xpath=//label[text()='{label}']/ancestor::div"
+                        "[contains(@class,'mantine-Flex-root')][1]//input"
+                    )
+
+                for i, t in enumerate(tris):
+                    box("Triangle").fill(str(int(t)))
+                    page.get_by_role("button", name="Add marker").click()
+                    page.get_by_text(f"Markers: {i + 1}").wait_for(timeout=20_000)
+                assert ctl.triangles == [int(t) for t in tris]
+                p0 = ctl.marker_points()[1].copy()
+                v0 = ctl.vertices.copy()
+                goal = p0 + np.array([0.0, 0.1 * size, 0.0])
+                box("Marker").fill("1")
+                box("Target x y z").fill(" ".join(f"{x:.6f}" for x in goal))
+                page.get_by_role("button", name="Move target").click()
+                page.get_by_text("solved in", exact=False).wait_for(timeout=30_000)
+                p1 = ctl.marker_points()[1]
+                assert np.linalg.norm(p1 - goal) < 0.5 * np.linalg.norm(p0 - goal)
+                moved = np.linalg.norm(ctl.vertices - v0, axis=1)
+                assert moved.max() > 1e-3 * size
+                page.get_by_role("button", name="Export BVH").click()
+                page.get_by_text("wrote 1 frame", exact=False).wait_for(timeout=20_000)
+            finally:
+                browser.close()
+    finally:
+        server.stop()
+    assert (tmp_path / "pose.bvh").is_file()

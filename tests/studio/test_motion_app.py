@@ -1,0 +1,165 @@
+"""The live motion controller: the controller without a browser, then the real page in
+headless Chromium (skipped, with the reason, where viser, playwright or Chromium is absent).
+Synthetic spaces (a small skeleton, random smooth clips) keep it independent of the data."""
+
+import os
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fxspace as fx
+from fxspace import motion as M
+from fxspace.studio._motion import MotionController
+
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+NAMES = ("pelvis", "lhip", "lknee", "lfoot", "lowerback", "chest", "lshoulder", "lhand")
+PARENTS = (-1, 0, 1, 2, 0, 4, 5, 6)
+OFFSETS = np.asarray(
+    [[0, 0.9, 0], [0.1, -0.05, 0], [0, -0.4, 0], [0, -0.4, 0.05], [0, 0.1, 0], [0, 0.3, 0],
+     [0.2, 0.2, 0], [0.3, 0, 0.1]], float,
+)  # fmt: skip
+
+
+def _clips(rng, E, T, amp):
+    t = np.arange(T)[:, None, None]
+    ax = rng.standard_normal((E, 1, len(NAMES), 3)) * amp
+    ph = rng.uniform(0, 2 * np.pi, (E, 1, len(NAMES), 1))
+    aa = ax * np.sin(2 * np.pi * t[None] / T + ph)
+    ang = np.linalg.norm(aa, axis=-1, keepdims=True)
+    q = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * aa / np.maximum(ang, 1e-12)], -1)
+    root = np.zeros((E, T, 3))
+    root[..., 2] = np.linspace(0, 1, T)[None] * rng.uniform(0.5, 1.5, (E, 1))
+    return q, root
+
+
+def _setup(upper_joint):
+    rng = np.random.default_rng(1)
+    qL, rL = _clips(rng, 4, 20, 0.4)
+    qU, rU = _clips(rng, 2 if upper_joint < 0 else 5, 16, 0.6)
+    wl = np.stack([np.linspace(0, 19, 20) * s for s in (1.0, 0.9, 0.8, 0.95)])
+    wu = np.stack([np.linspace(0, 15, 16) * s for s in (1.0, 0.7, 0.9, 0.8, 1.0)[: len(qU)]])
+    sp = M.build_spaces(
+        M.stack_examples(list(qL), list(rL), wl), M.stack_examples(list(qU), list(rU), wu),
+        np.linspace(0, 15, 20), PARENTS, OFFSETS, mask=M.upper_body_mask(PARENTS, NAMES),
+        spine=4, lower_joint=3, lower_dims=(0, 2), lower_time=19.0, upper_joint=upper_joint,
+        upper_time=8.0, key=jax.random.PRNGKey(0), n_samples=60, knn_k=4, k_replace=5,
+    )  # fmt: skip
+    skel = fx.motion.Motion(
+        names=NAMES, parents=PARENTS, offsets=OFFSETS, root_translation=np.zeros((1, 3)),
+        rotations=np.tile([1.0, 0, 0, 0], (1, len(NAMES), 1)), rate=30.0,
+        channels=(("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation",
+                   "Xrotation"),) + (("Zrotation", "Yrotation", "Xrotation"),) * 7,
+    )  # fmt: skip
+    return M.Setup("mood_walk" if upper_joint < 0 else "block_walk", sp, skel, 1.0, (3, 3),
+                   [], [], {})  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def mood():
+    return _setup(-1)
+
+
+def test_controller_plays_records_and_follows_the_controls(mood, tmp_path):
+    ctl = MotionController(mood)
+    r0 = ctl.rotations.copy()
+    ctl.start_recording()
+    for _ in range(5):
+        ctl.step()
+    assert ctl.frame == 5 and float(ctl.state.t_lower) > 0
+    # the joy weight changes the upper body (joint 7 copies the upper blend)
+    st = ctl.state
+    ctl.set_joy(0.0)
+    ctl.step()
+    a = ctl.rotations.copy()
+    ctl.state = st
+    ctl.set_joy(1.0)
+    ctl.step()
+    assert np.abs(ctl.rotations[7] - a[7]).max() > 1e-3
+    assert np.abs(ctl.rotations - r0).max() > 1e-3
+    # the foot target is the lower parameter (x, z)
+    ctl.set_foot_target([0.3, 0.0, 1.1])
+    np.testing.assert_allclose(ctl.lower_param, [0.3, 1.1])
+    np.testing.assert_allclose(ctl.foot_target_world(), [0.3, 0.0, 1.1])
+    out = ctl.stop_recording(tmp_path / "rec.bvh")
+    m = fx.io.read_bvh(out)
+    assert m.num_frames == 7 and m.names == NAMES
+    # loops at the end of the lower reference clip
+    for _ in range(60):
+        ctl.step()
+    assert float(ctl.state.t_lower) < ctl.sp.lam.shape[0] - 1
+
+
+def test_hand_target_round_trip_and_samples_move():
+    ctl = MotionController(_setup(7))
+    target = ctl.hand_target_world() + np.asarray([0.05, 0.02, 0.0])
+    ctl.set_hand_target(target)
+    np.testing.assert_allclose(ctl.hand_target_world(), target, atol=1e-9)
+    up0 = ctl.upper_samples_world().copy()
+    ctl.set_foot_target(ctl.lower_samples_world()[2])
+    ctl.step()
+    assert np.abs(ctl.upper_samples_world() - up0).max() > 1e-4  # re-placed (paper Fig. 2)
+
+
+def _chromium():
+    for c in (os.environ.get("FXSPACE_CHROMIUM"), "chromium", "chromium-browser"):
+        if c and (shutil.which(c) or os.path.isfile(c)):
+            return shutil.which(c) or c
+    return None
+
+
+def test_browser_slider_changes_the_pose(mood, tmp_path):
+    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
+    pw = pytest.importorskip(
+        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
+    )
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
+    from fxspace.studio._motion import serve_motion
+
+    server, ctl = serve_motion(
+        mood, port=0, environment_map=False, block=False, playing=False,
+        export_path=tmp_path / "rec.bvh",
+    )  # fmt: skip
+    try:
+        with pw.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1200, "height": 800})
+                page.goto(f"http://127.0.0.1:{server.get_port()}")
+                page.get_by_text("mood_walk", exact=False).first.wait_for(timeout=60_000)
+                ctl.step()  # mid-clip, where the examples differ
+                before = ctl._pose_now()[0]
+                box = page.locator(
+                    "xpath=//label[text()='Joy']/ancestor::div"
+                    "[contains(@class,'mantine-Flex-root')][1]//input"
+                ).last
+                box.fill("0.95")
+                box.press("Enter")
+                page.get_by_text("joy 0.95", exact=False).wait_for(timeout=20_000)
+                assert ctl.joy == pytest.approx(0.95)
+                after = ctl._pose_now()[0]
+                assert np.abs(after - before).max() > 1e-3  # the pose changed
+                page.get_by_role("button", name="Record").click()
+                page.get_by_text("recording", exact=False).wait_for(timeout=20_000)
+                ctl.step()
+                ctl.step()
+                page.get_by_role("button", name="Stop and write BVH").click()
+                page.get_by_text("wrote 2 frames", exact=False).wait_for(timeout=20_000)
+            finally:
+                browser.close()
+    finally:
+        server.stop()
+    assert fx.io.read_bvh(tmp_path / "rec.bvh").num_frames == 2
+    assert jnp.isfinite(jnp.asarray(ctl.rotations)).all()
