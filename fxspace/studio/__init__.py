@@ -14,8 +14,47 @@ from pathlib import Path
 from typing import Any
 
 from fxspace.errors import FxspaceError
+from fxspace.studio._edit_controller import EditorController as EditorController
+from fxspace.studio._edit_controller import EditorData as EditorData
+from fxspace.studio._edit_controller import load_editor_data as load_editor_data
+from fxspace.studio._edit_controller import save_editor_data as save_editor_data
+from fxspace.studio._editor import serve_editor as serve_editor
+from fxspace.studio._ik import IKController as IKController
+from fxspace.studio._ik import load_ik_mesh as load_ik_mesh
+from fxspace.studio._ik import serve_ik as serve_ik
+from fxspace.studio._motion import MotionController as MotionController
+from fxspace.studio._motion import serve_motion as serve_motion
+from fxspace.studio._nav_controller import DENSITY_ABOVE as DENSITY_ABOVE
+from fxspace.studio._nav_controller import NavData as NavData
+from fxspace.studio._nav_controller import NavigatorController as NavigatorController
+from fxspace.studio._nav_controller import load_nav_data as load_nav_data
+from fxspace.studio._navigator import serve_navigator as serve_navigator
+from fxspace.studio._server import density_rgba as density_rgba
+from fxspace.studio._server import frame_density as frame_density
 
-__all__ = ["APPS", "app_for", "experiment_of", "serve"]
+__all__ = [
+    "APPS",
+    "app_for",
+    "experiment_of",
+    "serve",
+    "EditorController",
+    "EditorData",
+    "load_editor_data",
+    "save_editor_data",
+    "serve_editor",
+    "IKController",
+    "load_ik_mesh",
+    "serve_ik",
+    "MotionController",
+    "serve_motion",
+    "DENSITY_ABOVE",
+    "NavData",
+    "NavigatorController",
+    "load_nav_data",
+    "serve_navigator",
+    "density_rgba",
+    "frame_density",
+]
 
 #: experiment name → ``"module:function"`` serving that experiment's app
 APPS: dict[str, str] = {

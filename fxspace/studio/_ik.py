@@ -41,6 +41,7 @@ from fxspace.mesh import (
     solve_ik,
     triangle_normals,
 )
+from fxspace.studio._server import run_until_interrupted
 
 __all__ = ["IKController", "load_ik_mesh", "serve_ik"]
 
@@ -425,12 +426,5 @@ def serve_ik(
         webbrowser.open(url)
     if not block:
         return server, ctl
-    print(f"fxspace IK studio on {url} (Ctrl-C to stop)")
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.stop()
+    run_until_interrupted(server, "IK studio", host)
     return server, ctl

@@ -3,9 +3,7 @@ undo, modes, re-fit, export), then the real page in headless Chromium (skipped, 
 reason, where viser, playwright or Chromium is absent)."""
 
 import json
-import os
 import re
-import shutil
 
 import jax
 import numpy as np
@@ -13,21 +11,12 @@ import pytest
 from helpers import face_like
 
 import fxspace as fx
-from fxspace.studio._edit_controller import (
+from fxspace.studio import (
     EditorController,
     EditorData,
     load_editor_data,
     save_editor_data,
 )
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
 
 
 @pytest.fixture(scope="module")
@@ -125,31 +114,17 @@ def test_play_modes_export_and_refit(run_dir, tmp_path):
     assert json.loads((run_dir / "edits.json").read_text())["keys"] == []
 
 
-def _chromium() -> str | None:
-    return (
-        os.environ.get("FXSPACE_CHROMIUM")
-        or shutil.which("chromium")
-        or shutil.which("chromium-browser")
-    )
-
-
 @pytest.mark.browser
-def test_browser_editor_moves_a_control_point(run_dir):
-    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
-    pw = pytest.importorskip(
-        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
-    )
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
-    from fxspace.studio._editor import serve_editor
+def test_browser_editor_moves_a_control_point(run_dir, chromium):
+    pw, exe = chromium.pw, chromium.exe
+    from fxspace.studio import serve_editor
 
     server, ctl = serve_editor(
         load_editor_data(run_dir), port=0, environment_map=False, block=False
     )
     try:
         with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
             try:
                 page = browser.new_page(viewport={"width": 1200, "height": 800})
                 page.goto(f"http://127.0.0.1:{server.get_port()}")

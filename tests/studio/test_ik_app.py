@@ -1,23 +1,12 @@
 """The IK studio: the controller without a browser, then the real page in headless
 Chromium (skipped, with the reason, where viser, playwright or Chromium is absent)."""
 
-import os
-import shutil
 
 import numpy as np
 import pytest
 
 import fxspace as fx
-from fxspace.studio._ik import IKController
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
+from fxspace.studio import IKController
 
 
 @pytest.fixture(scope="module")
@@ -66,24 +55,10 @@ def test_controller_markers_drag_and_track(mesh, tmp_path):
     assert mot.num_frames == 2 and mot.num_joints == mesh.num_joints
 
 
-def _chromium() -> str | None:
-    return (
-        os.environ.get("FXSPACE_CHROMIUM")
-        or shutil.which("chromium")
-        or shutil.which("chromium-browser")
-    )
-
-
 @pytest.mark.browser
-def test_browser_ik_studio(mesh, tmp_path):
-    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
-    pw = pytest.importorskip(
-        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
-    )
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
-    from fxspace.studio._ik import serve_ik
+def test_browser_ik_studio(mesh, tmp_path, chromium):
+    pw, exe = chromium.pw, chromium.exe
+    from fxspace.studio import serve_ik
 
     server, ctl = serve_ik(
         mesh, port=0, environment_map=False, block=False, export_path=tmp_path / "pose.bvh"
@@ -92,7 +67,7 @@ def test_browser_ik_studio(mesh, tmp_path):
     size = float(np.ptp(mesh.vertices, axis=0).max())
     try:
         with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
             try:
                 page = browser.new_page()
                 page.goto(f"http://127.0.0.1:{server.get_port()}")

@@ -2,8 +2,6 @@
 headless Chromium (skipped, with the reason, where viser, playwright or Chromium is absent).
 Synthetic spaces (a small skeleton, random smooth clips) keep it independent of the data."""
 
-import os
-import shutil
 
 import jax
 import jax.numpy as jnp
@@ -12,16 +10,7 @@ import pytest
 
 import fxspace as fx
 from fxspace import motion as M
-from fxspace.studio._motion import MotionController
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
+from fxspace.studio import MotionController
 
 NAMES = ("pelvis", "lhip", "lknee", "lfoot", "lowerback", "chest", "lshoulder", "lhand")
 PARENTS = (-1, 0, 1, 2, 0, 4, 5, 6)
@@ -111,22 +100,10 @@ def test_hand_target_round_trip_and_samples_move():
     assert np.abs(ctl.upper_samples_world() - up0).max() > 1e-4  # re-placed (paper Fig. 2)
 
 
-def _chromium():
-    for c in (os.environ.get("FXSPACE_CHROMIUM"), "chromium", "chromium-browser"):
-        if c and (shutil.which(c) or os.path.isfile(c)):
-            return shutil.which(c) or c
-    return None
-
-
-def test_browser_slider_changes_the_pose(mood, tmp_path):
-    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
-    pw = pytest.importorskip(
-        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
-    )
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
-    from fxspace.studio._motion import serve_motion
+@pytest.mark.browser
+def test_browser_slider_changes_the_pose(mood, tmp_path, chromium):
+    pw, exe = chromium.pw, chromium.exe
+    from fxspace.studio import serve_motion
 
     server, ctl = serve_motion(
         mood, port=0, environment_map=False, block=False, playing=False,
@@ -134,7 +111,7 @@ def test_browser_slider_changes_the_pose(mood, tmp_path):
     )  # fmt: skip
     try:
         with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
             try:
                 page = browser.new_page(viewport={"width": 1200, "height": 800})
                 page.goto(f"http://127.0.0.1:{server.get_port()}")

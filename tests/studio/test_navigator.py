@@ -1,8 +1,6 @@
 """The browser navigator: the controller without a browser, then the real page in headless
 Chromium (skipped, with the reason, where viser, playwright or Chromium is absent)."""
 
-import os
-import shutil
 
 import jax
 import jax.numpy as jnp
@@ -11,16 +9,7 @@ import pytest
 from helpers import face_like as _face_like
 
 import fxspace as fx
-from fxspace.studio._navigator import NavData, NavigatorController
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
+from fxspace.studio import NavData, NavigatorController
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +156,7 @@ def _many_frames(T=30_000, c=8, seed=0):
 
 
 def test_many_frames_are_drawn_by_density():
-    from fxspace.studio._navigator import DENSITY_ABOVE
+    from fxspace.studio import DENSITY_ABOVE
 
     d = _many_frames()
     xy = d.hierarchy.embedding
@@ -202,7 +191,7 @@ def test_many_frames_are_drawn_by_density():
 
 
 def test_density_image_rows_and_opacity():
-    from fxspace.studio._server import density_rgba, frame_density
+    from fxspace.studio import density_rgba, frame_density
 
     g = frame_density(np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 1.0]]), bins=2)
     np.testing.assert_array_equal(g.counts, [[1, 0], [0, 2]])  # row 0: low y
@@ -216,7 +205,7 @@ def test_density_image_rows_and_opacity():
 
 def test_server_draws_density_not_points(data):
     pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
-    from fxspace.studio._navigator import serve_navigator
+    from fxspace.studio import serve_navigator
 
     server, ctl = serve_navigator(
         data, port=0, environment_map=False, block=False, density_above=10
@@ -234,30 +223,16 @@ def test_server_draws_density_not_points(data):
         server.stop()
 
 
-def _chromium() -> str | None:
-    return (
-        os.environ.get("FXSPACE_CHROMIUM")
-        or shutil.which("chromium")
-        or shutil.which("chromium-browser")
-    )
-
-
 @pytest.mark.browser
-def test_browser_navigator(data):
-    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
-    pw = pytest.importorskip(
-        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
-    )
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
-    from fxspace.studio._navigator import serve_navigator
+def test_browser_navigator(data, chromium):
+    pw, exe = chromium.pw, chromium.exe
+    from fxspace.studio import serve_navigator
 
     server, ctl = serve_navigator(data, port=0, environment_map=False, block=False)
     a, b, c = _linked_and_unlinked(data.hierarchy.levels[0])
     try:
         with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
             try:
                 page = browser.new_page()
                 page.goto(f"http://127.0.0.1:{server.get_port()}")
@@ -304,7 +279,7 @@ def test_load_nav_data_from_config(tmp_path):
         'experiment = "navigation"\nseed = 0\n[data]\nsource = "synthetic"\n'
         "synthetic_frames = 80\n[hierarchy]\nc0 = 8\n"
     )
-    from fxspace.studio._navigator import load_nav_data
+    from fxspace.studio import load_nav_data
 
     d = load_nav_data(cfg)
     assert d.hierarchy.sizes == (8, 16, 32, 64, 80)
@@ -318,22 +293,16 @@ def test_load_nav_data_from_config(tmp_path):
 
 
 @pytest.mark.browser
-def test_browser_click_on_the_pad_picks_the_nearest_centre(data):
-    pytest.importorskip("viser", reason="viser not installed (pip install -e '.[viewer]')")
-    pw = pytest.importorskip(
-        "playwright.sync_api", reason="playwright not installed (pip install -e '.[viewer]')"
-    )
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("Chromium not found (apt-get install chromium, or set FXSPACE_CHROMIUM)")
-    from fxspace.studio._navigator import serve_navigator
+def test_browser_click_on_the_pad_picks_the_nearest_centre(data, chromium):
+    pw, exe = chromium.pw, chromium.exe
+    from fxspace.studio import serve_navigator
 
     server, ctl = serve_navigator(data, port=0, environment_map=False, block=False)
     last = len(data.hierarchy.levels) - 1
     ctl.set_level(last)  # the finest level: every frame is a centre
     try:
         with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
             try:
                 page = browser.new_page(viewport={"width": 1200, "height": 700})
                 page.goto(f"http://127.0.0.1:{server.get_port()}")
