@@ -57,3 +57,25 @@ def face_like(n=100, m=12, seed=1):
     modes = rng.normal(size=(2, m, 3))
     pos = base[None] + xy[:, 0, None, None] * modes[0] + xy[:, 1, None, None] * modes[1]
     return xy, pos
+
+
+# a toy 8-joint skeleton (legs + one arm) and smooth random clips, for the motion tests
+TOY_NAMES = ("pelvis", "lhip", "lknee", "lfoot", "lowerback", "chest", "lshoulder", "lhand")
+TOY_PARENTS = (-1, 0, 1, 2, 0, 4, 5, 6)
+TOY_OFFSETS = np.asarray(
+    [[0, 0.9, 0], [0.1, -0.05, 0], [0, -0.4, 0], [0, -0.4, 0.05], [0, 0.1, 0], [0, 0.3, 0],
+     [0.2, 0.2, 0], [0.3, 0, 0.1]], float,
+)  # fmt: skip
+
+
+def toy_clips(rng, E, T, amp):
+    """Smooth random local rotations (axis-angle sinusoids) and a forward-moving root."""
+    t = np.arange(T)[:, None, None]
+    ax = rng.standard_normal((E, 1, len(TOY_NAMES), 3)) * amp
+    ph = rng.uniform(0, 2 * np.pi, (E, 1, len(TOY_NAMES), 1))
+    aa = ax * np.sin(2 * np.pi * t[None] / T + ph)
+    ang = np.linalg.norm(aa, axis=-1, keepdims=True)
+    q = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * aa / np.maximum(ang, 1e-12)], -1)
+    root = np.zeros((E, T, 3))
+    root[..., 2] = np.linspace(0, 1, T)[None] * rng.uniform(0.5, 1.5, (E, 1))
+    return q, root

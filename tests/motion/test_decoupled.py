@@ -7,6 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import TOY_NAMES as NAMES
+from helpers import TOY_OFFSETS as OFFSETS
+from helpers import TOY_PARENTS as PARENTS
+from helpers import toy_clips as _clips
 
 import fxspace as fx
 from fxspace.motion import (
@@ -18,26 +22,6 @@ from fxspace.motion import (
     synthesize_step,
     upper_body_mask,
 )
-
-NAMES = ("pelvis", "lhip", "lknee", "lfoot", "lowerback", "chest", "lshoulder", "lhand")
-PARENTS = (-1, 0, 1, 2, 0, 4, 5, 6)
-OFFSETS = np.asarray(
-    [[0, 0.9, 0], [0.1, -0.05, 0], [0, -0.4, 0], [0, -0.4, 0.05], [0, 0.1, 0], [0, 0.3, 0],
-     [0.2, 0.2, 0], [0.3, 0, 0.1]], float,
-)  # fmt: skip
-
-
-def _clips(rng, E, T, amp):
-    """Smooth random local rotations (axis-angle sinusoids) and a forward-moving root."""
-    t = np.arange(T)[:, None, None]
-    ax = rng.standard_normal((E, 1, len(NAMES), 3)) * amp
-    ph = rng.uniform(0, 2 * np.pi, (E, 1, len(NAMES), 1))
-    aa = ax * np.sin(2 * np.pi * t[None] / T + ph)
-    ang = np.linalg.norm(aa, axis=-1, keepdims=True)
-    q = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * aa / np.maximum(ang, 1e-12)], -1)
-    root = np.zeros((E, T, 3))
-    root[..., 2] = np.linspace(0, 1, T)[None] * rng.uniform(0.5, 1.5, (E, 1))
-    return q, root
 
 
 def _spaces(posture_transfer=0.5, n_samples=80, k_replace=6, upper_joint=7):

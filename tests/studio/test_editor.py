@@ -139,7 +139,7 @@ def test_browser_editor_moves_a_control_point(run_dir, chromium):
                 frame = field("Frame").last
                 frame.fill("5")
                 frame.press("Enter")
-                page.get_by_text("Frame 5", exact=True).wait_for(timeout=20_000)
+                page.get_by_text("Frame 5", exact=True).wait_for(timeout=60_000)
                 before = ctl.sequence("edited")[5].copy()
                 field("Control point").first.fill("1")
                 offs = field("Offset")
@@ -148,7 +148,7 @@ def test_browser_editor_moves_a_control_point(run_dir, chromium):
                 offs.nth(1).press("Tab")
                 page.wait_for_timeout(500)
                 page.get_by_role("button", name="Move control point").click()
-                page.get_by_text("Edit keys: 1").wait_for(timeout=20_000)
+                page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
                 k = ctl.keys[-1]
                 assert (k.segment, k.control, k.frame) == (0, 1, 5)
                 after = ctl.sequence("edited")[5]
@@ -156,7 +156,7 @@ def test_browser_editor_moves_a_control_point(run_dir, chromium):
                 shown = page.get_by_text("Edited vs model here:", exact=False).inner_text()
                 assert float(re.search(r"Edited vs model here: ([0-9.]+)", shown)[1]) > 0
                 page.get_by_role("button", name="Undo edit").click()
-                page.get_by_text("Edit keys: 0").wait_for(timeout=20_000)
+                page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
             finally:
                 browser.close()
     finally:

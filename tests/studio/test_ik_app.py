@@ -82,7 +82,7 @@ def test_browser_ik_studio(mesh, tmp_path, chromium):
                 for i, t in enumerate(tris):
                     box("Triangle").fill(str(int(t)))
                     page.get_by_role("button", name="Add marker").click()
-                    page.get_by_text(f"Markers: {i + 1}").wait_for(timeout=20_000)
+                    page.get_by_text(f"Markers: {i + 1}").wait_for(timeout=60_000)
                 assert ctl.triangles == [int(t) for t in tris]
                 p0 = ctl.marker_points()[1].copy()
                 v0 = ctl.vertices.copy()
@@ -90,13 +90,14 @@ def test_browser_ik_studio(mesh, tmp_path, chromium):
                 box("Marker").fill("1")
                 box("Target x y z").fill(" ".join(f"{x:.6f}" for x in goal))
                 page.get_by_role("button", name="Move target").click()
-                page.get_by_text("solved in", exact=False).wait_for(timeout=30_000)
+                # the first solve compiles LM for this marker count: slow on a loaded 2-core machine
+                page.get_by_text("solved in", exact=False).wait_for(timeout=180_000)
                 p1 = ctl.marker_points()[1]
                 assert np.linalg.norm(p1 - goal) < 0.5 * np.linalg.norm(p0 - goal)
                 moved = np.linalg.norm(ctl.vertices - v0, axis=1)
                 assert moved.max() > 1e-3 * size
                 page.get_by_role("button", name="Export BVH").click()
-                page.get_by_text("wrote 1 frame", exact=False).wait_for(timeout=20_000)
+                page.get_by_text("wrote 1 frame", exact=False).wait_for(timeout=60_000)
             finally:
                 browser.close()
     finally:

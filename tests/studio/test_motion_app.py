@@ -7,29 +7,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import TOY_NAMES as NAMES
+from helpers import TOY_OFFSETS as OFFSETS
+from helpers import TOY_PARENTS as PARENTS
+from helpers import toy_clips as _clips
 
 import fxspace as fx
 from fxspace import motion as M
 from fxspace.studio import MotionController
-
-NAMES = ("pelvis", "lhip", "lknee", "lfoot", "lowerback", "chest", "lshoulder", "lhand")
-PARENTS = (-1, 0, 1, 2, 0, 4, 5, 6)
-OFFSETS = np.asarray(
-    [[0, 0.9, 0], [0.1, -0.05, 0], [0, -0.4, 0], [0, -0.4, 0.05], [0, 0.1, 0], [0, 0.3, 0],
-     [0.2, 0.2, 0], [0.3, 0, 0.1]], float,
-)  # fmt: skip
-
-
-def _clips(rng, E, T, amp):
-    t = np.arange(T)[:, None, None]
-    ax = rng.standard_normal((E, 1, len(NAMES), 3)) * amp
-    ph = rng.uniform(0, 2 * np.pi, (E, 1, len(NAMES), 1))
-    aa = ax * np.sin(2 * np.pi * t[None] / T + ph)
-    ang = np.linalg.norm(aa, axis=-1, keepdims=True)
-    q = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * aa / np.maximum(ang, 1e-12)], -1)
-    root = np.zeros((E, T, 3))
-    root[..., 2] = np.linspace(0, 1, T)[None] * rng.uniform(0.5, 1.5, (E, 1))
-    return q, root
 
 
 def _setup(upper_joint):
@@ -124,16 +109,16 @@ def test_browser_slider_changes_the_pose(mood, tmp_path, chromium):
                 ).last
                 box.fill("0.95")
                 box.press("Enter")
-                page.get_by_text("joy 0.95", exact=False).wait_for(timeout=20_000)
+                page.get_by_text("joy 0.95", exact=False).wait_for(timeout=60_000)
                 assert ctl.joy == pytest.approx(0.95)
                 after = ctl._pose_now()[0]
                 assert np.abs(after - before).max() > 1e-3  # the pose changed
                 page.get_by_role("button", name="Record").click()
-                page.get_by_text("recording", exact=False).wait_for(timeout=20_000)
+                page.get_by_text("recording", exact=False).wait_for(timeout=60_000)
                 ctl.step()
                 ctl.step()
                 page.get_by_role("button", name="Stop and write BVH").click()
-                page.get_by_text("wrote 2 frames", exact=False).wait_for(timeout=20_000)
+                page.get_by_text("wrote 2 frames", exact=False).wait_for(timeout=60_000)
             finally:
                 browser.close()
     finally:

@@ -247,18 +247,18 @@ def test_browser_navigator(data, chromium):
                     page.get_by_role("button", name="Pick centre").click()
 
                 pick(a)
-                page.get_by_text(f"Key centres: {a}", exact=False).wait_for(timeout=20_000)
+                page.get_by_text(f"Key centres: {a}", exact=False).wait_for(timeout=60_000)
                 pick(b)
-                page.get_by_text(f"Key centres: {a} → {b}").wait_for(timeout=20_000)
+                page.get_by_text(f"Key centres: {a} → {b}").wait_for(timeout=60_000)
                 pick(c)
                 page.get_by_text(f"centres {b} and {c} are not linked", exact=False).wait_for(
                     timeout=20_000
                 )
                 assert ctl.picks == [a, b]
                 page.get_by_role("button", name="Refine").click()
-                page.get_by_text("Level 1", exact=True).wait_for(timeout=20_000)
+                page.get_by_text("Level 1", exact=True).wait_for(timeout=60_000)
                 page.get_by_role("button", name="Play / Pause").click()
-                page.get_by_text("Playing", exact=False).wait_for(timeout=20_000)
+                page.get_by_text("Playing", exact=False).wait_for(timeout=60_000)
                 assert ctl.level == 1 and ctl.playing
                 i0 = ctl.play_index
                 page.wait_for_timeout(500)
@@ -318,7 +318,7 @@ def test_browser_click_on_the_pad_picks_the_nearest_centre(data, chromium):
                 assert ctl.picks, ctl.message
                 k = ctl.picks[0]
                 assert k == ctl.index(last).nearest(ctl.last_click)
-                page.get_by_text(f"Key centres: {k}", exact=False).wait_for(timeout=20_000)
+                page.get_by_text(f"Key centres: {k}", exact=False).wait_for(timeout=60_000)
                 assert ctl.route is not None and ctl.route.level == last
             finally:
                 browser.close()
