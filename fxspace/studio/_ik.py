@@ -365,7 +365,10 @@ def serve_ik(
     def _(_e) -> None:
         try:
             i = int(str(idx_text.value).strip())
-            ctl.move_target(i, [float(x) for x in str(tgt_text.value).replace(",", " ").split()])
+            xyz = [float(x) for x in str(tgt_text.value).replace(",", " ").split()]
+            if len(xyz) != 3:
+                raise ValueError(f"target needs three numbers 'x y z', got {tgt_text.value!r}")
+            ctl.move_target(i, xyz)
         except (FxspaceError, ValueError) as err:
             ctl.message = str(err)
         refresh()
