@@ -12,6 +12,9 @@ from fxspace.io._bvh import read_bvh as read_bvh
 from fxspace.io._bvh import write_bvh as write_bvh
 from fxspace.io._c3d import write_c3d as write_c3d
 from fxspace.io._gltf import read_gltf as read_gltf
+from fxspace.io._gltf_write import ik_poses_to_local as ik_poses_to_local
+from fxspace.io._gltf_write import write_gltf as write_gltf
+from fxspace.io._gltf_write import write_ik_gltf as write_ik_gltf
 from fxspace.io._ik_bvh import ik_poses_to_motion as ik_poses_to_motion
 from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
 from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
@@ -43,6 +46,9 @@ __all__ = [
     "write_bvh",
     "write_c3d",
     "read_gltf",
+    "ik_poses_to_local",
+    "write_gltf",
+    "write_ik_gltf",
     "ik_poses_to_motion",
     "write_ik_bvh",
     "SUPPORTED_EXTENSIONS",

@@ -192,7 +192,10 @@ def ik_normal_equations(
     tr = jnp.einsum("acbc->ab", gm)
     eye = jnp.eye(3, dtype=p.dtype)
     m = tr[:, None, :, None] * eye[None, :, None, :] - jnp.transpose(gm, (0, 3, 2, 1))
-    h_ang = jnp.einsum("adc,acbf,bef->adbe", w, m, w).reshape(3 * nj, 3 * nj)
+    # ω-projections per joint pair, one side at a time (XLA:CPU picks a slow order for the
+    # three-operand einsum)
+    wm = jnp.einsum("adc,acbf->adbf", w, m)
+    h_ang = jnp.einsum("adbf,bef->adbe", wm, w).reshape(3 * nj, 3 * nj)
     s = p.sum(axis=0)  # (J, 3)
     h_at = jnp.cross(w, s[:, None, :]).reshape(3 * nj, 3)
     h = jnp.concatenate(

@@ -13,7 +13,8 @@ the surface of the model and their target positions are set":
 - *Remove marker*; *Play / Pause* plays the mesh's own animation and tracks it with the
   current markers (their targets follow the animated surface, IK warm-started per frame);
 - *Export BVH* writes the current pose, or the tracked frames, as BVH
-  (:func:`fxspace.io.write_ik_bvh`).
+  (:func:`fxspace.io.write_ik_bvh`); *Export glTF* writes them with the mesh as an
+  animated ``.glb`` (:func:`fxspace.io.write_ik_gltf`).
 
 The state and actions live in :class:`IKController` (plain Python, testable without a
 browser); :func:`serve_ik` draws and wires it.
@@ -242,15 +243,28 @@ class IKController:
         self.set_time(t0 if t > t1 else t)
         return self.time
 
+    def _frames(self) -> tuple[np.ndarray, np.ndarray]:
+        """The recorded frames (or the current pose): angles (T, J, 3), translation (T, 3)."""
+        poses = self.recorded or [self.pose]
+        ang = np.stack([np.asarray(p.angles) for p in poses])
+        return ang, np.stack([np.asarray(p.translation) for p in poses])
+
     def export_bvh(self, path) -> Path:
         """Write the recorded frames (or the current pose) as BVH."""
         from fxspace.io import write_ik_bvh
 
-        poses = self.recorded or [self.pose]
-        ang = np.stack([np.asarray(p.angles) for p in poses])
-        tr = np.stack([np.asarray(p.translation) for p in poses])
+        ang, tr = self._frames()
         out = write_ik_bvh(path, self.mesh, ang, tr, rate=self.fps)
-        self.message = f"wrote {len(poses)} frame(s) to {out}"
+        self.message = f"wrote {len(ang)} frame(s) to {out}"
+        return out
+
+    def export_gltf(self, path) -> Path:
+        """Write the mesh and the recorded frames (or the current pose) as glTF."""
+        from fxspace.io import write_ik_gltf
+
+        ang, tr = self._frames()
+        out = write_ik_gltf(path, self.mesh, ang, tr, rate=self.fps)
+        self.message = f"wrote {len(ang)} frame(s) to {out}"
         return out
 
     def status(self) -> str:
@@ -269,10 +283,12 @@ def serve_ik(
     block: bool = True,
     environment_map: bool = True,
     export_path: str | Path = "ik_pose.bvh",
+    gltf_path: str | Path | None = None,
 ):
     """Serve the IK studio for ``target`` (see :func:`load_ik_mesh`); ``port=0`` picks a
     free port (``server.get_port()``). With ``block=False`` returns ``(server, controller)``
-    at once (stop with ``server.stop()``)."""
+    at once (stop with ``server.stop()``). *Export glTF* writes `gltf_path` (default:
+    `export_path` with the suffix ``.glb``)."""
     try:
         import viser
     except ImportError as e:
@@ -301,6 +317,10 @@ def serve_ik(
     rm_btn = server.gui.add_button("Remove marker")
     play_btn = server.gui.add_button("Play / Pause", disabled=anim is None)
     export_btn = server.gui.add_button("Export BVH")
+    gltf_btn = server.gui.add_button("Export glTF")
+    if gltf_path is None:
+        bvh = Path(export_path)
+        gltf_path = bvh.with_name(bvh.name.removesuffix(".gz").removesuffix(".bvh") + ".glb")
 
     def draw_mesh() -> None:
         h = server.scene.add_mesh_simple(
@@ -388,13 +408,18 @@ def serve_ik(
             ctl.recorded = []
         gui_status.content = ctl.status()
 
-    @export_btn.on_click
-    def _(_e) -> None:
-        try:
-            ctl.export_bvh(export_path)
-        except (FxspaceError, OSError) as err:
-            ctl.message = str(err)
-        gui_status.content = ctl.status()
+    def exporter(write, path):
+        def _(_e) -> None:
+            try:
+                write(path)
+            except (FxspaceError, OSError) as err:
+                ctl.message = str(err)
+            gui_status.content = ctl.status()
+
+        return _
+
+    export_btn.on_click(exporter(ctl.export_bvh, export_path))
+    gltf_btn.on_click(exporter(ctl.export_gltf, gltf_path))
 
     stop = threading.Event()
 

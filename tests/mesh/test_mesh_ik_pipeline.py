@@ -29,8 +29,16 @@ def test_mesh_ik_pipeline_quick(data_dir, tmp_path, monkeypatch, capsys):
     r = m["meshes"]["RiggedSimple"]
     assert set(r["per_markers"]) == {"1", "5"} and r["skipped_marker_counts"] == [10000]
     row = r["per_markers"]["5"]
-    for key in ("lm_cold_ms_mean", "bfgs_factored_warm_vertex_error", "ratio_naive_factored_cold"):
+    for key in (
+        "lm_cold_ms_mean",
+        "bfgs_factored_warm_vertex_error",
+        "ratio_naive_factored_cold",
+        "ratio_naive_factored_gradient_loop",
+        "gradient_loop_us_factored",
+    ):
         assert row[key] > 0
+    table = (run / "table.md").read_text()
+    assert "| RiggedSimple | 5 | cold |" in table and "| RiggedSimple | 5 | warm |" in table
     # more markers pin the mesh better (RiggedSimple: 5 markers nearly exact)
     assert row["lm_warm_vertex_error"] < r["per_markers"]["1"]["lm_warm_vertex_error"]
     assert set(m["regularizers"]["vertex_error"]) == {

@@ -41,8 +41,10 @@ def test_controller_markers_drag_and_track(mesh, tmp_path):
     assert np.linalg.norm(ctl.marker_points()[0] - goal) < 0.5 * np.linalg.norm(p0 - goal)
     assert np.abs(ctl.vertices - v0).max() > 1e-3 * size
     # a click ray straight down -z onto a visible triangle's centre adds a marker there
-    free = [t for t in _front_triangles(ctl, 20, seed=1) if t not in ctl.triangles]
-    c = ctl.vertices[ctl.faces[free[0]]].mean(0)
+    # (the free visible triangle with the front-most centre: nothing lies in front of it)
+    free = [t for t in np.flatnonzero(ctl.visible((0.0, 0.0, -1.0))) if t not in ctl.triangles]
+    centres = ctl.vertices[ctl.faces[free]].mean(1)
+    c = centres[np.argmax(centres[:, 2])]
     k = ctl.pick(c + np.array([0, 0, 10.0 * size]), (0.0, 0.0, -1.0))
     assert k == 3 and np.linalg.norm(ctl.marker_points()[3] - c) < 1e-4 * size
     assert ctl.pick(c + np.array([100.0 * size, 0, 0]), (0.0, 0.0, -1.0)) is None
@@ -55,6 +57,11 @@ def test_controller_markers_drag_and_track(mesh, tmp_path):
     out = ctl.export_bvh(tmp_path / "track.bvh")
     mot = fx.io.read_bvh(out)
     assert mot.num_frames == 2 and mot.num_joints == mesh.num_joints
+    # ... and as glTF: the re-read animation's last frame is the mesh on screen
+    back = fx.io.read_gltf(ctl.export_gltf(tmp_path / "track.glb"))
+    assert back.animation_range("fxspace") == pytest.approx((0.0, 1.0 / ctl.fps))
+    last = back.animation_vertices("fxspace", [1.0 / ctl.fps])[0]
+    np.testing.assert_allclose(last, ctl.vertices, atol=1e-4 * size)
 
 
 @pytest.mark.browser
@@ -110,8 +117,14 @@ def test_browser_ik_studio(mesh, tmp_path, chromium):
                 assert moved.max() > 1e-3 * size
                 page.get_by_role("button", name="Export BVH").click()
                 page.get_by_text("wrote 1 frame", exact=False).wait_for(timeout=60_000)
+                page.get_by_role("button", name="Export glTF").click()
+                page.get_by_text("pose.glb", exact=False).wait_for(timeout=60_000)
             finally:
                 browser.close()
     finally:
         server.stop()
     assert (tmp_path / "pose.bvh").is_file()
+    back = fx.io.read_gltf(tmp_path / "pose.glb")  # the pose on screen, as an animated glTF
+    np.testing.assert_allclose(
+        back.animation_vertices("fxspace", [0.0])[0], ctl.vertices, atol=1e-4 * size
+    )

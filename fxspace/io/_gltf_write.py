@@ -1,0 +1,458 @@
+"""Skinned meshes, their poses and IK poses → glTF 2.0 (``.glb``, or ``.gltf`` + data URI).
+
+The file holds what :func:`fxspace.io.read_gltf` reads (glTF 2.0 §3.7.3 skins, §3.11
+animations):
+
+- one triangle primitive: bind-pose ``POSITION`` (float32), ``indices`` (uint32) and the
+  skin influences as ``JOINTS_n``/``WEIGHTS_n`` sets of 4 (a joint at most once per
+  vertex, weights renormalised to sum 1, heaviest first);
+- one skin whose joints are nodes ``0 … J−1`` in the mesh's joint order, each with its
+  rest ``translation``/``rotation`` (x, y, z, w)/``scale``, and the inverse bind matrices;
+- above each root joint whose ``base_transforms`` is not the identity, a non-joint node
+  holding that fixed transform as a ``matrix`` (so the re-read ``base_transforms`` match);
+- with ``poses`` (a :class:`~fxspace.mesh.LocalPose` ``(T, J, ·)``): one animation with
+  ``LINEAR`` translation / rotation / scale channels per joint keyed at ``times``
+  (quaternion signs made continuous over time, so interpolation takes the short arc).
+
+IK poses (:class:`fxspace.Pose`: per-joint XYZ Euler angles ``θ_j`` after the rest
+rotation, plus a world translation ``τ``) become local transforms with
+:func:`ik_poses_to_local`: ``R_j = R_rest,j · R_x R_y R_z(θ_j)``, rest translations and
+scales, and ``τ`` moved into each root's translation as ``t_root + B⁻¹ τ`` (``B`` the
+linear part of the root's base transform), which moves every joint's global transform by
+``τ``: with weights summing to one, the skinned vertices move by ``τ`` exactly as
+:func:`fxspace.pose_vertices` does.
+
+Example:
+
+```python
+mesh = fx.io.read_gltf("CesiumMan.glb")
+t = np.linspace(0.0, 2.0, 49)
+fx.io.write_gltf("copy.glb", mesh, mesh.sample_animation("Anim_0", t), times=t)
+fx.io.write_ik_gltf("ik.glb", mesh, res.pose.angles, res.pose.translation, rate=30.0)
+```
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import struct
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fxspace.errors import FxspaceError
+from fxspace.mesh._types import LocalPose
+from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fxspace.mesh._types import SkinnedMesh
+
+__all__ = ["ik_poses_to_local", "write_gltf", "write_ik_gltf"]
+
+_FLOAT, _U16, _U32 = 5126, 5123, 5125
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def _finite_array(x, name: str, shape: tuple[int | None, ...], want: str) -> np.ndarray:
+    """``x`` as float64 with ``shape`` (``None`` = any size), finite, else a clear error."""
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise FxspaceError(f"{name} must be a numeric array {want}, got {type(x).__name__}") from e
+    if a.ndim != len(shape) or any(
+        s is not None and s != n for s, n in zip(shape, a.shape, strict=True)
+    ):
+        raise FxspaceError(f"{name} must have shape {want}, got {a.shape}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        where = np.argwhere(bad)[:3].tolist()
+        raise FxspaceError(
+            f"{name} holds {int(bad.sum())} NaN/inf value(s) (first at {where}); "
+            "only finite values can be exported"
+        )
+    return a
+
+
+def _check_ik(mesh: SkinnedMesh, angles, translation) -> tuple[np.ndarray, np.ndarray, bool]:
+    """``(angles (T, J, 3), translation (T, 3), single)``; the checks of ``write_ik_bvh``."""
+    nj = mesh.num_joints
+    single = np.ndim(angles) == 2
+    if single:
+        ang = _finite_array(angles, "angles", (nj, 3), f"({nj}, 3) or (T, {nj}, 3)")[None]
+        tr = _finite_array(translation, "translation", (3,), "(3,) for one pose (J, 3)")[None]
+    else:
+        ang = _finite_array(angles, "angles", (None, nj, 3), f"(T, {nj}, 3) or ({nj}, 3)")
+        tr = _finite_array(
+            translation, "translation", (ang.shape[0], 3), f"(T={ang.shape[0]}, 3) like angles"
+        )
+    if ang.shape[0] == 0:
+        raise FxspaceError("angles holds no frames; pass at least one pose (J, 3)")
+    return ang, tr, single
+
+
+def _check_mesh(mesh: SkinnedMesh) -> dict[str, np.ndarray]:
+    nj, nv = mesh.num_joints, mesh.num_vertices
+    if nj == 0 or nv == 0:
+        raise FxspaceError(f"mesh {mesh.name!r} needs at least one joint and one vertex")
+    out = {
+        "vertices": _finite_array(mesh.vertices, "mesh.vertices", (nv, 3), "(V, 3)"),
+        "rest_translations": _finite_array(
+            mesh.rest_translations, "mesh.rest_translations", (nj, 3), "(J, 3)"
+        ),
+        "rest_rotations": _finite_array(
+            mesh.rest_rotations, "mesh.rest_rotations", (nj, 4), "(J, 4)"
+        ),
+        "rest_scales": _finite_array(mesh.rest_scales, "mesh.rest_scales", (nj, 3), "(J, 3)"),
+        "base_transforms": _finite_array(
+            mesh.base_transforms, "mesh.base_transforms", (nj, 4, 4), "(J, 4, 4)"
+        ),
+        "inverse_bind": _finite_array(
+            mesh.inverse_bind, "mesh.inverse_bind", (nj, 4, 4), "(J, 4, 4)"
+        ),
+        "skin_weights": _finite_array(mesh.skin_weights, "mesh.skin_weights", (nv, None), "(V, I)"),
+    }
+    faces = np.asarray(mesh.faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0:
+        raise FxspaceError(f"mesh.faces must be (F, 3) triangles with F ≥ 1, got {faces.shape}")
+    if faces.min() < 0 or faces.max() >= nv:
+        raise FxspaceError(f"mesh.faces must index the mesh's {nv} vertices")
+    sj = np.asarray(mesh.skin_joints)
+    if sj.shape != out["skin_weights"].shape:
+        raise FxspaceError(
+            f"mesh.skin_joints {sj.shape} and mesh.skin_weights "
+            f"{out['skin_weights'].shape} must both be (V, I)"
+        )
+    if sj.size and (sj.min() < 0 or sj.max() >= nj):
+        raise FxspaceError(f"mesh.skin_joints must index the mesh's {nj} joints")
+    w = out["skin_weights"]
+    if np.any(w < 0) or np.any(w.sum(axis=1) <= 0):
+        raise FxspaceError(
+            "mesh.skin_weights must be ≥ 0 with a positive sum on every vertex "
+            "(glTF WEIGHTS_n hold a convex combination)"
+        )
+    if np.any(np.linalg.norm(out["rest_rotations"], axis=1) < 1e-12):
+        raise FxspaceError("mesh.rest_rotations holds a zero quaternion")
+    parents = np.asarray(mesh.parents)
+    if parents.shape != (nj,) or np.any(parents >= np.arange(nj)) or np.any(parents < -1):
+        raise FxspaceError(
+            "mesh.parents must be (J,) with parents[j] < j (-1 for a root), as read_gltf gives"
+        )
+    out["faces"], out["skin_joints"], out["parents"] = faces, sj, parents
+    return out
+
+
+def _check_poses(poses, nj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if not isinstance(poses, LocalPose):
+        raise FxspaceError(
+            f"poses must be a LocalPose (e.g. mesh.sample_animation(name, times)), "
+            f"got {type(poses).__name__}"
+        )
+    nd = np.ndim(poses.rotations)
+    lead = (None, nj) if nd == 3 else (nj,)
+    want = "(T, J, {c}) or (J, {c})".replace("J", str(nj))
+    t = _finite_array(poses.translations, "poses.translations", (*lead, 3), want.format(c=3))
+    q = _finite_array(poses.rotations, "poses.rotations", (*lead, 4), want.format(c=4))
+    s = _finite_array(poses.scales, "poses.scales", (*lead, 3), want.format(c=3))
+    if nd != 3:
+        t, q, s = t[None], q[None], s[None]
+    if not t.shape[0] == q.shape[0] == s.shape[0] >= 1:
+        raise FxspaceError(
+            f"poses.translations/rotations/scales must share the frame count T ≥ 1, got "
+            f"{t.shape[0]}/{q.shape[0]}/{s.shape[0]}"
+        )
+    if np.any(np.linalg.norm(q, axis=-1) < 1e-12):
+        raise FxspaceError("poses.rotations holds a zero quaternion; rotations must be unit")
+    return t, q, s
+
+
+def _check_times(times, rate, n: int) -> np.ndarray:
+    if times is None:
+        if isinstance(rate, bool) or not isinstance(rate, int | float | np.number):
+            raise FxspaceError(f"rate must be a number (frames per second), got {rate!r}")
+        if not (math.isfinite(rate) and rate > 0):
+            raise FxspaceError(f"rate must be finite and > 0 (frames per second), got {rate!r}")
+        times = np.arange(n) / float(rate)
+    t = _finite_array(times, "times", (n,), f"(T={n},) seconds, one per pose")
+    t32 = t.astype(np.float32)
+    if t32[0] < 0:
+        raise FxspaceError(f"times must be ≥ 0 (glTF key times), got times[0] = {t[0]}")
+    dec = np.flatnonzero(np.diff(t32) <= 0)
+    if dec.size:
+        i = int(dec[0])
+        raise FxspaceError(
+            f"times must be strictly increasing (glTF key times, float32), but times[{i}] = "
+            f"{t[i]} ≥ times[{i + 1}] = {t[i + 1]}; sort the poses or space the times apart"
+        )
+    return t32
+
+
+# ----------------------------------------------------------------------------- IK poses
+
+
+def ik_poses_to_local(mesh: SkinnedMesh, angles, translation) -> LocalPose:
+    """Local joint transforms of IK poses (:class:`fxspace.Pose` fields) of ``mesh``.
+
+    Joint ``j`` gets rotation ``R_rest,j · R_x R_y R_z(θ_j)`` (as an ``(x, y, z, w)``
+    quaternion), its rest scale, and its rest translation; a root ``r`` also gets the world
+    translation ``τ`` as ``t_r + B_r⁻¹ τ`` (``B_r`` the linear part of
+    ``mesh.base_transforms[r]``), so ``G_j`` moves by ``τ`` for every joint and
+    ``fx.skin_local_pose(mesh, ik_poses_to_local(mesh, a, τ))`` equals
+    ``fx.pose_vertices(mesh, fx.Pose(a, τ))`` (weights summing to one).
+
+    **Arguments:** `mesh`; `angles` ``(J, 3)`` or ``(T, J, 3)`` radians; `translation`
+    ``(3,)`` or ``(T, 3)``.
+
+    **Returns:** a :class:`~fxspace.mesh.LocalPose` with leading shape ``(J,)`` or
+    ``(T, J)`` (float64), the input of :func:`write_gltf` and :func:`fxspace.skin_local_pose`.
+    """
+    ang, tr, single = _check_ik(mesh, angles, translation)
+    nt, nj = ang.shape[:2]
+    q_rest = quat_normalize(np.asarray(mesh.rest_rotations, np.float64))
+    r = np.asarray(quat_to_matrix(q_rest, order="xyzw"))[None] @ np.asarray(
+        euler_to_matrix(ang, "XYZ")
+    )
+    q = np.asarray(matrix_to_quat(r, order="xyzw"))
+    t = np.broadcast_to(np.asarray(mesh.rest_translations, np.float64), (nt, nj, 3)).copy()
+    s = np.broadcast_to(np.asarray(mesh.rest_scales, np.float64), (nt, nj, 3)).copy()
+    for root in np.flatnonzero(np.asarray(mesh.parents) < 0):
+        lin = np.asarray(mesh.base_transforms[root], np.float64)[:3, :3]
+        if abs(np.linalg.det(lin)) < 1e-12 * max(np.abs(lin).max(), 1e-300) ** 3:
+            raise FxspaceError(
+                f"mesh.base_transforms[{root}] is singular: the world translation cannot be "
+                "expressed in the root's frame (fix the transforms above the skeleton)"
+            )
+        t[:, root] += np.linalg.solve(lin, tr.T).T
+    pose = LocalPose(t, q, s)
+    return LocalPose(*(a[0] for a in pose)) if single else pose
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+class _Buffer:
+    """One binary buffer with its buffer views and accessors (4-byte aligned)."""
+
+    def __init__(self) -> None:
+        self.chunks: list[bytes] = []
+        self.size = 0
+        self.views: list[dict] = []
+        self.accessors: list[dict] = []
+
+    def add(self, arr: np.ndarray, ctype: int, kind: str, target=None, minmax=False) -> int:
+        arr = np.ascontiguousarray(arr)
+        data = arr.astype(arr.dtype.newbyteorder("<")).tobytes()
+        view = {"buffer": 0, "byteOffset": self.size, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        self.chunks.append(data + b"\0" * (-len(data) % 4))
+        self.size += len(self.chunks[-1])
+        self.views.append(view)
+        acc = {
+            "bufferView": len(self.views) - 1,
+            "componentType": ctype,
+            "count": int(arr.shape[0]),
+            "type": kind,
+        }
+        if minmax:
+            flat = arr.reshape(arr.shape[0], -1).astype(np.float64)
+            acc["min"], acc["max"] = flat.min(0).tolist(), flat.max(0).tolist()
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+
+def _influences(joints: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Skin influences as glTF wants them: a joint at most once per vertex (repeats
+    merged), weights summing to 1, the heaviest first, unused slots ``(joint 0, 0.0)``,
+    and no more columns than the most influences any vertex has."""
+    w = weights / weights.sum(axis=1, keepdims=True)
+    j = joints.astype(np.int64)
+    for a in range(w.shape[1]):
+        for b in range(a + 1, w.shape[1]):
+            same = (j[:, a] == j[:, b]) & (w[:, b] > 0)
+            w[same, a] += w[same, b]
+            w[same, b] = 0.0
+    order = np.argsort(-w, axis=1, kind="stable")
+    w = np.take_along_axis(w, order, axis=1)
+    j = np.where(w > 0, np.take_along_axis(j, order, axis=1), 0)
+    keep = max(int((w > 0).sum(axis=1).max()), 1)
+    return w[:, :keep], j[:, :keep]
+
+
+def _continuous(q: np.ndarray) -> np.ndarray:
+    """Flip quaternion signs ``(T, J, 4)`` so consecutive keys have a non-negative dot."""
+    if q.shape[0] < 2:
+        return q
+    d = np.where(np.sum(q[1:] * q[:-1], axis=-1) < 0, -1.0, 1.0)
+    sign = np.concatenate([np.ones((1, q.shape[1])), np.cumprod(d, axis=0)])
+    return q * sign[..., None]
+
+
+def write_gltf(
+    path: str | Path,
+    mesh: SkinnedMesh,
+    poses: LocalPose | None = None,
+    times=None,
+    rate: float = 30.0,
+    animation: str = "fxspace",
+) -> Path:
+    """Write ``mesh`` (and, optionally, an animation of local poses) as glTF 2.0.
+
+    **Arguments:**
+
+    - `path`: ``.glb`` (binary) or ``.gltf`` (JSON with the buffer as a base64 data URI).
+    - `mesh`: the :class:`~fxspace.mesh.SkinnedMesh` (bind pose, skin, skeleton).
+    - `poses`: local joint transforms with leading shape ``(T, J)`` (or ``(J,)``), as
+      :meth:`SkinnedMesh.sample_animation` or :func:`ik_poses_to_local` return; ``None``
+      writes the mesh without animations.
+    - `times`: ``(T,)`` key times in seconds, ``≥ 0`` and strictly increasing (default
+      ``arange(T) / rate``).
+    - `rate`: frames per second when `times` is ``None``.
+    - `animation`: the animation's name.
+
+    **Returns:** the path written (atomically: a temporary file, then a rename).
+    """
+    from fxspace.runs import write_bytes_atomic
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in (".glb", ".gltf"):
+        raise FxspaceError(
+            f"path must end in .glb (binary glTF) or .gltf (JSON, embedded buffer), got {p.name!r}"
+        )
+    m = _check_mesh(mesh)
+    nj = mesh.num_joints
+    if nj > 65535:
+        raise FxspaceError(f"mesh has {nj} joints; JOINTS_n (uint16) hold at most 65535")
+    if poses is None and times is not None:
+        raise FxspaceError("times was given without poses; pass poses (T, J, ·) to animate")
+    if poses is not None:
+        pt, pq, ps = _check_poses(poses, nj)
+        keys = _check_times(times, rate, pt.shape[0])
+        if not isinstance(animation, str) or not animation:
+            raise FxspaceError(f"animation must be a non-empty name, got {animation!r}")
+
+    buf = _Buffer()
+    v32 = m["vertices"].astype(np.float32)
+    attributes = {"POSITION": buf.add(v32, _FLOAT, "VEC3", _ARRAY_BUFFER, minmax=True)}
+    faces = buf.add(m["faces"].reshape(-1).astype(np.uint32), _U32, "SCALAR", _ELEMENT_ARRAY_BUFFER)
+    w, sj = _influences(m["skin_joints"], m["skin_weights"])
+    pad = -w.shape[1] % 4
+    w = np.pad(w, ((0, 0), (0, pad))).astype(np.float32)
+    sj = np.pad(sj, ((0, 0), (0, pad))).astype(np.uint16)
+    for k in range(w.shape[1] // 4):
+        cols = slice(4 * k, 4 * k + 4)
+        attributes[f"JOINTS_{k}"] = buf.add(sj[:, cols], _U16, "VEC4", _ARRAY_BUFFER)
+        attributes[f"WEIGHTS_{k}"] = buf.add(w[:, cols], _FLOAT, "VEC4", _ARRAY_BUFFER)
+    ibm = buf.add(
+        m["inverse_bind"].transpose(0, 2, 1).reshape(nj, 16).astype(np.float32), _FLOAT, "MAT4"
+    )
+
+    q_rest = quat_normalize(m["rest_rotations"])
+    nodes: list[dict] = [
+        {
+            "name": str(mesh.joint_names[j]),
+            "translation": m["rest_translations"][j].tolist(),
+            "rotation": q_rest[j].tolist(),
+            "scale": m["rest_scales"][j].tolist(),
+        }
+        for j in range(nj)
+    ]
+    for j in range(nj):
+        kids = np.flatnonzero(m["parents"] == j).tolist()
+        if kids:
+            nodes[j]["children"] = kids
+    scene: list[int] = []
+    bases: dict[bytes, int] = {}
+    for r in np.flatnonzero(m["parents"] < 0).tolist():
+        b = m["base_transforms"][r]
+        if np.array_equal(b, np.eye(4)):
+            scene.append(r)
+            continue
+        if np.any(b[3] != (0.0, 0.0, 0.0, 1.0)):
+            raise FxspaceError(
+                f"mesh.base_transforms[{r}] must be affine (last row 0, 0, 0, 1), got {b[3]}"
+            )
+        key = b.tobytes()
+        if key not in bases:
+            bases[key] = len(nodes)
+            scene.append(len(nodes))
+            name = f"{mesh.joint_names[r]}_base"
+            nodes.append({"name": name, "matrix": b.T.reshape(-1).tolist(), "children": []})
+        nodes[bases[key]]["children"].append(r)
+    scene.append(len(nodes))
+    nodes.append({"name": str(mesh.name), "mesh": 0, "skin": 0})
+    gltf: dict = {
+        "asset": {"version": "2.0", "generator": "fxspace"},
+        "scene": 0,
+        "scenes": [{"nodes": scene}],
+        "nodes": nodes,
+        "meshes": [
+            {
+                "name": str(mesh.name),
+                "primitives": [{"attributes": attributes, "indices": faces, "mode": 4}],
+            }
+        ],
+        "skins": [{"joints": list(range(nj)), "inverseBindMatrices": ibm}],
+    }
+    if poses is not None:
+        t_in = buf.add(keys, _FLOAT, "SCALAR", minmax=True)
+        q = _continuous(quat_normalize(pq))
+        samplers, channels = [], []
+        for j in range(nj):
+            for prop, vals, kind in (
+                ("translation", pt[:, j], "VEC3"),
+                ("rotation", q[:, j], "VEC4"),
+                ("scale", ps[:, j], "VEC3"),
+            ):
+                out = buf.add(vals.astype(np.float32), _FLOAT, kind)
+                channels.append({"sampler": len(samplers), "target": {"node": j, "path": prop}})
+                samplers.append({"input": t_in, "output": out, "interpolation": "LINEAR"})
+        gltf["animations"] = [{"name": animation, "samplers": samplers, "channels": channels}]
+    binary = b"".join(buf.chunks)
+    gltf["bufferViews"], gltf["accessors"] = buf.views, buf.accessors
+    gltf["buffers"] = [{"byteLength": len(binary)}]
+    if suffix == ".gltf":
+        uri = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
+        gltf["buffers"][0]["uri"] = uri
+        return write_bytes_atomic(p, json.dumps(gltf, separators=(",", ":")).encode("utf-8"))
+    js = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
+    js += b" " * (-len(js) % 4)
+    total = 12 + 8 + len(js) + 8 + len(binary)
+    blob = b"".join(
+        [
+            struct.pack("<4sII", b"glTF", 2, total),
+            struct.pack("<I4s", len(js), b"JSON"),
+            js,
+            struct.pack("<I4s", len(binary), b"BIN\0"),
+            binary,
+        ]
+    )
+    return write_bytes_atomic(p, blob)
+
+
+def write_ik_gltf(
+    path: str | Path,
+    mesh: SkinnedMesh,
+    angles,
+    translation,
+    rate: float = 30.0,
+) -> Path:
+    """Write IK poses (one ``(J, 3)`` or ``(T, J, 3)``) of ``mesh`` as an animated glTF.
+
+    The glTF counterpart of :func:`fxspace.io.write_ik_bvh` (same arguments), without its
+    limits: several roots and non-uniform scales are fine, and the mesh travels with the
+    motion. Frames are keyed at ``arange(T) / rate``.
+
+    **Arguments:** `path` (``.glb``/``.gltf``), `mesh` (the skinned mesh the poses belong
+    to), `angles`/`translation` (:class:`fxspace.Pose` fields, stacked over frames), `rate`
+    (frames per second).
+
+    **Returns:** the path written (atomically).
+    """
+    return write_gltf(path, mesh, ik_poses_to_local(mesh, angles, translation), rate=rate)
