@@ -29,7 +29,13 @@ from fxspace.studio._edit_controller import (
     EditorData,
     load_editor_data,
 )
-from fxspace.studio._server import Player, attach_stop, new_server, run_until_interrupted
+from fxspace.studio._server import (
+    Player,
+    attach_stop,
+    new_server,
+    run_until_interrupted,
+    serialized,
+)
 
 __all__ = ["EditorController", "EditorData", "load_editor_data", "serve_editor", "serve"]
 
@@ -141,6 +147,7 @@ def serve_editor(
                 if V is not None:
                     draw_face(V)
 
+    @serialized(server)
     def refresh(controls: bool = True) -> None:
         draw_face()
         if controls:
@@ -204,6 +211,7 @@ def serve_editor(
             ctl.message = f"export failed: {e}"
         status.content = ctl.status()
 
+    @serialized(server)
     def tick() -> None:
         ctl.step()
         refresh(controls=False)

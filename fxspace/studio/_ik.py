@@ -42,7 +42,7 @@ from fxspace.mesh import (
     solve_ik,
     triangle_normals,
 )
-from fxspace.studio._server import run_until_interrupted
+from fxspace.studio._server import Player, attach_stop, run_until_interrupted, serialized
 
 __all__ = ["IKController", "load_ik_mesh", "serve_ik"]
 
@@ -355,6 +355,7 @@ def serve_ik(
             g.on_update(lambda _e, i=i, g=g: on_drag(i, g))
             handles["gizmos"].append(g)
 
+    @serialized(server)
     def refresh(gizmos: bool = True) -> None:
         draw_mesh()
         draw_markers(gizmos)
@@ -421,32 +422,13 @@ def serve_ik(
     export_btn.on_click(exporter(ctl.export_bvh, export_path))
     gltf_btn.on_click(exporter(ctl.export_gltf, gltf_path))
 
-    stop = threading.Event()
-
-    def player() -> None:
-        while not stop.is_set():
-            if ctl.playing:
-                try:
-                    ctl.step()
-                    if not stop.is_set():
-                        refresh(gizmos=False)
-                except Exception:  # the server is going down
-                    if stop.is_set():
-                        return
-                    raise
-            stop.wait(1.0 / ctl.fps)
+    @serialized(server)
+    def tick() -> None:
+        ctl.step()
+        refresh(gizmos=False)
 
     refresh()
-    thread = threading.Thread(target=player, daemon=True)
-    thread.start()
-    orig_stop = server.stop
-
-    def stop_all() -> None:
-        stop.set()
-        thread.join(timeout=5.0)
-        orig_stop()
-
-    server.stop = stop_all  # type: ignore[method-assign]
+    attach_stop(server, Player(tick, lambda: ctl.playing, ctl.fps))
     url = f"http://{host}:{server.get_port()}"
     if open_browser:
         import webbrowser

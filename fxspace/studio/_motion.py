@@ -34,7 +34,13 @@ from fxspace.data import data_path
 from fxspace.errors import FxspaceError
 from fxspace.io import read_amc, read_bvh, write_bvh
 from fxspace.rotations import quat_rotate
-from fxspace.studio._server import Player, attach_stop, new_server, run_until_interrupted
+from fxspace.studio._server import (
+    Player,
+    attach_stop,
+    new_server,
+    run_until_interrupted,
+    serialized,
+)
 
 __all__ = ["MotionController", "load_setup", "serve_motion", "serve"]
 
@@ -235,6 +241,7 @@ def serve_motion(
     rec = server.gui.add_button("Record")
     stop = server.gui.add_button("Stop and write BVH")
 
+    @serialized(server)
     def draw() -> None:
         X = ctl.joints()
         seg = np.stack([X[pi], X[ji]], 1).astype(np.float32)
@@ -280,6 +287,7 @@ def serve_motion(
         ctl.stop_recording(export_path)
         draw()
 
+    @serialized(server)
     def tick() -> None:
         ctl.step()
         draw()

@@ -40,6 +40,7 @@ from fxspace.studio._server import (
     new_server,
     ray_plane_z0,
     run_until_interrupted,
+    serialized,
 )
 
 __all__ = [
@@ -199,6 +200,7 @@ def serve_navigator(
                 colors=(220, 40, 40), point_size=0.04,
             )  # fmt: skip
 
+    @serialized(server)
     def refresh(full: bool = False) -> None:
         if full:
             draw_level()
@@ -274,6 +276,7 @@ def serve_navigator(
             ctl.message = f"export failed: {e}"
         refresh()
 
+    @serialized(server)
     def tick() -> None:
         ctl.step()
         pb = ctl.playback()

@@ -3,6 +3,7 @@ a 2-D pad in scene coordinates, a player thread, blocking until Ctrl-C."""
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from collections.abc import Callable
@@ -22,6 +23,7 @@ __all__ = [
     "new_server",
     "ray_plane_z0",
     "run_until_interrupted",
+    "serialized",
 ]
 
 
@@ -132,6 +134,29 @@ def ray_plane_z0(origin, direction) -> np.ndarray | None:
         return None
     s = -o[2] / d[2]
     return None if s <= 0 else o + s * d
+
+
+def serialized(server: Any) -> Callable[[Callable], Callable]:
+    """Decorator: run the function under ``server``'s one re-entrant drawing lock.
+
+    The player thread and the GUI callbacks both replace scene nodes by name; viser raises
+    when a handle is removed under another thread's update ("Cannot assign to 'visible' on
+    a removed MeshHandle"), which killed the player. Wrap every redraw and the player's
+    tick with ``@serialized(server)`` so two threads never draw at once."""
+    lock = getattr(server, "_fxspace_draw_lock", None)
+    if lock is None:
+        lock = threading.RLock()
+        server._fxspace_draw_lock = lock
+
+    def wrap(fn: Callable) -> Callable:
+        @functools.wraps(fn)
+        def locked(*args, **kwargs):
+            with lock:
+                return fn(*args, **kwargs)
+
+        return locked
+
+    return wrap
 
 
 class Player:
