@@ -373,6 +373,16 @@ def _rest(model: IKModel, dtype) -> Pose:
     return Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
 
 
+def _prepare(model, targets, init, method, gradient, max_steps, rtol, atol, lr, reg, normals):
+    """Checked arguments of :func:`_solve` / :func:`_track` (shared by the public entry
+    points): the default step bound, normals cast like the targets, rest-pose ``init``."""
+    max_steps = _DEFAULT_STEPS.get(method, 50) if max_steps is None else max_steps
+    normals = None if normals is None else jnp.asarray(normals, targets.dtype)
+    _check(model, targets, init, method, gradient, max_steps, reg, normals)
+    init = _rest(model, targets.dtype) if init is None else init
+    return model, targets, init, method, gradient, max_steps, rtol, atol, lr, reg, normals
+
+
 def solve_ik(
     model: IKModel,
     targets: Float[Array, "markers 3"],
@@ -427,22 +437,20 @@ def solve_ik(
     Example: ``res = fx.solve_ik(model, targets); res.pose, bool(res.converged)``.
     """
     targets = jnp.asarray(targets)
-    max_steps = _DEFAULT_STEPS.get(method, 50) if max_steps is None else max_steps
-    normals = None if target_normals is None else jnp.asarray(target_normals, targets.dtype)
-    _check(model, targets, init, method, gradient, max_steps, regularization, normals)
-    init = _rest(model, targets.dtype) if init is None else init
     return _solve(
-        model,
-        targets,
-        init,
-        method,
-        gradient,
-        max_steps,
-        rtol,
-        atol,
-        learning_rate,
-        regularization,
-        normals,
+        *_prepare(
+            model,
+            targets,
+            init,
+            method,
+            gradient,
+            max_steps,
+            rtol,
+            atol,
+            learning_rate,
+            regularization,
+            target_normals,
+        )
     )
 
 
@@ -461,7 +469,15 @@ def track_ik(
     model: IKModel,
     targets: Float[Array, "frames markers 3"],
     init: Pose | None = None,
-    **kwargs,
+    *,
+    method: Method = DEFAULT_METHOD,
+    gradient: Gradient = "factored",
+    max_steps: int | None = None,
+    rtol: float = 1e-6,
+    atol: float = 1e-7,
+    learning_rate: float = 0.02,
+    regularization: IKRegularization | None = None,
+    target_normals: Float[Array, "frames markers 3"] | None = None,
 ) -> IKResult:
     """:func:`solve_ik` frame by frame along ``targets``, each frame warm-started from the last.
 
@@ -473,37 +489,18 @@ def track_ik(
     targets = jnp.asarray(targets)
     if targets.ndim != 3:
         raise FxspaceError(f"targets must be (frames, markers, 3), got shape {targets.shape}")
-    opts = dict(
-        method=DEFAULT_METHOD,
-        gradient="factored",
-        max_steps=None,
-        rtol=1e-6,
-        atol=1e-7,
-        learning_rate=0.02,
-        regularization=None,
-        target_normals=None,
-    )
-    unknown = set(kwargs) - set(opts)
-    if unknown:
-        raise FxspaceError(f"unknown option(s) {sorted(unknown)}; valid: {sorted(opts)}")
-    opts.update(kwargs)
-    method = opts["method"]
-    steps = _DEFAULT_STEPS.get(method, 50) if opts["max_steps"] is None else opts["max_steps"]
-    tn = opts["target_normals"]
-    normals = None if tn is None else jnp.asarray(tn, targets.dtype)
-    reg = opts["regularization"]
-    _check(model, targets, init, method, opts["gradient"], steps, reg, normals)
-    init = _rest(model, targets.dtype) if init is None else init
     return _track(
-        model,
-        targets,
-        init,
-        method,
-        opts["gradient"],
-        steps,
-        opts["rtol"],
-        opts["atol"],
-        opts["learning_rate"],
-        reg,
-        normals,
+        *_prepare(
+            model,
+            targets,
+            init,
+            method,
+            gradient,
+            max_steps,
+            rtol,
+            atol,
+            learning_rate,
+            regularization,
+            target_normals,
+        )
     )

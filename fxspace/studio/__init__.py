@@ -31,6 +31,7 @@ from fxspace.studio._nav_controller import load_nav_data as load_nav_data
 from fxspace.studio._navigator import serve_navigator as serve_navigator
 from fxspace.studio._server import density_rgba as density_rgba
 from fxspace.studio._server import frame_density as frame_density
+from fxspace.studio._server import read_run_config
 
 __all__ = [
     "APPS",
@@ -67,13 +68,8 @@ APPS: dict[str, str] = {
 
 def experiment_of(target: str | Path) -> str:
     """The ``experiment`` of a run folder (its ``config.toml``) or a config file."""
-    from fxspace.config import load_toml
-
-    p = Path(target)
-    cfg = p / "config.toml" if p.is_dir() else p
-    if not cfg.is_file():
-        raise FxspaceError(f"{target}: not a run folder with config.toml nor a config file")
-    exp = load_toml(cfg).get("experiment")
+    cfg, raw = read_run_config(target)
+    exp = raw.get("experiment")
     if not isinstance(exp, str):
         raise FxspaceError(f"{cfg}: no 'experiment' key")
     return exp

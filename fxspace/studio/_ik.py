@@ -42,7 +42,13 @@ from fxspace.mesh import (
     solve_ik,
     triangle_normals,
 )
-from fxspace.studio._server import Player, attach_stop, run_until_interrupted, serialized
+from fxspace.studio._server import (
+    Player,
+    attach_stop,
+    read_run_config,
+    run_until_interrupted,
+    serialized,
+)
 
 __all__ = ["IKController", "load_ik_mesh", "serve_ik"]
 
@@ -60,15 +66,11 @@ def load_ik_mesh(target):
     if p.suffix.lower() in (".glb", ".gltf"):
         mesh = read_gltf(p)
         return mesh, (mesh.animation_names[0] if mesh.animations else None)
-    from fxspace.config import load_toml
     from fxspace.data import data_path
 
-    cfg = p / "config.toml" if p.is_dir() else p
-    if not cfg.is_file():
+    if not (p.is_dir() or p.is_file()):
         raise FxspaceError(f"{target}: not a .glb, a mesh_ik run folder or a mesh_ik config")
-    raw = load_toml(cfg)
-    if raw.get("experiment") != "mesh_ik":
-        raise FxspaceError(f"{cfg}: experiment must be 'mesh_ik', got {raw.get('experiment')!r}")
+    _, raw = read_run_config(p, "mesh_ik")
     spec = (raw.get("meshes") or ["CesiumMan:Anim_0"])[0]
     stem, _, anim = spec.partition(":")
     mesh = read_gltf(data_path("mesh", f"{stem}.glb"))

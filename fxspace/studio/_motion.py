@@ -29,15 +29,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from fxspace import motion as M
-from fxspace.config import config_from_dict, load_toml
+from fxspace.config import config_from_dict
 from fxspace.data import data_path
-from fxspace.errors import FxspaceError
 from fxspace.io import read_amc, read_bvh, write_bvh
 from fxspace.rotations import quat_rotate
 from fxspace.studio._server import (
     Player,
     attach_stop,
     new_server,
+    read_run_config,
     run_until_interrupted,
     serialized,
 )
@@ -195,13 +195,7 @@ def _load_take(take: str, stride: int):
 def load_setup(target: str | Path, setup: str | None = None) -> M.Setup:
     """Build the set-up of a ``parametric_synthesis`` run folder (its ``config.toml``) or
     config file; ``setup`` picks one of the config's ``setups`` (default the first)."""
-    p = Path(target)
-    cfg_p = p / "config.toml" if p.is_dir() else p
-    if not cfg_p.is_file():
-        raise FxspaceError(f"{target}: no config.toml (a parametric_synthesis run or config?)")
-    raw = load_toml(cfg_p)
-    if raw.get("experiment") != "parametric_synthesis":
-        raise FxspaceError(f"{cfg_p}: experiment is {raw.get('experiment')!r}, not a motion one")
+    _, raw = read_run_config(target, "parametric_synthesis")
     names = list(raw.get("setups", ["mood_walk"]))
     name = setup or names[0]
     data = config_from_dict(M.SetupData, dict(raw.get("data", {})))

@@ -23,7 +23,6 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from fxspace.errors import FxspaceError
 from fxspace.navigation import GridIndex, navigation_space
 from fxspace.navigation._hierarchy import Hierarchy
 from fxspace.navigation._playback import playback, rigid_align
@@ -34,7 +33,7 @@ from fxspace.navigation._routes import (
     path_candidates,
     refine_route,
 )
-from fxspace.studio._server import FrameDensity, frame_density
+from fxspace.studio._server import FrameDensity, frame_density, read_run_config
 
 __all__ = ["DENSITY_ABOVE", "NavData", "NavigatorController", "load_nav_data"]
 
@@ -61,18 +60,10 @@ def load_nav_data(target: str | Path, *, restarts: int = 0) -> NavData:
     file (``experiment = "navigation"``), through :func:`fxspace.navigation_space`."""
     import jax
 
-    from fxspace.config import ConfigError, config_from_dict, load_toml
+    from fxspace.config import ConfigError, config_from_dict
     from fxspace.datasets import FaceData, load_face
 
-    p = Path(target)
-    cfg_path = p / "config.toml" if p.is_dir() else p
-    if not cfg_path.is_file():
-        raise FxspaceError(f"{target}: not a run folder with config.toml nor a config file")
-    raw = load_toml(cfg_path)
-    if raw.get("experiment") != "navigation":
-        raise FxspaceError(
-            f"{cfg_path}: experiment must be 'navigation' to view, got {raw.get('experiment')!r}"
-        )
+    cfg_path, raw = read_run_config(target, "navigation")
     seed = int(raw.get("seed", 0))
     data = config_from_dict(FaceData, raw.get("data", {}))
     graph = dict(raw.get("graph", {}))
@@ -388,8 +379,11 @@ class NavigatorController:
         if animation != "none":
             paths.append(
                 write_navigation_animation(
-                    out / f"route.{animation}", pb, d.hierarchy.embedding,
-                    names=d.marker_names or None, max_frames=120,
+                    out / f"route.{animation}",
+                    pb,
+                    d.hierarchy.embedding,
+                    names=d.marker_names or None,
+                    max_frames=120,
                     title=f"level {route.level}: {len(route.frames)} frames",
                 )  # fmt: skip
             )

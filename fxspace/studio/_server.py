@@ -7,6 +7,7 @@ import functools
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -22,6 +23,7 @@ __all__ = [
     "frame_density",
     "new_server",
     "ray_plane_z0",
+    "read_run_config",
     "run_until_interrupted",
     "serialized",
 ]
@@ -134,6 +136,24 @@ def ray_plane_z0(origin, direction) -> np.ndarray | None:
         return None
     s = -o[2] / d[2]
     return None if s <= 0 else o + s * d
+
+
+def read_run_config(target: str | Path, experiment: str | None = None) -> tuple[Path, dict]:
+    """``(path, config)`` of a run folder (its ``config.toml``) or a config file; with
+    ``experiment``, a config of another experiment is refused naming both."""
+    from fxspace.config import load_toml
+
+    p = Path(target)
+    cfg = p / "config.toml" if p.is_dir() else p
+    if not cfg.is_file():
+        kind = f"{experiment} " if experiment else ""
+        raise FxspaceError(f"{target}: not a {kind}run folder with config.toml nor a config file")
+    raw = load_toml(cfg)
+    if experiment is not None and raw.get("experiment") != experiment:
+        raise FxspaceError(
+            f"{cfg}: experiment must be {experiment!r} for this app, got {raw.get('experiment')!r}"
+        )
+    return cfg, raw
 
 
 def serialized(server: Any) -> Callable[[Callable], Callable]:

@@ -116,51 +116,35 @@ def test_play_modes_export_and_refit(run_dir, tmp_path):
 
 @pytest.mark.browser
 def test_browser_editor_moves_a_control_point(run_dir, chromium):
-    pw, exe = chromium.pw, chromium.exe
     from fxspace.studio import serve_editor
 
     server, ctl = serve_editor(
         load_editor_data(run_dir), port=0, environment_map=False, block=False
     )
-    try:
-        with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
-            try:
-                page = browser.new_page(viewport={"width": 1200, "height": 800})
-                page.goto(f"http://127.0.0.1:{server.get_port()}")
-                page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
+    with chromium.page(server, viewport={"width": 1200, "height": 800}) as page:
+        page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
 
-                def field(label):
-                    return page.locator(
-                        f"xpath=//label[text()='{label}']/ancestor::div"
-                        "[contains(@class,'mantine-Flex-root')][1]//input"
-                    )
-
-                frame = field("Frame").last
-                frame.fill("5")
-                frame.press("Enter")
-                page.get_by_text("Frame 5", exact=True).wait_for(timeout=60_000)
-                before = ctl.sequence("edited")[5].copy()
-                field("Control point").first.fill("1")
-                offs = field("Offset")
-                offs.nth(0).fill("0.3")
-                offs.nth(1).fill("0.2")
-                offs.nth(1).press("Tab")
-                page.wait_for_timeout(500)
-                page.get_by_role("button", name="Move control point").click()
-                page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
-                k = ctl.keys[-1]
-                assert (k.segment, k.control, k.frame) == (0, 1, 5)
-                after = ctl.sequence("edited")[5]
-                assert np.abs(after - before).max() > 1e-3  # the face changed
-                shown = page.get_by_text("Edited vs model here:", exact=False).inner_text()
-                assert float(re.search(r"Edited vs model here: ([0-9.]+)", shown)[1]) > 0
-                page.get_by_role("button", name="Undo edit").click()
-                page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
-            finally:
-                browser.close()
-    finally:
-        server.stop()
+        frame = chromium.field(page, "Frame").last
+        frame.fill("5")
+        frame.press("Enter")
+        page.get_by_text("Frame 5", exact=True).wait_for(timeout=60_000)
+        before = ctl.sequence("edited")[5].copy()
+        chromium.field(page, "Control point").first.fill("1")
+        offs = chromium.field(page, "Offset")
+        offs.nth(0).fill("0.3")
+        offs.nth(1).fill("0.2")
+        offs.nth(1).press("Tab")
+        page.wait_for_timeout(500)
+        page.get_by_role("button", name="Move control point").click()
+        page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
+        k = ctl.keys[-1]
+        assert (k.segment, k.control, k.frame) == (0, 1, 5)
+        after = ctl.sequence("edited")[5]
+        assert np.abs(after - before).max() > 1e-3  # the face changed
+        shown = page.get_by_text("Edited vs model here:", exact=False).inner_text()
+        assert float(re.search(r"Edited vs model here: ([0-9.]+)", shown)[1]) > 0
+        page.get_by_role("button", name="Undo edit").click()
+        page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
     assert json.loads((run_dir / "edits.json").read_text())["keys"] == []
 
 

@@ -1,7 +1,6 @@
 """The IK studio: the controller without a browser, then the real page in headless
 Chromium (skipped, with the reason, where viser, playwright or Chromium is absent)."""
 
-
 import time
 
 import numpy as np
@@ -66,7 +65,6 @@ def test_controller_markers_drag_and_track(mesh, tmp_path):
 
 @pytest.mark.browser
 def test_browser_ik_studio(mesh, tmp_path, chromium):
-    pw, exe = chromium.pw, chromium.exe
     from fxspace.studio import serve_ik
 
     server, ctl = serve_ik(
@@ -74,55 +72,40 @@ def test_browser_ik_studio(mesh, tmp_path, chromium):
     )
     tris = _front_triangles(ctl, 2)
     size = float(np.ptp(mesh.vertices, axis=0).max())
-    try:
-        with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
-            try:
-                page = browser.new_page()
-                page.goto(f"http://127.0.0.1:{server.get_port()}")
-                page.get_by_text("Markers: 0").wait_for(timeout=60_000)
+    with chromium.page(server) as page:
+        page.get_by_text("Markers: 0").wait_for(timeout=60_000)
 
-                def box(label):
-                    return page.locator(
-                        f"xpath=//label[text()='{label}']/ancestor::div"
-                        "[contains(@class,'mantine-Flex-root')][1]//input"
-                    )
-
-                for i, t in enumerate(tris):
-                    box("Triangle").fill(str(int(t)))
-                    page.get_by_role("button", name="Add marker").click()
-                    page.get_by_text(f"Markers: {i + 1}").wait_for(timeout=60_000)
-                assert ctl.triangles == [int(t) for t in tris]
-                p0 = ctl.marker_points()[1].copy()
-                v0 = ctl.vertices.copy()
-                goal = p0 + np.array([0.0, 0.1 * size, 0.0])
-                # a text box reaches the server a moment after it is typed into: retry the
-                # click until the controller has the target (the first solve also compiles)
-                for _ in range(10):
-                    box("Marker").fill("1")
-                    box("Target x y z").fill(" ".join(f"{x:.6f}" for x in goal))
-                    page.wait_for_timeout(300)
-                    page.get_by_role("button", name="Move target").click()
-                    deadline = time.monotonic() + 180.0
-                    while time.monotonic() < deadline and not (
-                        ctl.message.startswith("solved in") or "three numbers" in ctl.message
-                    ):
-                        time.sleep(0.1)
-                    if ctl.message.startswith("solved in"):
-                        break
-                page.get_by_text("solved in", exact=False).wait_for(timeout=60_000)
-                p1 = ctl.marker_points()[1]
-                assert np.linalg.norm(p1 - goal) < 0.5 * np.linalg.norm(p0 - goal)
-                moved = np.linalg.norm(ctl.vertices - v0, axis=1)
-                assert moved.max() > 1e-3 * size
-                page.get_by_role("button", name="Export BVH").click()
-                page.get_by_text("wrote 1 frame", exact=False).wait_for(timeout=60_000)
-                page.get_by_role("button", name="Export glTF").click()
-                page.get_by_text("pose.glb", exact=False).wait_for(timeout=60_000)
-            finally:
-                browser.close()
-    finally:
-        server.stop()
+        for i, t in enumerate(tris):
+            chromium.field(page, "Triangle").fill(str(int(t)))
+            page.get_by_role("button", name="Add marker").click()
+            page.get_by_text(f"Markers: {i + 1}").wait_for(timeout=60_000)
+        assert ctl.triangles == [int(t) for t in tris]
+        p0 = ctl.marker_points()[1].copy()
+        v0 = ctl.vertices.copy()
+        goal = p0 + np.array([0.0, 0.1 * size, 0.0])
+        # a text box reaches the server a moment after it is typed into: retry the
+        # click until the controller has the target (the first solve also compiles)
+        for _ in range(10):
+            chromium.field(page, "Marker").fill("1")
+            chromium.field(page, "Target x y z").fill(" ".join(f"{x:.6f}" for x in goal))
+            page.wait_for_timeout(300)
+            page.get_by_role("button", name="Move target").click()
+            deadline = time.monotonic() + 180.0
+            while time.monotonic() < deadline and not (
+                ctl.message.startswith("solved in") or "three numbers" in ctl.message
+            ):
+                time.sleep(0.1)
+            if ctl.message.startswith("solved in"):
+                break
+        page.get_by_text("solved in", exact=False).wait_for(timeout=60_000)
+        p1 = ctl.marker_points()[1]
+        assert np.linalg.norm(p1 - goal) < 0.5 * np.linalg.norm(p0 - goal)
+        moved = np.linalg.norm(ctl.vertices - v0, axis=1)
+        assert moved.max() > 1e-3 * size
+        page.get_by_role("button", name="Export BVH").click()
+        page.get_by_text("wrote 1 frame", exact=False).wait_for(timeout=60_000)
+        page.get_by_role("button", name="Export glTF").click()
+        page.get_by_text("pose.glb", exact=False).wait_for(timeout=60_000)
     assert (tmp_path / "pose.bvh").is_file()
     back = fx.io.read_gltf(tmp_path / "pose.glb")  # the pose on screen, as an animated glTF
     np.testing.assert_allclose(

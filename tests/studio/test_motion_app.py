@@ -2,7 +2,6 @@
 headless Chromium (skipped, with the reason, where viser, playwright or Chromium is absent).
 Synthetic spaces (a small skeleton, random smooth clips) keep it independent of the data."""
 
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -87,41 +86,28 @@ def test_hand_target_round_trip_and_samples_move():
 
 @pytest.mark.browser
 def test_browser_slider_changes_the_pose(mood, tmp_path, chromium):
-    pw, exe = chromium.pw, chromium.exe
     from fxspace.studio import serve_motion
 
     server, ctl = serve_motion(
         mood, port=0, environment_map=False, block=False, playing=False,
         export_path=tmp_path / "rec.bvh",
     )  # fmt: skip
-    try:
-        with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
-            try:
-                page = browser.new_page(viewport={"width": 1200, "height": 800})
-                page.goto(f"http://127.0.0.1:{server.get_port()}")
-                page.get_by_text("mood_walk", exact=False).first.wait_for(timeout=60_000)
-                ctl.step()  # mid-clip, where the examples differ
-                before = ctl._pose_now()[0]
-                box = page.locator(
-                    "xpath=//label[text()='Joy']/ancestor::div"
-                    "[contains(@class,'mantine-Flex-root')][1]//input"
-                ).last
-                box.fill("0.95")
-                box.press("Enter")
-                page.get_by_text("joy 0.95", exact=False).wait_for(timeout=60_000)
-                assert ctl.joy == pytest.approx(0.95)
-                after = ctl._pose_now()[0]
-                assert np.abs(after - before).max() > 1e-3  # the pose changed
-                page.get_by_role("button", name="Record").click()
-                page.get_by_text("recording", exact=False).wait_for(timeout=60_000)
-                ctl.step()
-                ctl.step()
-                page.get_by_role("button", name="Stop and write BVH").click()
-                page.get_by_text("wrote 2 frames", exact=False).wait_for(timeout=60_000)
-            finally:
-                browser.close()
-    finally:
-        server.stop()
+    with chromium.page(server, viewport={"width": 1200, "height": 800}) as page:
+        page.get_by_text("mood_walk", exact=False).first.wait_for(timeout=60_000)
+        ctl.step()  # mid-clip, where the examples differ
+        before = ctl._pose_now()[0]
+        box = chromium.field(page, "Joy").last
+        box.fill("0.95")
+        box.press("Enter")
+        page.get_by_text("joy 0.95", exact=False).wait_for(timeout=60_000)
+        assert ctl.joy == pytest.approx(0.95)
+        after = ctl._pose_now()[0]
+        assert np.abs(after - before).max() > 1e-3  # the pose changed
+        page.get_by_role("button", name="Record").click()
+        page.get_by_text("recording", exact=False).wait_for(timeout=60_000)
+        ctl.step()
+        ctl.step()
+        page.get_by_role("button", name="Stop and write BVH").click()
+        page.get_by_text("wrote 2 frames", exact=False).wait_for(timeout=60_000)
     assert fx.io.read_bvh(tmp_path / "rec.bvh").num_frames == 2
     assert jnp.isfinite(jnp.asarray(ctl.rotations)).all()

@@ -1,7 +1,6 @@
 """The browser navigator: the controller without a browser, then the real page in headless
 Chromium (skipped, with the reason, where viser, playwright or Chromium is absent)."""
 
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -225,50 +224,37 @@ def test_server_draws_density_not_points(data):
 
 @pytest.mark.browser
 def test_browser_navigator(data, chromium):
-    pw, exe = chromium.pw, chromium.exe
     from fxspace.studio import serve_navigator
 
     server, ctl = serve_navigator(data, port=0, environment_map=False, block=False)
     a, b, c = _linked_and_unlinked(data.hierarchy.levels[0])
-    try:
-        with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
-            try:
-                page = browser.new_page()
-                page.goto(f"http://127.0.0.1:{server.get_port()}")
-                page.get_by_text("Key centres: none").wait_for(timeout=60_000)
-                box = page.locator(
-                    "xpath=//label[text()='Centre']/ancestor::div"
-                    "[contains(@class,'mantine-Flex-root')][1]//input"
-                )
+    with chromium.page(server) as page:
+        page.get_by_text("Key centres: none").wait_for(timeout=60_000)
+        box = chromium.field(page, "Centre")
 
-                def pick(k):
-                    box.fill(str(k))
-                    page.get_by_role("button", name="Pick centre").click()
+        def pick(k):
+            box.fill(str(k))
+            page.get_by_role("button", name="Pick centre").click()
 
-                pick(a)
-                page.get_by_text(f"Key centres: {a}", exact=False).wait_for(timeout=60_000)
-                pick(b)
-                page.get_by_text(f"Key centres: {a} → {b}").wait_for(timeout=60_000)
-                pick(c)
-                page.get_by_text(f"centres {b} and {c} are not linked", exact=False).wait_for(
-                    timeout=20_000
-                )
-                assert ctl.picks == [a, b]
-                page.get_by_role("button", name="Refine").click()
-                page.get_by_text("Level 1", exact=True).wait_for(timeout=60_000)
-                page.get_by_role("button", name="Play / Pause").click()
-                page.get_by_text("Playing", exact=False).wait_for(timeout=60_000)
-                assert ctl.level == 1 and ctl.playing
-                i0 = ctl.play_index
-                page.wait_for_timeout(500)
-                assert ctl.play_index != i0
-                route_text = page.get_by_text("Route:", exact=False).inner_text()
-                assert f"Route: {len(ctl.route.frames)} frames" in route_text
-            finally:
-                browser.close()
-    finally:
-        server.stop()
+        pick(a)
+        page.get_by_text(f"Key centres: {a}", exact=False).wait_for(timeout=60_000)
+        pick(b)
+        page.get_by_text(f"Key centres: {a} → {b}").wait_for(timeout=60_000)
+        pick(c)
+        page.get_by_text(f"centres {b} and {c} are not linked", exact=False).wait_for(
+            timeout=20_000
+        )
+        assert ctl.picks == [a, b]
+        page.get_by_role("button", name="Refine").click()
+        page.get_by_text("Level 1", exact=True).wait_for(timeout=60_000)
+        page.get_by_role("button", name="Play / Pause").click()
+        page.get_by_text("Playing", exact=False).wait_for(timeout=60_000)
+        assert ctl.level == 1 and ctl.playing
+        i0 = ctl.play_index
+        page.wait_for_timeout(500)
+        assert ctl.play_index != i0
+        route_text = page.get_by_text("Route:", exact=False).inner_text()
+        assert f"Route: {len(ctl.route.frames)} frames" in route_text
     assert np.all(np.asarray(ctl.route.frames) >= 0)
 
 
@@ -294,36 +280,26 @@ def test_load_nav_data_from_config(tmp_path):
 
 @pytest.mark.browser
 def test_browser_click_on_the_pad_picks_the_nearest_centre(data, chromium):
-    pw, exe = chromium.pw, chromium.exe
     from fxspace.studio import serve_navigator
 
     server, ctl = serve_navigator(data, port=0, environment_map=False, block=False)
     last = len(data.hierarchy.levels) - 1
     ctl.set_level(last)  # the finest level: every frame is a centre
-    try:
-        with pw.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=chromium.args)
-            try:
-                page = browser.new_page(viewport={"width": 1200, "height": 700})
-                page.goto(f"http://127.0.0.1:{server.get_port()}")
-                page.get_by_text("Key centres: none").wait_for(timeout=60_000)
-                canvas = page.locator("canvas").first
-                canvas.wait_for(timeout=30_000)
-                box = canvas.bounding_box()
-                for _ in range(40):  # the scene accepts clicks once the camera is set
-                    page.mouse.click(box["x"] + 0.3 * box["width"], box["y"] + 0.5 * box["height"])
-                    page.wait_for_timeout(250)
-                    if ctl.picks:
-                        break
-                assert ctl.picks, ctl.message
-                k = ctl.picks[0]
-                assert k == ctl.index(last).nearest(ctl.last_click)
-                page.get_by_text(f"Key centres: {k}", exact=False).wait_for(timeout=60_000)
-                assert ctl.route is not None and ctl.route.level == last
-            finally:
-                browser.close()
-    finally:
-        server.stop()
+    with chromium.page(server, viewport={"width": 1200, "height": 700}) as page:
+        page.get_by_text("Key centres: none").wait_for(timeout=60_000)
+        canvas = page.locator("canvas").first
+        canvas.wait_for(timeout=30_000)
+        box = canvas.bounding_box()
+        for _ in range(40):  # the scene accepts clicks once the camera is set
+            page.mouse.click(box["x"] + 0.3 * box["width"], box["y"] + 0.5 * box["height"])
+            page.wait_for_timeout(250)
+            if ctl.picks:
+                break
+        assert ctl.picks, ctl.message
+        k = ctl.picks[0]
+        assert k == ctl.index(last).nearest(ctl.last_click)
+        page.get_by_text(f"Key centres: {k}", exact=False).wait_for(timeout=60_000)
+        assert ctl.route is not None and ctl.route.level == last
 
 
 @pytest.mark.slow
