@@ -16,6 +16,7 @@ from fxspace import mesh as mesh
 from fxspace import motion as motion
 from fxspace import navigation as navigation
 from fxspace import plot as plot
+from fxspace import results as results
 from fxspace import rotations as rotations
 from fxspace import runs as runs
 from fxspace import synthetic as synthetic
@@ -159,6 +160,7 @@ from fxspace.navigation import playback as playback
 from fxspace.navigation import refine_route as refine_route
 from fxspace.navigation import rigid_align as rigid_align
 from fxspace.navigation import split_centers as split_centers
+from fxspace.results import RESULTS as RESULTS
 
 try:
     __version__ = _metadata.version("fxspace")

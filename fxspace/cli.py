@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["main", "studio_target"]
 
 _DEMO = {
     "experiment": "threshold_sweep",
@@ -42,12 +42,29 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def studio_target(target: str | Path, out: str | Path | None = None) -> Path:
+    """What ``fxspace studio`` opens: a run folder as it is; a config file is first run
+    (or resumed: finished stages and a finished run with the same content key are reused,
+    so a second launch opens in seconds) and its run folder returned."""
+    p = Path(target)
+    if p.is_dir():
+        return p
+    from fxspace.pipelines import run_config
+
+    print(f"fxspace studio: preparing {target} (cached stages are reused) …", flush=True)
+    dirs = run_config(p, out)
+    if len(dirs) > 1:
+        print(f"fxspace studio: the config expands to {len(dirs)} runs; opening {dirs[0]}")
+    return dirs[0]
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
-    """``fxspace studio TARGET`` (alias ``view``): the app of the target's experiment."""
+    """``fxspace studio TARGET`` (alias ``view``): the app of the target's experiment; a
+    config is run first where its results are not cached."""
     from fxspace.studio import serve
 
     try:
-        serve(args.target, port=args.port)
+        serve(studio_target(args.target, getattr(args, "out", None)), port=args.port)
     except ImportError as e:
         print(
             f"fxspace studio needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
@@ -133,8 +150,11 @@ def build_parser() -> argparse.ArgumentParser:
             help="the paper's app for a run in the browser: navigator, editor, …"
             + (" (alias of studio)" if name == "view" else " (needs .[viewer])"),
         )
-        v.add_argument("target", help="a run folder or a config file")
+        v.add_argument(
+            "target", help="a run folder, or a config file (run first where not cached)"
+        )
         v.add_argument("--port", type=int, default=8080)
+        v.add_argument("--out", default=None, help="run folder for a config (default runs/<stem>)")
         v.set_defaults(func=_cmd_view)
 
     b = sub.add_parser("bench", help="run experiments/bench_NAME.py (alone: list them)")

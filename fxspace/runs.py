@@ -255,3 +255,34 @@ def cached(run_dir: str | Path, key: str, compute: Callable[[], Any]) -> Any:
     value = to_jsonable(compute())
     write_json_atomic(p, value)
     return value
+
+
+def cached_arrays(
+    run_dir: str | Path, name: str, compute: Callable[[], dict[str, Any]]
+) -> dict[str, np.ndarray]:
+    """A costly pipeline stage, stored once as ``run_dir/cache/NAME.npz`` (atomically).
+
+    ``compute()`` returns a flat ``{name: array-like}``; the stored arrays are returned
+    (as NumPy arrays) on this and every later call in the same run folder, so a run
+    interrupted after this stage resumes without recomputing it. The cache folder is
+    bound to the run's content key (config + data + code, see :func:`reset_cache`), so a
+    stage is never served to another config. A damaged file is recomputed.
+
+    **Example:**
+
+    ```python
+    geo = cached_arrays(run_dir, "geodesics", lambda: {"D": D, "next_hop": nh})
+    ```
+    """
+    if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
+        raise ValueError(f"stage name must be a plain file name, got {name!r}")
+    p = Path(run_dir) / "cache" / f"{name}.npz"
+    if p.is_file():
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError):
+            pass  # a damaged stage is recomputed
+    value = {k: np.asarray(v) for k, v in compute().items()}
+    save_npz_atomic(p, **value)
+    return value

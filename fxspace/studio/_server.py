@@ -3,6 +3,7 @@ a 2-D pad in scene coordinates, a player thread, blocking until Ctrl-C."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import threading
 import time
@@ -19,6 +20,7 @@ __all__ = [
     "FrameDensity",
     "PadFrame",
     "Player",
+    "ServeOptions",
     "density_rgba",
     "frame_density",
     "new_server",
@@ -27,6 +29,22 @@ __all__ = [
     "run_until_interrupted",
     "serialized",
 ]
+
+
+@dataclasses.dataclass(frozen=True)
+class ServeOptions:
+    """How an app is served, shared by every app (``serve_*(..., options=ServeOptions())``).
+
+    **Fields:** `port` (``0`` picks a free one), `host` (``127.0.0.1``: local only),
+    `fps` of the player, `block` (serve until Ctrl-C; ``False`` returns the running
+    server, as tests do), `environment_map` (lighting; off in headless tests).
+    """
+
+    port: int = 8080
+    host: str = "127.0.0.1"
+    fps: float = 30.0
+    block: bool = True
+    environment_map: bool = True
 
 
 def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = True):

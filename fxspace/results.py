@@ -1,0 +1,153 @@
+"""One vocabulary for how an iterative routine ended (after optimistix's ``RESULTS``).
+
+Every iterative routine in fxspace (fuzzy c-means, sparse FCM, kernel k-means, fused
+lasso, control-point fitting, IK solvers and tracking, registration, …) returns a
+result record that carries
+
+- ``.result``: a member of :class:`RESULTS` (an ``equinox.Enumeration`` item, so it is
+  a pytree leaf that survives ``jit`` and ``vmap``; compare with ``==``:
+  ``res.result == fx.RESULTS.successful`` is a boolean array);
+- ``.num_steps``: the iterations run (int array);
+- ``.stats``: a ``dict`` of scalar diagnostics (at least ``"max_steps"``; solvers add
+  their residual or objective there).
+
+and takes ``throw: bool`` (default ``False``, so sweeps under ``vmap`` keep going and
+report per element). With ``throw=True`` a result other than ``successful`` raises
+:class:`~fxspace.errors.FxspaceError` with a one-line message naming the routine and the
+cause; under ``jit`` the same check runs through ``equinox.error_if`` (an
+``EquinoxRuntimeError`` with the same message, since nothing else can leave a
+compiled computation).
+
+**Example:**
+
+```python
+import fxspace as fx
+res = fx.fuzzy_cmeans(X, 4, key=key)
+if res.result != fx.RESULTS.successful:
+    print(fx.RESULTS[res.result])       # the message
+fx.fuzzy_cmeans(X_with_nan, 4, key=key, throw=True)   # FxspaceError: fuzzy_cmeans: ...
+```
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from equinox._enum import EnumerationItem  # the item type; equinox exports no public name
+
+from fxspace.errors import FxspaceError
+
+__all__ = [
+    "RESULTS",
+    "check_result",
+    "is_successful",
+    "result_from_flags",
+    "result_message",
+    "where_result",
+]
+
+
+class RESULTS(eqx.Enumeration):
+    """How an iterative routine ended. The value of each member is its message."""
+
+    successful = ""
+    max_steps_reached = (
+        "the iteration limit was reached before the tolerance was met; raise max_steps "
+        "or loosen the tolerance"
+    )
+    nonfinite_input = (
+        "the input holds NaN or inf; fill short gaps (fx.fill_gaps) or drop the "
+        "missing frames/markers first"
+    )
+    nonfinite_output = (
+        "the iteration produced NaN or inf; check the scale of the input (rescale to "
+        "unit size) or the step size"
+    )
+    stalled = (
+        "the solver could make no further progress before meeting its tolerance (a "
+        "line search or damping step failed); loosen the tolerance or start elsewhere"
+    )
+    disconnected = (
+        "the neighbourhood graph is disconnected; raise the threshold or drop the "
+        "isolated frames"
+    )
+
+
+def result_message(result: Any) -> str:
+    """The message of a concrete scalar result (``""`` for ``successful``); same as
+    ``RESULTS[result]``."""
+    return RESULTS[result]
+
+
+def is_successful(result: Any) -> jax.Array:
+    """``result == RESULTS.successful`` as a boolean array (works under jit/vmap)."""
+    return result == RESULTS.successful
+
+
+def where_result(pred: Any, a: Any, b: Any) -> Any:
+    """``RESULTS.where`` for any shape of ``pred`` (elementwise, broadcasting): a batch
+    of results (e.g. one per frame under ``vmap``) stays one enumeration item."""
+    value = jnp.where(jnp.asarray(pred, bool), a._value, b._value).astype(jnp.int32)
+    return EnumerationItem(value, RESULTS)
+
+
+def result_from_flags(
+    *,
+    converged: Any,
+    nonfinite_input: Any = False,
+    nonfinite_output: Any = False,
+    stalled: Any = False,
+) -> Any:
+    """Build a :class:`RESULTS` member from boolean flags (jit/vmap safe).
+
+    Priority: non-finite input, non-finite output, converged → ``successful``, stalled,
+    otherwise ``max_steps_reached``.
+    """
+    r = where_result(stalled, RESULTS.stalled, RESULTS.max_steps_reached)
+    r = where_result(converged, RESULTS.successful, r)
+    r = where_result(nonfinite_output, RESULTS.nonfinite_output, r)
+    return where_result(nonfinite_input, RESULTS.nonfinite_input, r)
+
+
+def _is_concrete(x: Any) -> bool:
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def check_result(result: Any, throw: bool, what: str, value: Any = None) -> Any:
+    """Raise when ``throw`` and ``result`` is not ``successful``; return ``value``.
+
+    Outside ``jit`` this raises :class:`FxspaceError` (``"WHAT: message"``, naming the
+    first failing element of a batch). Under ``jit`` it threads ``value`` through
+    ``equinox.error_if`` so the compiled computation raises with the same message.
+    With ``throw=False`` it returns ``value`` unchanged.
+    """
+    if not throw:
+        return value
+    if _is_concrete(result):
+        raw = np.asarray(result._value)
+        bad = np.flatnonzero(raw.reshape(-1) != RESULTS.successful._value)
+        if bad.size:
+            idx = int(bad[0])
+            code = int(raw.reshape(-1)[idx])
+            where = f" (element {idx} of {raw.size})" if raw.ndim else ""
+            msg = _messages()[code]
+            raise FxspaceError(f"{what}: {msg}{where}")
+        return value
+    if value is None:
+        return value
+    msgs = _messages()
+    for code, msg in enumerate(msgs):
+        if not msg:
+            continue
+        pred = jnp.any(jnp.asarray(result._value) == code)
+        value = eqx.error_if(value, pred, f"{what}: {msg}")
+    return value
+
+
+def _messages() -> list[str]:
+    n = len(RESULTS._index_to_message)
+    return [RESULTS._index_to_message[i] for i in range(n)]
