@@ -7,9 +7,14 @@ factored vs naive gradient, regularisers with few markers.
 Writes the figures, ``table.md`` and ``metrics.json`` into ``runs/mesh_ik`` (or ``--out``).
 """
 
+import os
 import sys
 
-from fxspace.cli import main
+# one BLAS thread: LM's Cholesky solves are small (see experiments/bench_ik.py)
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from fxspace.cli import main  # noqa: E402
 
 if __name__ == "__main__":
     raise SystemExit(main(["run", "configs/mesh_ik.toml", *sys.argv[1:]]))

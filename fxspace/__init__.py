@@ -1,10 +1,27 @@
 """fxspace: a JAX research framework for motion-capture-driven facial and character animation.
 
-Public API (stable names, see DESIGN.md) is re-exported here explicitly.
+**What the top level re-exports (the one rule):**
+
+1. Every subpackage and shared module as an attribute (`fx.cluster`, `fx.io`,
+   `fx.results` …).
+2. The main entry points and result/data types of the *numerical* subpackages
+   (`cluster`, `expression`, `navigation`, `controlpoints`, `mesh`, `motion`) — the
+   stable names of DESIGN.md and their companions — plus the result vocabulary
+   (`RESULTS`) and the error types, each listed explicitly below and each the same
+   object as on its subpackage's front (`fx.fuzzy_cmeans is fx.cluster.fuzzy_cmeans`).
+   Every other public name lives on its subpackage only (`fx.cluster.sparse_fuzzy_cmeans`,
+   `fx.motion.advance_clock`); readers and writers stay under `fx.io`, generators
+   under `fx.synthetic`, figures under `fx.plot`.
+3. Subpackages that pull in a heavy or optional library — `plot` (matplotlib),
+   `studio` (viser), `pipelines`, `datasets` and `cli` — load lazily on first
+   attribute access (`fx.plot.plot_sweep(...)` works, but `import fxspace` itself
+   imports no plotting, browser or sparse-graph library).
 """
 
+import importlib as _importlib
 from importlib import metadata as _metadata
 
+from fxspace import _compile_cache as _compile_cache
 from fxspace import cluster as cluster
 from fxspace import config as config
 from fxspace import controlpoints as controlpoints
@@ -15,7 +32,6 @@ from fxspace import io as io
 from fxspace import mesh as mesh
 from fxspace import motion as motion
 from fxspace import navigation as navigation
-from fxspace import plot as plot
 from fxspace import results as results
 from fxspace import rotations as rotations
 from fxspace import runs as runs
@@ -166,3 +182,20 @@ try:
     __version__ = _metadata.version("fxspace")
 except _metadata.PackageNotFoundError:  # pragma: no cover - running from a bare checkout
     __version__ = "0.0.0"
+
+_compile_cache.configure_compile_cache()  # compile once per machine: FXSPACE_COMPILE_CACHE=DIR|off
+
+# Heavy or optional subpackages: imported on first access (rule 3 of the module docstring).
+_LAZY_SUBMODULES = ("plot", "studio", "pipelines", "datasets", "cli")
+
+
+def __getattr__(name: str):
+    if name in _LAZY_SUBMODULES:
+        module = _importlib.import_module(f"fxspace.{name}")
+        globals()[name] = module
+        return module
+    raise AttributeError(f"module 'fxspace' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY_SUBMODULES))

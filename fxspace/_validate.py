@@ -1,7 +1,7 @@
 """The one validation helper of fxspace's public entry points.
 
 Every public function checks its arguments here, outside ``jit``, so a bad input fails at
-the boundary with a :class:`~fxspace.errors.FxspaceError` naming the argument and the fix,
+the boundary with a `FxspaceError` naming the argument and the fix,
 never with a traceback from deep inside XLA or a plausible wrong number.
 
 Policy (one place, shared by every subsystem):
@@ -14,8 +14,11 @@ Policy (one place, shared by every subsystem):
 - **non-finite values**: ``finite="raise"`` rejects NaN/inf and names where they are;
   ``finite="nan"`` accepts NaN (missing data) but rejects ±inf; ``finite="allow"`` skips
   the check. Traced arrays (under ``jit``) skip value checks: report those in the result.
-- **scalars**: :func:`check_scalar` rejects NaN/inf/non-numbers and values outside a range;
-  :func:`check_int` does the same for integers (seeds, counts); :func:`check_choice` for
+- **scalars**: `check_scalar` rejects NaN/inf/non-numbers and values outside a range;
+  `check_int` does the same for integers (seeds, counts: ``2.5`` is refused everywhere,
+  ``3.0`` accepted as 3); `check_index`/`check_indices` for frame indices (a float or
+  out-of-range index is refused); `check_bool` for flags; `check_key` for PRNG keys (an
+  integer is refused with the fix, ``jax.random.PRNGKey(seed)``); `check_choice` for
   ``Literal`` modes.
 
 Example:
@@ -30,6 +33,7 @@ gamma = check_scalar(gamma, "gamma", low=0.0, low_open=True)      # gamma > 0
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -46,6 +50,10 @@ __all__ = [
     "check_finite",
     "check_scalar",
     "check_int",
+    "check_index",
+    "check_indices",
+    "check_bool",
+    "check_key",
     "check_choice",
     "missing_report",
     "describe_missing",
@@ -64,7 +72,7 @@ def _default_float() -> np.dtype:
 
 
 def check_dtype(x: Any, name: str) -> np.dtype:
-    """The float dtype ``x`` will be computed in, or a :class:`FxspaceError`.
+    """The float dtype ``x`` will be computed in, or a `FxspaceError`.
 
     float32/float64 are kept, integers/booleans map to the default float dtype; complex,
     float16, bfloat16, object and string dtypes raise naming `name`.
@@ -95,7 +103,7 @@ def _where(mask: np.ndarray, limit: int = 5) -> str:
 
 
 def check_finite(x: Any, name: str, finite: FinitePolicy = "raise") -> None:
-    """Raise a :class:`FxspaceError` naming where `x` holds non-finite values.
+    """Raise a `FxspaceError` naming where `x` holds non-finite values.
 
     **Arguments:**
     - `x`: a concrete array (traced arrays are not checked).
@@ -143,7 +151,7 @@ def as_float_array(
     - `ndim`: required rank (``None``: any).
     - `shape`: required sizes per axis, ``None`` for any (implies `ndim`).
     - `min_frames`: least length of the first axis (1 rejects empty inputs).
-    - `finite`: see :func:`check_finite`.
+    - `finite`: see `check_finite`.
     - `dtype`: force this float dtype (else keep float32/64, ints → default float).
     - `xp`: return a ``jax.Array`` (``"jax"``) or a ``numpy.ndarray`` (``"numpy"``).
     - `axes`: axis names for the shape message, e.g. ``("n_points", "n_features")``.
@@ -235,8 +243,17 @@ def check_scalar(
 
 
 def check_int(value: Any, name: str, *, low: int | None = None, high: int | None = None) -> int:
-    """An integer (Python or NumPy, not bool/float) within ``[low, high]``, as a Python int."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+    """An integer within ``[low, high]``, as a Python int.
+
+    Python/NumPy integers and 0-d integer arrays are accepted, and so is an
+    integer-valued float (``3.0``); ``2.5``, NaN, inf, booleans, strings and ``None`` raise
+    a `FxspaceError` naming `name` (the same message everywhere)."""
+    if isinstance(value, np.ndarray | jax.Array) and value.ndim == 0 and not _is_tracer(value):
+        if value.dtype.kind in "iu":
+            value = int(value)
+        elif value.dtype.kind == "f":
+            value = float(value)
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
         if isinstance(value, float | np.floating) and float(value).is_integer():
             value = int(value)
         else:
@@ -251,10 +268,75 @@ def check_int(value: Any, name: str, *, low: int | None = None, high: int | None
     return v
 
 
+def check_index(value: Any, name: str, size: int) -> int:
+    """A position in ``range(size)`` (a frame, a marker…), as a Python int: a float
+    (``2.5``, ``2.0`` too: an index is never a float), a negative or an out-of-range
+    value raises a `FxspaceError` naming `name` and the valid range."""
+    if isinstance(value, float | np.floating) or (
+        isinstance(value, np.ndarray | jax.Array) and value.dtype.kind == "f"
+    ):
+        raise FxspaceError(f"{name} must be an integer index, got the float {value!r}")
+    return check_int(value, name, low=0, high=size - 1)
+
+
+def check_indices(values: Any, name: str, size: int, *, min_len: int = 0) -> np.ndarray:
+    """A 1-D sequence of positions in ``range(size)`` as an int64 array (see `check_index`)."""
+    if isinstance(values, str | bytes) or values is None:
+        raise FxspaceError(f"{name} must be a sequence of integer indices, got {values!r}")
+    try:
+        a = np.asarray(values)
+    except (TypeError, ValueError) as e:
+        raise FxspaceError(f"{name} must be a sequence of integer indices ({e})") from None
+    if a.ndim != 1:
+        raise FxspaceError(f"{name} must be a 1-D sequence of indices, got shape {a.shape}")
+    if a.size and a.dtype.kind not in "iu":
+        raise FxspaceError(f"{name} must hold integer indices, got dtype {a.dtype}")
+    if a.size < min_len:
+        raise FxspaceError(f"{name} needs at least {min_len} indices, got {a.size}")
+    bad = (a < 0) | (a >= size)
+    if bad.any():
+        raise FxspaceError(
+            f"{name} holds {a[bad][:5].tolist()}, outside [0, {size - 1}] (valid indices)"
+        )
+    return a.astype(np.int64)
+
+
+def check_bool(value: Any, name: str) -> bool:
+    """``True``/``False`` (Python or NumPy), else a `FxspaceError` naming `name`."""
+    if not isinstance(value, bool | np.bool_):
+        raise FxspaceError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def check_key(key: Any, name: str = "key") -> Any:
+    """A JAX PRNG key: a typed key (``jax.random.key``) or a raw ``uint32[2]`` key
+    (``jax.random.PRNGKey``); an integer seed, a float or a wrongly shaped array raises a
+    `FxspaceError` with the fix."""
+    fix = f"pass {name}=jax.random.PRNGKey(seed)"
+    if _is_tracer(key):
+        return key
+    if isinstance(key, int | np.integer | float | np.floating | str | bytes) or key is None:
+        raise FxspaceError(f"{name} must be a JAX PRNG key, got {key!r}; {fix}")
+    dt = getattr(key, "dtype", None)
+    if dt is not None and jax.dtypes.issubdtype(dt, jax.dtypes.prng_key):
+        return key
+    a = np.asarray(key) if dt is None else key
+    if a.dtype != np.uint32 or a.shape[-1:] != (2,):
+        raise FxspaceError(
+            f"{name} must be a JAX PRNG key (uint32[2]), got {a.dtype} of shape "
+            f"{tuple(a.shape)}; {fix}"
+        )
+    return key
+
+
 def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
-    """`value` if it is one of `choices`, else a :class:`FxspaceError` listing them."""
+    """`value` if it is one of `choices`, else a `FxspaceError` listing them."""
     choices = tuple(choices)
-    if value not in choices:
+    try:
+        known = value in choices
+    except (TypeError, ValueError):  # an array compared with strings
+        known = False
+    if not known:
         raise FxspaceError(
             f"{name} must be one of {', '.join(repr(c) for c in choices)}; got {value!r}"
         )
@@ -286,14 +368,14 @@ def missing_report(
 
 
 def describe_missing(runs: Sequence[tuple[str, int, int]], limit: int = 8) -> str:
-    """A one-line description of :func:`missing_report` runs, e.g. for an error message."""
+    """A one-line description of `missing_report` runs, e.g. for an error message."""
     parts = [f"{m} frames {s}–{e}" if e > s else f"{m} frame {s}" for m, s, e in runs[:limit]]
     more = f" and {len(runs) - limit} more gaps" if len(runs) > limit else ""
     return "; ".join(parts) + more
 
 
 def check_readable(path: Any, what: str = "file") -> Path:
-    """``path`` as a :class:`~pathlib.Path` if it is a readable file, else the precise
+    """``path`` as a `Path` if it is a readable file, else the precise
     ``OSError``: ``FileNotFoundError`` (absent), ``IsADirectoryError`` (a directory, not a
     file) or ``PermissionError`` (not readable) — never a misleading "corrupt"."""
     p = Path(path)
@@ -307,3 +389,202 @@ def check_readable(path: Any, what: str = "file") -> Path:
     except PermissionError as e:
         raise PermissionError(f"{p}: permission denied (cannot read the {what})") from e
     return p
+
+
+# -- one layer for every public function: checks read from the annotations ---------------
+_ARRAY_ANN = re.compile(
+    r"(?:\b\w+\.)*\b(Float|Int|Bool|Shaped|Real|Num)\[\s*[\w.]+\s*,\s*['\"]([^'\"]*)['\"]\]"
+)
+_INT_ANN = re.compile(r"^int(\s*\|\s*None)?$")
+_FLOAT_ANN = re.compile(r"^float(\s*\|\s*None)?$")
+_STR_ANN = re.compile(r"^str(\s*\|\s*None)?$")
+_BOOL_ANN = re.compile(r"^bool(\s*\|\s*None)?$")
+_LITERAL_ANN = re.compile(r"^Literal\[([^\]]*)\](\s*\|\s*None)?$")
+
+
+def _array_spec(ann: str) -> tuple[str, tuple[str, ...]] | None:
+    """``(kind, dims)`` of a jaxtyping annotation such as ``Float[Array, 'n 3']``; ``None``
+    when the annotation is a union with a non-array type (then nothing is checked)."""
+    m = _ARRAY_ANN.search(ann)
+    if m is None:
+        return None
+    rest = (ann[: m.start()] + ann[m.end() :]).replace("|", " ").split()
+    if any(r != "None" for r in rest):
+        return None  # e.g. `float | Float[Array, '']`: a scalar is fine too
+    return m.group(1), tuple(m.group(2).split())
+
+
+def _check_array_arg(
+    value: Any, name: str, kind: str, dims: tuple[str, ...], shape: bool = False
+) -> Any:
+    """Type and dtype of an array argument (and, with ``shape``, its rank and fixed sizes)."""
+    if isinstance(value, list | tuple):
+        try:
+            value = np.asarray(value)
+        except (TypeError, ValueError) as e:
+            raise FxspaceError(f"{name} must be a numeric array ({e})") from None
+    if isinstance(value, str | bytes | dict | set) or not hasattr(value, "shape"):
+        if isinstance(value, int | float | np.number) and not isinstance(value, bool):
+            value = np.asarray(value)
+        else:
+            raise FxspaceError(f"{name} must be a numeric array, got {type(value).__name__}")
+    dt = (
+        np.dtype(value.dtype)
+        if not jax.dtypes.issubdtype(value.dtype, jax.dtypes.prng_key)
+        else None
+    )
+    if dt is not None:
+        if kind == "Int" and dt.kind == "f":
+            raise FxspaceError(f"{name} must hold integers (indices), got dtype {dt}")
+        if kind in ("Float", "Real", "Num") and dt.kind not in "biuf":
+            check_dtype(value, name)  # names the dtype and the fix
+        if dt.kind in "cOSUV" or (dt.kind == "f" and dt.itemsize < 4):
+            check_dtype(value, name)
+    if not shape:
+        return value
+    if value.size == 0:
+        raise FxspaceError(f"{name} is empty (shape {tuple(value.shape)})")
+    variadic = any(d.startswith(("*", "#*")) or d == "..." for d in dims)
+    fixed = [d for d in dims if not (d.startswith(("*", "#*")) or d == "...")]
+    if (not variadic and value.ndim != len(fixed)) or (variadic and value.ndim < len(fixed)):
+        want = "(" + ", ".join(dims) + ")" if dims else "a scalar"
+        raise FxspaceError(f"{name} must have shape {want}, got shape {tuple(value.shape)}")
+    # fixed sizes (the 3 of xyz, the 4 of a quaternion): axes before a variadic axis
+    # count from the left, axes after it from the right
+    cut = next((i for i, d in enumerate(dims) if d.startswith(("*", "#*")) or d == "..."), None)
+    head = dims if cut is None else dims[:cut]
+    tail = () if cut is None else dims[cut + 1 :]
+    pairs = list(zip(head, value.shape, strict=False))
+    if tail:
+        pairs += list(zip(tail, value.shape[-len(tail) :], strict=False))
+    for d, got in pairs:
+        d = d.lstrip("#")
+        if d.isdigit() and got != int(d):
+            raise FxspaceError(
+                f"{name} must have shape ({', '.join(dims)}), got shape {tuple(value.shape)}"
+            )
+    return value
+
+
+def _check_str(value: Any, name: str) -> str:
+    if not isinstance(value, str):
+        raise FxspaceError(f"{name} must be a string, got {value!r}")
+    return value
+
+
+def _arg_checker(name: str, ann: str, optional_default: bool):
+    """A function checking one argument, derived from its annotation (or ``None``)."""
+    ann = ann.strip()
+    if name == "key" and not ann:
+        return lambda v: v if v is None else check_key(v, name)
+    spec = _array_spec(ann)
+    allows_none = "None" in ann.replace("NoneType", "None") or optional_default
+    if spec is not None:
+        kind, dims = spec
+        fn = lambda v: v if v is None and allows_none else _check_array_arg(v, name, kind, dims)  # noqa: E731
+        fn.spec = spec  # type: ignore[attr-defined]
+        return fn
+    if name == "key" or "PRNGKey" in ann:
+        return lambda v: v if v is None and allows_none else check_key(v, name)
+    if _INT_ANN.match(ann):
+        return lambda v: v if v is None and allows_none else check_int(v, name)
+    if _FLOAT_ANN.match(ann):
+        return lambda v: v if v is None and allows_none else check_scalar(v, name)
+    if _STR_ANN.match(ann):
+        return lambda v: v if v is None and allows_none else _check_str(v, name)
+    if _BOOL_ANN.match(ann):
+        return lambda v: v if v is None and allows_none else check_bool(v, name)
+    m = _LITERAL_ANN.match(ann)
+    if m:
+        import ast
+
+        try:
+            choices = tuple(ast.literal_eval("(" + m.group(1) + ",)"))
+        except (ValueError, SyntaxError):
+            return None
+        return lambda v: v if v is None and allows_none else check_choice(v, name, choices)
+    return None
+
+
+def _explain(arguments: dict[str, Any], checks: dict[str, Any], error: Exception) -> None:
+    """After a raw error, check every array argument's rank, fixed sizes and emptiness, and
+    the named axes shared between arguments (``x (n, d)`` and ``centers (c, d)`` agree on
+    ``d``); raise the first problem as a `FxspaceError` (else return: the raw error stands)."""
+    sizes: dict[str, tuple[str, int]] = {}
+    for k, v in arguments.items():
+        c = checks.get(k)
+        spec = getattr(c[0], "spec", None) if c is not None else None
+        if spec is None or v is None or _is_tracer(v):
+            continue
+        kind, dims = spec
+        v = _check_array_arg(v, k, kind, dims, shape=True)
+        if any(d.startswith(("*", "#")) or d == "..." for d in dims):
+            continue
+        for d, got in zip(dims, v.shape, strict=False):
+            if d.isidentifier() and d in sizes and sizes[d][1] != got:
+                other, n = sizes[d]
+                raise FxspaceError(
+                    f"{other} and {k} disagree on the axis {d!r} ({n} vs {got}): "
+                    f"{k} must have shape ({', '.join(dims)})"
+                ) from error
+            sizes.setdefault(d, (k, got))
+
+
+def checked(fn: Any) -> Any:
+    """Check ``fn``'s arguments from its annotations before it runs — the one validation
+    layer of the public API (issue 19).
+
+    Per annotation, before the call: jaxtyping arrays (``Float[Array, 'n 3']``) must be
+    numeric arrays (lists are converted; strings, ``None``, complex, string, object and
+    float16 arrays are refused; ``Int[...]`` refuses float indices); ``int`` →
+    `check_int` (``2.5`` refused), ``float`` → `check_scalar` (NaN/inf/strings refused),
+    ``bool`` → `check_bool`, ``Literal[...]`` → `check_choice`, a ``key`` → `check_key`
+    (an integer seed is refused). Array ranks, fixed sizes (the 3 of xyz), emptiness and
+    the named axes shared between arguments are checked only when the function fails with
+    a raw error, so its own messages come first and a valid call pays nothing for them.
+    Traced values (under ``jit``/``vmap``) are left to the function; an argument left at
+    its default is not checked. Every failure is a one-line `FxspaceError` naming the
+    argument. Value checks that need the meaning of an argument (ranges, NaN as missing
+    data) stay in the function.
+    """
+    import functools
+    import inspect
+
+    sig = inspect.signature(fn)
+    checks = {}
+    for p in sig.parameters.values():
+        if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+            continue
+        ann = p.annotation
+        if ann is inspect.Parameter.empty:
+            ann = ""
+        elif not isinstance(ann, str):
+            ann = inspect.formatannotation(ann)
+        c = _arg_checker(p.name, ann, p.default is None)
+        if c is not None:
+            checks[p.name] = (c, p.default)
+    if not checks:
+        return fn
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            bound = sig.bind(*args, **kwargs)
+        except TypeError as e:
+            raise FxspaceError(f"{fn.__name__}: {e}") from None
+        for k, v in bound.arguments.items():
+            c = checks.get(k)
+            # the author's default is never second-guessed; traced values are checked
+            # by the function itself (shapes are static there)
+            if c is not None and v is not c[1] and not _is_tracer(v):
+                bound.arguments[k] = c[0](v)
+        try:
+            return fn(*bound.args, **bound.kwargs)
+        except FxspaceError:
+            raise
+        except Exception as e:  # a raw error: say which argument is malformed, if one is
+            _explain(bound.arguments, checks, e)
+            raise
+
+    wrapper.__fxspace_checked__ = True  # type: ignore[attr-defined]
+    return wrapper

@@ -26,7 +26,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if args.real:
         raw["data"] = {"source": "animface"}
         out = out or "runs/demo_real"  # never the synthetic demo's folder
-    dirs = run_dict(raw, out or "runs/demo", force=True)
+    # a finished demo of the same seed is reused; another finished run is never
+    # overwritten without --force (and then only the files fxspace wrote are replaced)
+    dirs = run_dict(raw, out or "runs/demo", force=args.force)
     for d in dirs:
         print(
             f"demo results in {d}: metrics.json, "
@@ -132,6 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     d.add_argument("--real", action="store_true", help="use the AnimFace capture instead")
+    d.add_argument(
+        "--force",
+        action="store_true",
+        help="rerun, replacing a finished run in --out (only the files fxspace wrote)",
+    )
     d.set_defaults(func=_cmd_demo)
 
     for name, helptext in (
@@ -150,9 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="the paper's app for a run in the browser: navigator, editor, …"
             + (" (alias of studio)" if name == "view" else " (needs .[viewer])"),
         )
-        v.add_argument(
-            "target", help="a run folder, or a config file (run first where not cached)"
-        )
+        v.add_argument("target", help="a run folder, or a config file (run first where not cached)")
         v.add_argument("--port", type=int, default=8080)
         v.add_argument("--out", default=None, help="run folder for a config (default runs/<stem>)")
         v.set_defaults(func=_cmd_view)

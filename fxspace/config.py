@@ -1,6 +1,6 @@
 """Configs are data: frozen dataclasses loaded from TOML.
 
-A config file names its ``experiment`` (a module of :mod:`fxspace.pipelines`), a
+A config file names its ``experiment`` (a module of `fxspace.pipelines`), a
 ``seed``, and tables that fill that experiment's frozen ``Config`` dataclass. An
 optional ``[sweep]`` table maps dotted keys to lists of values; the runs are the
 Cartesian product, each in its own sub-folder, and a finished run is skipped when the

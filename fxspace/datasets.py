@@ -17,7 +17,7 @@ from fxspace._validate import describe_missing
 from fxspace.config import ConfigError
 from fxspace.data import data_path
 from fxspace.errors import FxspaceError
-from fxspace.expression._missing import fill_gaps, missing_report
+from fxspace.expression import fill_gaps, missing_report
 from fxspace.io import read_markers, synthetic_face
 
 __all__ = [
@@ -45,7 +45,7 @@ class FaceData:
     - `target_frames`: if > 0, resample every take in time (linear interpolation) so the
       total is exactly this many frames — used by benchmarks to scale realistic data.
     - `missing`: what to do with occluded (NaN) markers: ``"fill"`` interpolates each
-      marker's gaps of at most `max_gap` frames (:func:`fxspace.fill_gaps`) and drops the
+      marker's gaps of at most `max_gap` frames (`fxspace.fill_gaps`) and drops the
       frames still incomplete; ``"drop"`` drops every frame with a missing marker;
       ``"raise"`` stops with an error naming the missing markers and frames.
     - `max_gap`: the longest gap (frames) ``"fill"`` interpolates.

@@ -4,7 +4,7 @@ Every iterative routine in fxspace (fuzzy c-means, sparse FCM, kernel k-means, f
 lasso, control-point fitting, IK solvers and tracking, registration, …) returns a
 result record that carries
 
-- ``.result``: a member of :class:`RESULTS` (an ``equinox.Enumeration`` item, so it is
+- ``.result``: a member of `RESULTS` (an ``equinox.Enumeration`` item, so it is
   a pytree leaf that survives ``jit`` and ``vmap``; compare with ``==``:
   ``res.result == fx.RESULTS.successful`` is a boolean array);
 - ``.num_steps``: the iterations run (int array);
@@ -13,7 +13,7 @@ result record that carries
 
 and takes ``throw: bool`` (default ``False``, so sweeps under ``vmap`` keep going and
 report per element). With ``throw=True`` a result other than ``successful`` raises
-:class:`~fxspace.errors.FxspaceError` with a one-line message naming the routine and the
+`FxspaceError` with a one-line message naming the routine and the
 cause; under ``jit`` the same check runs through ``equinox.error_if`` (an
 ``EquinoxRuntimeError`` with the same message, since nothing else can leave a
 compiled computation).
@@ -102,7 +102,7 @@ def result_from_flags(
     nonfinite_output: Any = False,
     stalled: Any = False,
 ) -> Any:
-    """Build a :class:`RESULTS` member from boolean flags (jit/vmap safe).
+    """Build a `RESULTS` member from boolean flags (jit/vmap safe).
 
     Priority: non-finite input, non-finite output, converged → ``successful``, stalled,
     otherwise ``max_steps_reached``.
@@ -120,7 +120,7 @@ def _is_concrete(x: Any) -> bool:
 def check_result(result: Any, throw: bool, what: str, value: Any = None) -> Any:
     """Raise when ``throw`` and ``result`` is not ``successful``; return ``value``.
 
-    Outside ``jit`` this raises :class:`FxspaceError` (``"WHAT: message"``, naming the
+    Outside ``jit`` this raises `FxspaceError` (``"WHAT: message"``, naming the
     first failing element of a batch). Under ``jit`` it threads ``value`` through
     ``equinox.error_if`` so the compiled computation raises with the same message.
     With ``throw=False`` it returns ``value`` unchanged.

@@ -2,7 +2,7 @@
 
 Quaternions are ``(w, x, y, z)`` (Hamilton product, active rotations) unless a function's
 ``order`` argument says ``"xyzw"`` (glTF's and scipy's component order); convert with
-:func:`quat_xyzw_to_wxyz` / :func:`quat_wxyz_to_xyzw`. Every function accepts numpy arrays
+`quat_xyzw_to_wxyz` / `quat_wxyz_to_xyzw`. Every function accepts numpy arrays
 (computed in numpy, no compilation: readers and writers use this) or JAX arrays (jit,
 vmap and grad work).
 
@@ -18,6 +18,9 @@ from typing import Literal
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+
+from fxspace._validate import check_scalar, checked
+from fxspace.errors import FxspaceError
 
 __all__ = [
     "quat_mul",
@@ -47,6 +50,7 @@ def _xp(*arrays):
     return np if all(isinstance(a, np.ndarray | np.generic | float) for a in arrays) else jnp
 
 
+@checked
 def quat_mul(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Hamilton product ``p ⊗ q`` (rotate by ``q`` first, then by ``p``)."""
     pw, px, py, pz = (p[..., i] for i in range(4))
@@ -62,6 +66,7 @@ def quat_mul(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array,
     )
 
 
+@checked
 def quat_conj(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate (the inverse of a unit quaternion)."""
     return q * _xp(q).asarray([1.0, -1.0, -1.0, -1.0], dtype=q.dtype).reshape(
@@ -69,28 +74,40 @@ def quat_conj(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     )
 
 
+@checked
 def quat_normalize(q: Float[Array, "... 4"], eps: float = 1e-12) -> Float[Array, "... 4"]:
+    """``q / ‖q‖`` along the last axis (4 components).
+
+    A quaternion whose norm is below ``eps`` (e.g. the zero quaternion) is divided by
+    ``eps`` instead, so it stays (near) zero rather than becoming NaN; ``eps`` must be
+    > 0. NaN components give NaN."""
+    eps = check_scalar(eps, "eps", low=0.0, low_open=True)
+    if np.ndim(q) < 1 or np.shape(q)[-1] != 4:
+        raise FxspaceError(f"q must have shape (..., 4), got shape {tuple(np.shape(q))}")
     xp = _xp(q)
     return q / xp.maximum(xp.linalg.norm(q, axis=-1, keepdims=True), eps)
 
 
+@checked
 def quat_xyzw_to_wxyz(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Reorder quaternion components from ``(x, y, z, w)`` (glTF, scipy) to ``(w, x, y, z)``."""
     return _xp(q).concatenate([q[..., 3:], q[..., :3]], axis=-1)
 
 
+@checked
 def quat_wxyz_to_xyzw(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Reorder quaternion components from ``(w, x, y, z)`` to ``(x, y, z, w)`` (glTF, scipy)."""
     return _xp(q).concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
+@checked
 def quat_to_matrix(q: Float[Array, "... 4"], order: QuatOrder = "wxyz") -> Float[Array, "... 3 3"]:
     """Rotation matrix of a unit quaternion whose components are in ``order``."""
     xp = _xp(q)
     if order == "xyzw":
         q = quat_xyzw_to_wxyz(q)
     elif order != "wxyz":
-        raise ValueError(f"order must be 'wxyz' or 'xyzw', got {order!r}")
+        raise FxspaceError(f"order must be 'wxyz' or 'xyzw', got {order!r}")
     w, x, y, z = (q[..., i] for i in range(4))
     r = [
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -100,11 +117,12 @@ def quat_to_matrix(q: Float[Array, "... 4"], order: QuatOrder = "wxyz") -> Float
     return xp.stack([xp.stack(row, axis=-1) for row in r], axis=-2)
 
 
+@checked
 def matrix_to_quat(R: Float[Array, "... 3 3"], order: QuatOrder = "wxyz") -> Float[Array, "... 4"]:
     """Unit quaternion (``w >= 0``) of a rotation matrix (Shepperd's branch-free variant),
     components in ``order``."""
     if order not in ("wxyz", "xyzw"):
-        raise ValueError(f"order must be 'wxyz' or 'xyzw', got {order!r}")
+        raise FxspaceError(f"order must be 'wxyz' or 'xyzw', got {order!r}")
     jnp = _xp(R)  # noqa: F811 - numpy for numpy input
     m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
     cands = jnp.stack(
@@ -158,6 +176,7 @@ def matrix_to_quat(R: Float[Array, "... 3 3"], order: QuatOrder = "wxyz") -> Flo
     return quat_wxyz_to_xyzw(q) if order == "xyzw" else q
 
 
+@checked
 def quat_rotate(q: Float[Array, "... 4"], v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Rotate vectors ``v`` by unit quaternions ``q``."""
     xp = _xp(q, v)
@@ -167,6 +186,7 @@ def quat_rotate(q: Float[Array, "... 4"], v: Float[Array, "... 3"]) -> Float[Arr
     return v + w * t + xp.cross(u, t)
 
 
+@checked
 def quat_from_axis_angle(
     axis: Float[Array, "... 3"], angle: Float[Array, " ..."]
 ) -> Float[Array, "... 4"]:
@@ -185,13 +205,14 @@ def _axis_quat(ax: str, angle: Float[Array, " ..."]) -> Float[Array, "... 4"]:
     return quat_from_axis_angle(e if _xp(angle) is np else jnp.asarray(e), angle)
 
 
+@checked
 def euler_to_quat(
     angles: Float[Array, "... k"], order: str, degrees: bool = True
 ) -> Float[Array, "... 4"]:
     """Quaternion of ``R = R_{order[0]}(a0) @ R_{order[1]}(a1) @ ...`` (any number of axes)."""
     order = order.upper()
     if any(c not in _AXIS for c in order) or angles.shape[-1] != len(order):
-        raise ValueError(
+        raise FxspaceError(
             f"order must be a string of X/Y/Z matching angles' last axis, got {order!r} "
             f"for angles of shape {angles.shape}"
         )
@@ -203,14 +224,15 @@ def euler_to_quat(
     return q
 
 
+@checked
 def quat_to_euler(
     q: Float[Array, "... 4"], order: str, degrees: bool = True
 ) -> Float[Array, "... 3"]:
     """Euler angles in ``order`` (three distinct axes) with ``R = R_a(t0) R_b(t1) R_c(t2)``;
-    the middle angle lies in ``[-90°, 90°]``. Inverse of :func:`euler_to_quat`."""
+    the middle angle lies in ``[-90°, 90°]``. Inverse of `euler_to_quat`."""
     order = order.upper()
     if len(order) != 3 or len(set(order)) != 3 or any(c not in _AXIS for c in order):
-        raise ValueError(f"order must be three distinct axes of X/Y/Z, got {order!r}")
+        raise FxspaceError(f"order must be three distinct axes of X/Y/Z, got {order!r}")
     i, j, k = (_AXIS[c] for c in order)
     e = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
     xp = _xp(q)
@@ -222,21 +244,39 @@ def quat_to_euler(
     return xp.rad2deg(out) if degrees else out
 
 
+def _check_lerp(q0, q1, s) -> None:
+    """``q0``, ``q1`` (..., 4) and ``s`` (...) must broadcast together."""
+    shapes = [np.shape(q0), np.shape(q1)]
+    if any(len(sh) < 1 or sh[-1] != 4 for sh in shapes):
+        raise FxspaceError(f"q0 and q1 must have shape (..., 4), got {shapes[0]} and {shapes[1]}")
+    try:
+        np.broadcast_shapes(shapes[0][:-1], shapes[1][:-1], np.shape(s))
+    except ValueError:
+        raise FxspaceError(
+            f"q0 {shapes[0]}, q1 {shapes[1]} and s {np.shape(s)} must broadcast together "
+            "(s has the leading shape of the quaternions)"
+        ) from None
+
+
+@checked
 def quat_nlerp(
     q0: Float[Array, "... 4"], q1: Float[Array, "... 4"], s: Float[Array, " ..."]
 ) -> Float[Array, "... 4"]:
     """Normalised linear interpolation along the shorter arc (any component order)."""
+    _check_lerp(q0, q1, s)
     jnp = _xp(q0, q1, s)  # noqa: F811
     sign = jnp.where(jnp.sum(q0 * q1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
     s = s[..., None]
     return quat_normalize((1 - s) * q0 + s * sign * q1)
 
 
+@checked
 def quat_slerp(
     q0: Float[Array, "... 4"], q1: Float[Array, "... 4"], s: Float[Array, " ..."]
 ) -> Float[Array, "... 4"]:
     """Spherical linear interpolation along the shorter arc (nlerp where the arc is tiny);
     any component order, as long as ``q0`` and ``q1`` share it."""
+    _check_lerp(q0, q1, s)
     jnp = _xp(q0, q1, s)  # noqa: F811
     d = jnp.sum(q0 * q1, axis=-1, keepdims=True)
     q1 = jnp.where(d < 0, -q1, q1)
@@ -263,6 +303,7 @@ def _rot_axis(theta: Float[Array, " ..."], axis: int) -> Float[Array, "... 3 3"]
     return xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
+@checked
 def euler_to_matrix(
     angles: Float[Array, "... 3"], order: str = "XYZ", degrees: bool = False
 ) -> Float[Array, "... 3 3"]:
@@ -270,7 +311,7 @@ def euler_to_matrix(
     scipy's upper-case sequences); radians unless ``degrees``."""
     order = order.upper()
     if len(order) != 3 or any(c not in _AXIS for c in order):
-        raise ValueError(f"order must be three axes of X/Y/Z, got {order!r}")
+        raise FxspaceError(f"order must be three axes of X/Y/Z, got {order!r}")
     xp = _xp(angles)
     a = xp.deg2rad(angles) if degrees else angles
     R = _rot_axis(a[..., 0], _AXIS[order[0]])

@@ -6,10 +6,16 @@ written to a temporary name in the same folder and renamed into place, so an
 interrupted run never leaves a half-written file; ``metrics.json`` is written last
 and marks the run complete. ``cached`` stores intermediate results so an
 interrupted sweep resumes where it stopped; the cache belongs to one *run key* — a hash
-of the resolved config, the data (file digests) and the code (:func:`run_key`) — and is
+of the resolved config, the data (file digests) and the code (`run_key`) — and is
 cleared when the key changes, so a changed config, data file or code never reuses it.
 ``status.json`` says ``running``, ``complete``, ``failed`` (with the error) or
 ``interrupted``. Files are readable by the group (never 0600).
+
+**A user's folders are theirs**: every file fxspace writes into a run folder is listed
+in the folder's manifest ``.fxspace-manifest`` (one relative path a line, see `record`).
+Clearing a cache (`reset_cache`) or an old run (`clean_run`) deletes only the files
+listed there, and then only the folders that became empty; a file fxspace did not
+write (say ``DIR/cache/notes.txt``) is never touched.
 """
 
 from __future__ import annotations
@@ -22,7 +28,9 @@ import platform
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -38,6 +46,7 @@ __all__ = [
     "versions",
     "git_sha",
     "write_meta",
+    "update_meta",
     "cached",
     "to_jsonable",
     "code_digest",
@@ -46,7 +55,21 @@ __all__ = [
     "write_status",
     "read_status",
     "reset_cache",
+    "cached_arrays",
+    "MANIFEST",
+    "record",
+    "manifest_files",
+    "clean_run",
+    "active_run",
 ]
+
+#: Name of the manifest file: the files fxspace wrote into a run folder.
+MANIFEST = ".fxspace-manifest"
+
+# the run folder being written by `run_dict` (files written under it are recorded)
+_ACTIVE: ContextVar[Path | None] = ContextVar("fxspace_active_run", default=None)
+# manifest path -> the relative paths already listed (so each path is appended once)
+_LISTED: dict[Path, set[str]] = {}
 
 _PACKAGES = (
     "fxspace",
@@ -77,7 +100,106 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+    active = _ACTIVE.get()
+    if active is not None:
+        record(active, p)
     return p
+
+
+def _manifest_path(run_dir: str | Path) -> Path:
+    return Path(run_dir).resolve() / MANIFEST
+
+
+def manifest_files(run_dir: str | Path) -> list[str]:
+    """The files fxspace wrote into ``run_dir`` (paths relative to it, sorted), read from
+    its manifest; ``[]`` when there is none (nothing is then known to be fxspace's)."""
+    m = _manifest_path(run_dir)
+    try:
+        lines = m.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        return []
+    return sorted({ln for ln in lines if _safe_rel(ln)})
+
+
+def _safe_rel(rel: str) -> bool:
+    """A manifest line is trusted only as a plain relative path inside the folder."""
+    if not rel or rel.startswith(("/", "\\")) or "\0" in rel:
+        return False
+    parts = Path(rel).parts
+    return bool(parts) and ".." not in parts and rel != MANIFEST
+
+
+def record(run_dir: str | Path, path: str | Path) -> None:
+    """List ``path`` (a file fxspace wrote, inside ``run_dir``) in the folder's manifest.
+
+    Paths outside ``run_dir`` are ignored. The manifest is append-only, one relative
+    path a line, so an interrupted run loses at most the line being written.
+    """
+    root = Path(run_dir).resolve()
+    try:
+        rel = Path(path).resolve().relative_to(root).as_posix()
+    except ValueError:
+        return
+    if not _safe_rel(rel):
+        return
+    m = root / MANIFEST
+    listed = _LISTED.get(m)
+    if listed is None or not m.is_file():
+        listed = _LISTED[m] = set(manifest_files(root))
+    if rel in listed:
+        return
+    root.mkdir(parents=True, exist_ok=True)
+    with m.open("a", encoding="utf-8") as f:
+        f.write(rel + "\n")
+    listed.add(rel)
+
+
+@contextmanager
+def active_run(run_dir: str | Path) -> Iterator[Path]:
+    """Within this block, every file written through this module under ``run_dir`` is
+    recorded in its manifest (figures, arrays, metrics of a pipeline's ``run``)."""
+    root = Path(run_dir).resolve()
+    token = _ACTIVE.set(root)
+    try:
+        yield root
+    finally:
+        _ACTIVE.reset(token)
+
+
+def _remove_listed(root: Path, keep: Callable[[str], bool]) -> list[str]:
+    """Delete the manifest's files for which ``keep(rel)`` is false, then the folders
+    left empty by that (never a folder that still holds anything)."""
+    listed = manifest_files(root)
+    removed, kept = [], []
+    for rel in listed:
+        if keep(rel):
+            kept.append(rel)
+            continue
+        f = root / rel
+        if f.is_file() or f.is_symlink():
+            f.unlink()
+        removed.append(rel)
+        parent = f.parent
+        while parent != root and parent.is_dir() and not any(parent.iterdir()):
+            parent.rmdir()
+            parent = parent.parent
+    m = root / MANIFEST
+    if kept:
+        write_text_atomic(m, "".join(r + "\n" for r in kept))
+    elif m.exists():
+        m.unlink()
+    _LISTED.pop(m, None)
+    return removed
+
+
+def clean_run(run_dir: str | Path, keep: Callable[[str], bool] | None = None) -> list[str]:
+    """Delete every file fxspace wrote into ``run_dir`` (its manifest), e.g. an old
+    experiment's figures and arrays before another config runs there; files fxspace did not
+    write, and folders that still hold them, stay. Returns the removed relative paths."""
+    root = Path(run_dir).resolve()
+    if not root.is_dir():
+        return []
+    return _remove_listed(root, keep or (lambda rel: False))
 
 
 def _umask() -> int:
@@ -182,6 +304,16 @@ def write_meta(run_dir: str | Path, seed: int, extra: dict[str, Any] | None = No
     return write_json_atomic(Path(run_dir) / "meta.json", meta)
 
 
+def update_meta(run_dir: str | Path, extra: dict[str, Any]) -> Path:
+    """Merge ``extra`` into ``meta.json`` (e.g. the run's ``"timing"``: compile vs compute)."""
+    p = Path(run_dir) / "meta.json"
+    try:
+        meta = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError):
+        meta = {}
+    return write_json_atomic(p, {**meta, **extra})
+
+
 def code_digest() -> str:
     """SHA-256 of fxspace's source files (paths + bytes): the code version of a run key."""
     root = Path(__file__).resolve().parent
@@ -226,17 +358,28 @@ def read_status(run_dir: str | Path) -> dict[str, Any]:
 
 def reset_cache(run_dir: str | Path, key: str, force: bool = False) -> bool:
     """Bind ``run_dir/cache`` to the run key ``key``: clear it when the key differs (or on
-    ``force``). Returns whether an existing cache was cleared."""
-    import shutil
+    ``force``). Returns whether an existing cache was cleared.
 
-    d = Path(run_dir) / "cache"
+    Clearing deletes only the cache files fxspace wrote (listed in the run folder's
+    manifest, see `record`): a user's file under ``cache/`` survives."""
+    root = Path(run_dir)
+    d = root / "cache"
     kp = d / "KEY"
     old = kp.read_text().strip() if kp.is_file() else None
     cleared = False
     if d.exists() and (force or old != key):
-        shutil.rmtree(d)
+        listed = [r for r in manifest_files(root) if r.startswith("cache/")]
+        if old is not None and not listed:
+            # a cache from before manifests: nothing is known to be fxspace's, so nothing
+            # is deleted; it is set aside so that no stale stage is ever served
+            aside = d.with_name(f"cache.stale-{_dt.datetime.now(_dt.UTC):%Y%m%dT%H%M%S%f}")
+            d.rename(aside)
+            print(f"[fxspace] {d} predates run manifests; moved to {aside.name} (delete it freely)")
+        else:
+            _remove_listed(root.resolve(), lambda rel: not rel.startswith("cache/"))
         cleared = True
     write_text_atomic(kp, key + "\n")
+    record(root, kp)
     return cleared
 
 
@@ -254,6 +397,7 @@ def cached(run_dir: str | Path, key: str, compute: Callable[[], Any]) -> Any:
             pass  # a damaged cache entry is recomputed
     value = to_jsonable(compute())
     write_json_atomic(p, value)
+    record(run_dir, p)
     return value
 
 
@@ -265,7 +409,7 @@ def cached_arrays(
     ``compute()`` returns a flat ``{name: array-like}``; the stored arrays are returned
     (as NumPy arrays) on this and every later call in the same run folder, so a run
     interrupted after this stage resumes without recomputing it. The cache folder is
-    bound to the run's content key (config + data + code, see :func:`reset_cache`), so a
+    bound to the run's content key (config + data + code, see `reset_cache`), so a
     stage is never served to another config. A damaged file is recomputed.
 
     **Example:**
@@ -285,4 +429,5 @@ def cached_arrays(
             pass  # a damaged stage is recomputed
     value = {k: np.asarray(v) for k, v in compute().items()}
     save_npz_atomic(p, **value)
+    record(run_dir, p)
     return value

@@ -1,10 +1,19 @@
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 
 # tests/helpers.py is imported as `helpers` from every test folder (importlib import mode)
 sys.path.insert(0, os.path.dirname(__file__))
 
 os.environ.setdefault("FXSPACE_QUIET", "1")
+# one fresh persistent compilation cache per test session (shared with the subprocesses the
+# tests start), never the user's folder
+if "FXSPACE_COMPILE_CACHE" not in os.environ:
+    _cache = tempfile.mkdtemp(prefix="fxspace-tests-jax-cache-")
+    os.environ["FXSPACE_COMPILE_CACHE"] = _cache
+    atexit.register(shutil.rmtree, _cache, ignore_errors=True)
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import jax  # noqa: E402
@@ -35,3 +44,14 @@ def data_dir():
     if root is None:
         pytest.skip("real capture data absent: set FXSPACE_DATA or provide ../shared/data")
     return root
+
+
+_DURATIONS = os.environ.get("FXSPACE_TEST_DURATIONS")
+
+
+def pytest_runtest_logreport(report):
+    """With ``FXSPACE_TEST_DURATIONS=FILE``, append each test's call time as it finishes (to
+    size the default set while a long run is still going)."""
+    if _DURATIONS and report.when == "call":
+        with open(_DURATIONS, "a") as f:
+            f.write(f"{report.duration:.2f} {report.outcome} {report.nodeid}\n")

@@ -95,3 +95,64 @@ def test_public_names_import_without_dev_dependencies():
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.startswith("ok")
     assert int(r.stdout.split()[1]) > 150  # every subpackage's __all__ was walked
+
+
+def test_every_declared_dependency_is_imported():
+    """Issue 18: a declared run-time dependency earns its place (equinox: fxspace/results.py)."""
+    core, _ = _declared()
+    dists = metadata.packages_distributions()
+    used: set[str] = set()
+    for path in sorted(PKG.rglob("*.py")):
+        for mod in _third_party_imports(path):
+            used |= {d.lower().replace("_", "-") for d in dists.get(mod, [mod])}
+    unused = sorted(core - used)
+    assert not unused, f"declared in pyproject.toml but never imported by fxspace/: {unused}"
+
+
+HEAVY = ("matplotlib", "viser", "playwright", "scipy.sparse", "scipy.sparse.csgraph")
+
+
+def test_import_fxspace_loads_no_plotting_browser_or_sparse_graph_library():
+    code = textwrap.dedent(
+        f"""
+        import sys
+        import fxspace as fx
+        print(sorted(m for m in {HEAVY!r} if m in sys.modules))
+        # the lazy subpackages still resolve, and load their library only then
+        assert callable(fx.plot.plot_sweep) and "matplotlib" in sys.modules
+        assert fx.pipelines.__name__ == "fxspace.pipelines" and fx.datasets and fx.cli
+        print("ok")
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    loaded, ok = r.stdout.split("\n")[:2]
+    assert loaded == "[]", f"import fxspace loaded {loaded}"
+    assert ok == "ok"
+
+
+NUMERICAL = ("cluster", "expression", "navigation", "controlpoints", "mesh", "motion")
+
+
+def test_top_level_reexports_follow_the_stated_rule():
+    """Rule 2 of fxspace/__init__.py: every non-module top-level name is the same object as
+    a public name of a numerical subpackage's front, or RESULTS / an error type."""
+    import importlib
+    import types
+
+    import fxspace as fx
+
+    homes = [importlib.import_module(f"fxspace.{p}") for p in NUMERICAL]
+    homes += [fx.results, fx.errors]
+    stray = []
+    for name in dir(fx):
+        if name.startswith("_"):
+            continue
+        obj = getattr(fx, name)
+        if isinstance(obj, types.ModuleType):
+            assert obj.__name__ == f"fxspace.{name}", name
+            continue
+        if not any(name in getattr(h, "__all__", ()) and getattr(h, name) is obj for h in homes):
+            stray.append(name)
+    assert not stray, f"top-level names outside the rule: {stray}"
+    assert fx.fuzzy_cmeans is fx.cluster.fuzzy_cmeans and fx.RESULTS is fx.results.RESULTS

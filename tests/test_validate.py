@@ -93,3 +93,110 @@ def test_check_readable(tmp_path):
     f = tmp_path / "f"
     f.write_text("x")
     assert check_readable(f) == f
+
+
+# --- issue 19: one validation layer ------------------------------------------------------
+
+
+def test_counts_indices_keys_and_flags_refused_consistently():
+    from fxspace._validate import check_bool, check_index, check_indices, check_key
+
+    for bad in (2.5, float("nan"), float("inf"), "3", None, True):
+        with pytest.raises(FxspaceError, match="n must be an integer"):
+            check_int(bad, "n")
+    assert check_int(3.0, "n") == 3 and check_int(np.int32(4), "n") == 4
+    assert check_int(np.array(5), "n") == 5
+    with pytest.raises(FxspaceError, match="frame must be an integer index, got the float"):
+        check_index(2.0, "frame", 10)
+    with pytest.raises(FxspaceError, match=r"frame must lie in \[0, 9\]"):
+        check_index(10, "frame", 10)
+    assert check_indices([0, 3], "frames", 4).dtype == np.int64
+    with pytest.raises(FxspaceError, match="integer indices"):
+        check_indices([0.5, 1.0], "frames", 4)
+    with pytest.raises(FxspaceError, match=r"outside \[0, 3\]"):
+        check_indices([0, 7], "frames", 4)
+    with pytest.raises(FxspaceError, match="True or False"):
+        check_bool("yes", "flag")
+    check_key(jax.random.PRNGKey(0))
+    check_key(jax.random.key(0))
+    for bad in (0, -1, 2.5, "k", np.zeros(3)):
+        with pytest.raises(FxspaceError, match=r"key must be a JAX PRNG key.*PRNGKey\(seed\)"):
+            check_key(bad)
+    with pytest.raises(FxspaceError, match="must be one of"):
+        check_choice(np.zeros(2), "mode", ("a", "b"))  # an array is not a mode
+
+
+def test_checked_reads_the_annotations():
+    from typing import Literal
+
+    from jaxtyping import Array, Float, Int
+
+    from fxspace._validate import checked
+
+    calls = []
+
+    @checked
+    def f(
+        x: Float[Array, "n 3"],
+        centers: Float[Array, "c 3"] | None = None,
+        k: int = 2,
+        lam: float = 1.0,
+        mode: Literal["a", "b"] = "a",
+        idx: Int[Array, " m"] | None = None,
+        key=None,
+        flag: bool = False,
+    ):
+        calls.append(1)
+        x = jnp.asarray(x)
+        return x.sum() if centers is None else (x[:, None] - centers[None]).sum()
+
+    assert f([[1.0, 2.0, 3.0]], k=3.0) == 6.0  # a list is converted, 3.0 is the count 3
+    for kwargs, match in [
+        ({"x": "abc"}, "x must be a numeric array, got str"),
+        ({"x": None}, "x must be a numeric array"),
+        ({"x": np.zeros((2, 3), complex)}, "x is complex"),
+        ({"x": np.zeros((2, 3)), "k": 2.5}, "k must be an integer, got 2.5"),
+        ({"x": np.zeros((2, 3)), "lam": float("nan")}, "lam must be a finite number"),
+        ({"x": np.zeros((2, 3)), "lam": "1"}, "lam must be a real number"),
+        ({"x": np.zeros((2, 3)), "mode": "c"}, "mode must be one of 'a', 'b'"),
+        ({"x": np.zeros((2, 3)), "idx": np.array([0.5])}, "idx must hold integers"),
+        ({"x": np.zeros((2, 3)), "key": 0}, "key must be a JAX PRNG key"),
+        ({"x": np.zeros((2, 3)), "flag": "yes"}, "flag must be True or False"),
+        ({}, "missing a required argument: 'x'"),
+    ]:
+        n = len(calls)
+        with pytest.raises(FxspaceError, match=match):
+            f(**kwargs)
+        assert len(calls) == n  # refused before the function ran
+    # shapes are explained after a raw error (the function's own checks come first)
+    with pytest.raises(FxspaceError, match=r"x and centers disagree on the axis 'n'|centers"):
+        f(np.zeros((2, 3)), centers=np.zeros((4, 3, 2)))
+    with pytest.raises(FxspaceError, match="x is empty"):
+        f(np.zeros((0, 3)), centers=np.zeros((2, 4)))
+    # under jit and vmap traced values pass through untouched
+    assert float(jax.jit(f)(jnp.ones((2, 3)))) == 6.0
+    assert jax.vmap(f)(jnp.ones((4, 2, 3))).shape == (4,)
+
+
+def test_issue_examples_give_one_line_errors():
+    import fxspace as fx
+
+    X = np.random.default_rng(0).normal(size=(20, 3))
+    cases = [
+        (lambda: fx.fuzzy_cmeans(X, 3, key=jax.random.PRNGKey(0), n_init=2.5), "n_init"),
+        (lambda: fx.fuzzy_cmeans(X, 3, key=0), "key must be a JAX PRNG key"),
+        (lambda: fx.kernel_kmeans(X, 3, key=0), "key must be a JAX PRNG key"),
+        (lambda: fx.kmeanspp_init(X, 3, 0), "key must be a JAX PRNG key"),
+        (lambda: fx.level_sizes(100, c0=2.5), "c0 must be an integer"),
+        (lambda: fx.build_hierarchy(X[:, :2], c0=2.5), "c0 must be an integer"),
+        (lambda: fx.synthetic.synthetic_face(n_markers=20.5), "n_markers must be an integer"),
+        (lambda: fx.synthetic.synthetic_face(seed=-1), "seed"),
+        (lambda: fx.motion.sample_blend_weights(0, 3, 5), "key must be a JAX PRNG key"),
+    ]
+    for call, match in cases:
+        with pytest.raises(FxspaceError, match=match) as e:
+            call()
+        assert "\n" not in str(e.value)
+    S = np.arange(8.0).reshape(4, 2)
+    with pytest.raises(FxspaceError, match=r"k must lie in \[1, 4\]"):
+        fx.motion.knn_blend_weights(np.zeros(2), S, np.eye(4), k=0)

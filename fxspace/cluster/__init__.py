@@ -1,4 +1,8 @@
-"""Generic clustering: fuzzy c-means and kernel k-means (they know nothing of faces)."""
+"""Generic clustering: fuzzy c-means and kernel k-means (they know nothing of faces).
+
+Every routine returns a result record with `.result` (a `fxspace.RESULTS` member),
+`.num_steps`, `.stats` and `.converged`, and takes `throw=`.
+"""
 
 from fxspace.cluster._fcm import FCMResult as FCMResult
 from fxspace.cluster._fcm import fcm_memberships as fcm_memberships
@@ -6,6 +10,7 @@ from fxspace.cluster._fcm import fcm_objective as fcm_objective
 from fxspace.cluster._fcm import fuzzy_cmeans as fuzzy_cmeans
 from fxspace.cluster._fcm import kmeanspp_extend as kmeanspp_extend
 from fxspace.cluster._fcm import kmeanspp_init as kmeanspp_init
+from fxspace.cluster._fcm import squared_distances as squared_distances
 from fxspace.cluster._fcm_sparse import SparseFCMResult as SparseFCMResult
 from fxspace.cluster._fcm_sparse import sparse_fuzzy_cmeans as sparse_fuzzy_cmeans
 from fxspace.cluster._kernel_kmeans import KernelKMeansResult as KernelKMeansResult
@@ -21,6 +26,7 @@ __all__ = [
     "fuzzy_cmeans",
     "kmeanspp_extend",
     "kmeanspp_init",
+    "squared_distances",
     "SparseFCMResult",
     "sparse_fuzzy_cmeans",
     "KernelKMeansResult",

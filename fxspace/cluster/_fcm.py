@@ -20,19 +20,21 @@ is never formed (small d is unrolled over the feature axis, large d uses the
 from __future__ import annotations
 
 from functools import partial
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import as_float_array, check_scalar
+from fxspace._validate import _is_tracer, as_float_array, check_finite, check_scalar, checked
 from fxspace.errors import FxspaceError
+from fxspace.results import check_result, result_from_flags
 
 __all__ = [
     "FCMResult",
     "fuzzy_cmeans",
+    "squared_distances",
     "fcm_memberships",
     "kmeanspp_init",
     "kmeanspp_extend",
@@ -43,7 +45,7 @@ _UNROLL_MAX_D = 8
 
 
 class FCMResult(NamedTuple):
-    """Result of :func:`fuzzy_cmeans`.
+    """Result of [`fuzzy_cmeans`][fxspace.fuzzy_cmeans].
 
     **Fields:**
 
@@ -51,8 +53,12 @@ class FCMResult(NamedTuple):
     - `memberships`: (n, c) fuzzy memberships U (rows sum to 1), optimal for `centers`.
     - `objective`: J_m(U, V) (scalar).
     - `num_steps`: number of Bezdek iterations run.
-    - `converged`: whether the largest per-entry membership change fell below `tol`
-      before `max_steps`.
+    - `converged`: `result == RESULTS.successful` (kept for older callers): the largest
+      per-entry membership change fell below `tol` before `max_steps`, on finite data.
+    - `result`: a [`RESULTS`][fxspace.RESULTS] member: `successful`, `max_steps_reached`,
+      `nonfinite_input` (NaN/inf in `x` or the initial state) or `nonfinite_output`.
+    - `stats`: scalar diagnostics: `max_steps`, `delta` (the last membership change)
+      and `tol`.
     """
 
     centers: Float[Array, "c d"]
@@ -60,10 +66,14 @@ class FCMResult(NamedTuple):
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
     converged: Bool[Array, ""]
+    result: Any
+    stats: dict[str, Array]
 
 
-def _sq_dists(x: Float[Array, "n d"], v: Float[Array, "c d"]) -> Float[Array, "n c"]:
-    """Squared Euclidean distances without an (n, c, d) temporary."""
+@checked
+def squared_distances(x: Float[Array, "n d"], v: Float[Array, "c d"]) -> Float[Array, "n c"]:
+    """Squared Euclidean distances ``‖x_i − v_k‖²`` between two point sets, (n, c),
+    without an (n, c, d) temporary (small d unrolled, large d by the Gram expansion)."""
     d = x.shape[1]
     if d <= _UNROLL_MAX_D:
         out = jnp.square(x[:, 0:1] - v[None, :, 0])
@@ -89,7 +99,7 @@ def _weights(d2: Float[Array, "n c"], m: float) -> Float[Array, "n c"]:
 
 
 def _memberships_and_objective(x, v, m):
-    w = _weights(_sq_dists(x, v), m)
+    w = _weights(squared_distances(x, v), m)
     s = jnp.sum(w, axis=1, keepdims=True)
     u = w / s
     obj = jnp.sum(1.0 / s) if m == 2.0 else jnp.sum(jnp.power(s, 1.0 - m))
@@ -105,6 +115,7 @@ def _centers(x, u, m, v_prev):
     return jnp.where(ok[:, None], num / jnp.where(ok, mass, 1.0)[:, None], v_prev)
 
 
+@checked
 def fcm_memberships(
     x: Float[Array, "n d"], centers: Float[Array, "c d"], m: float = 2.0
 ) -> Float[Array, "n c"]:
@@ -112,6 +123,7 @@ def fcm_memberships(
     return _memberships_and_objective(jnp.asarray(x), jnp.asarray(centers), float(m))[0]
 
 
+@checked
 def fcm_objective(
     x: Float[Array, "n d"],
     centers: Float[Array, "c d"],
@@ -119,15 +131,18 @@ def fcm_objective(
     m: float = 2.0,
 ) -> Float[Array, ""]:
     """J_m(U, V) = Σ_i Σ_k u_ik^m ‖x_i − v_k‖² for arbitrary U and V."""
-    d2 = _sq_dists(jnp.asarray(x), jnp.asarray(centers))
+    d2 = squared_distances(jnp.asarray(x), jnp.asarray(centers))
     return jnp.sum(jnp.power(memberships, m) * d2)
 
 
+@checked
 @partial(jax.jit, static_argnames=("n_clusters",))
 def kmeanspp_init(x: Float[Array, "n d"], n_clusters: int, key: Array) -> Float[Array, "c d"]:
     """k-means++ seeding (Arthur & Vassilvitskii 2007): each new centre is a sample drawn
     with probability ∝ its squared distance to the nearest chosen centre. O(n c d)."""
     n = x.shape[0]
+    if not 1 <= n_clusters <= n:  # static under jit: checked at trace time
+        raise FxspaceError(f"n_clusters must lie in [1, {n}] (the points), got {n_clusters}")
     k0, key = jax.random.split(key)
     first = jax.random.randint(k0, (), 0, n)
     centers = jnp.zeros((n_clusters, x.shape[1]), x.dtype).at[0].set(x[first])
@@ -148,6 +163,7 @@ def kmeanspp_init(x: Float[Array, "n d"], n_clusters: int, key: Array) -> Float[
     return centers
 
 
+@checked
 @partial(jax.jit, static_argnames=("n_new",))
 def kmeanspp_extend(
     x: Float[Array, "n d"], centers: Float[Array, "c d"], n_new: int, key: Array
@@ -155,7 +171,13 @@ def kmeanspp_extend(
     """Keep ``centers`` and draw ``n_new`` more by the k-means++ rule (probability ∝ squared
     distance to the nearest centre so far): a warm start that adds centres where the
     current ones cover the data worst. O(n (c + n_new) d)."""
-    closest = jnp.min(_sq_dists(x, centers), axis=1)
+    x = as_float_array(x, "x", ndim=2, finite="allow")
+    centers = as_float_array(centers, "centers", shape=(None, x.shape[1]), finite="allow")
+    if n_new < 0:
+        raise FxspaceError(f"n_new must be >= 0, got {n_new}")
+    if n_new == 0:
+        return centers
+    closest = jnp.min(squared_distances(x, centers), axis=1)
     buf = jnp.zeros((n_new, x.shape[1]), x.dtype)
 
     def body(k, carry):
@@ -168,7 +190,8 @@ def kmeanspp_extend(
         return closest, key, buf.at[k].set(c)
 
     _, _, buf = jax.lax.fori_loop(0, n_new, body, (closest, key, buf))
-    return jnp.concatenate([centers, buf], axis=0)
+    bad = ~(jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(centers)))  # NaN in, NaN out
+    return jnp.where(bad, jnp.nan, jnp.concatenate([centers, buf], axis=0))
 
 
 def _fcm_loop(x, v0, u0, m, tol, max_steps, criterion="max", check_every=1):
@@ -215,7 +238,14 @@ def _fcm_loop(x, v0, u0, m, tol, max_steps, criterion="max", check_every=1):
     u = jnp.where(steps == 0, u_fin, u)
     # a NaN/inf iterate (e.g. from non-finite data under jit) never reports convergence
     ok = jnp.isfinite(obj) & jnp.all(jnp.isfinite(v)) & jnp.all(jnp.isfinite(u))
-    return FCMResult(v, u, obj, steps, (delta < tol) & ok)
+    bad_in = ~(jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(u0)) & jnp.all(jnp.isfinite(v0)))
+    result = result_from_flags(
+        converged=(delta < tol) & ok, nonfinite_input=bad_in, nonfinite_output=~ok
+    )
+    stats = {"max_steps": jnp.asarray(max_steps, jnp.int32), "delta": delta, "tol": tol}
+    # non-finite input: NaN out, never the plausible-looking initial centres
+    v, u, obj = (jnp.where(bad_in, jnp.nan, a) for a in (v, u, obj))
+    return FCMResult(v, u, obj, steps, (delta < tol) & ok & ~bad_in, result, stats)
 
 
 @partial(
@@ -254,6 +284,7 @@ def _fcm_jit(
     return jax.tree_util.tree_map(lambda a: a[best], runs)
 
 
+@checked
 def fuzzy_cmeans(
     x: Float[Array, "n d"],
     n_clusters: int,
@@ -267,6 +298,7 @@ def fuzzy_cmeans(
     init_memberships: Float[Array, "n c"] | None = None,
     criterion: Literal["max", "fro"] = "max",
     check_every: int = 4,
+    throw: bool = False,
 ) -> FCMResult:
     """Fuzzy c-means clustering (Bezdek's alternating updates) as one jitted while-loop.
 
@@ -290,11 +322,31 @@ def fuzzy_cmeans(
     - `check_every`: measure the change every this many steps (the steps in between update
       the centres only, which is cheaper); `num_steps` is then a multiple of it (or
       `max_steps`). 1 checks every step.
+    - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] when the result is not
+      `RESULTS.successful` (NaN/inf in `x` is named by position before any work; under
+      `jit` the check runs through `equinox.error_if`). With `False` (the default) the
+      outcome is reported in `.result`, so a `vmap`ped sweep keeps going.
 
-    **Returns:** an :class:`FCMResult`. Cost O(n c d) per step, O(n c) memory.
-    Empty clusters keep their previous centre; coincident centres stay finite.
+    **Returns:** an [`FCMResult`][fxspace.FCMResult] with `.result`, `.num_steps` and
+    `.stats`. Cost O(n c d) per step, O(n c) memory. Empty clusters keep their previous
+    centre; coincident centres stay finite. NaN/inf input gives
+    `result == RESULTS.nonfinite_input` (and NaN centres), never `successful`.
+
+    **Example:**
+
+    ```python
+    import jax
+    import numpy as np
+    import fxspace as fx
+
+    X = np.random.default_rng(0).normal(size=(200, 2))
+    res = fx.fuzzy_cmeans(X, 3, key=jax.random.key(0))
+    assert res.result == fx.RESULTS.successful
+    ```
     """
-    x = as_float_array(x, "x", axes=("n_samples", "n_features"))  # dtype, NaN/inf checked
+    x = as_float_array(x, "x", axes=("n_samples", "n_features"), finite="allow")
+    if throw and not _is_tracer(x):
+        check_finite(x, "x")  # names where the NaN/inf are
     n = x.shape[0]
     if isinstance(n_clusters, bool) or not isinstance(n_clusters, int | np.integer):
         raise FxspaceError(f"n_clusters must be an integer, got {n_clusters!r}")
@@ -334,7 +386,7 @@ def fuzzy_cmeans(
         raise FxspaceError("key is required for k-means++ seeding: pass key=jax.random.key(0)")
     if key is None:
         key = jax.random.PRNGKey(0)
-    return _fcm_jit(
+    res = _fcm_jit(
         x,
         n_clusters,
         m,
@@ -347,3 +399,8 @@ def fuzzy_cmeans(
         criterion,
         int(check_every),
     )
+    return check_result(res.result, throw, "fuzzy_cmeans", res)
+
+
+# the old private name, kept for callers inside this subpackage
+_sq_dists = squared_distances

@@ -1,6 +1,6 @@
 """Fuzzy c-means with sparse memberships: each point keeps its ``p`` nearest centres.
 
-Bezdek's alternating updates (see :mod:`fxspace.cluster._fcm`) with the membership of
+Bezdek's alternating updates (see [`fuzzy_cmeans`][fxspace.fuzzy_cmeans]) with the membership of
 point ``i`` restricted to the set ``N_p(i)`` of its ``p`` nearest centres
 (truncated FCM):
 
@@ -17,26 +17,34 @@ Stops when no centre moves more than ``tol`` × the data's scale.
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace.cluster._fcm import _sq_dists, _tiny, kmeanspp_init
+from fxspace._validate import _is_tracer, check_finite, checked
+from fxspace.cluster._fcm import _tiny, kmeanspp_init, squared_distances
 from fxspace.errors import FxspaceError
+from fxspace.results import check_result, result_from_flags
 
 __all__ = ["SparseFCMResult", "sparse_fuzzy_cmeans"]
 
 
 class SparseFCMResult(NamedTuple):
-    """Result of :func:`sparse_fuzzy_cmeans`.
+    """Result of [`sparse_fuzzy_cmeans`][fxspace.cluster.sparse_fuzzy_cmeans].
+
+    **Fields:**
 
     - `centers`: ``(c, d)`` centres.
     - `indices`: ``(n, p)`` int32, the ``p`` nearest centres of each point.
     - `memberships`: ``(n, p)`` memberships on those centres (rows sum to 1).
     - `objective`: ``J_m = Σ_i Σ_k u_ik^m ‖x_i − v_k‖²`` over the kept entries.
-    - `num_steps`, `converged`: iterations run, and whether the centres settled.
+    - `num_steps`, `converged`: iterations run, and whether the centres settled
+      (`converged` is `result == RESULTS.successful`).
+    - `result`: a [`RESULTS`][fxspace.RESULTS] member.
+    - `stats`: `max_steps`, `moved` (the last largest centre move) and `tol_abs`
+      (`tol` × the data's RMS spread).
     """
 
     centers: Float[Array, "c d"]
@@ -45,6 +53,8 @@ class SparseFCMResult(NamedTuple):
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
     converged: Bool[Array, ""]
+    result: Any
+    stats: dict[str, Array]
 
 
 def _assign(x: Array, v: Array, m: float, p: int, chunk: int):
@@ -56,7 +66,7 @@ def _assign(x: Array, v: Array, m: float, p: int, chunk: int):
 
     def one(args):
         xc, ok = args
-        neg, idx = jax.lax.top_k(-_sq_dists(xc, v), p)
+        neg, idx = jax.lax.top_k(-squared_distances(xc, v), p)
         d2 = jnp.maximum(-neg, _tiny(x.dtype))
         w = 1.0 / d2 if m == 2.0 else jnp.power(d2, -1.0 / (m - 1.0))
         u = w / jnp.sum(w, axis=1, keepdims=True)
@@ -98,9 +108,22 @@ def _loop(x, v0, m, p, tol, max_steps, chunk):
         cond, body, (v0, jnp.int32(0), jnp.asarray(jnp.inf, x.dtype))
     )
     idx, u, obj = _assign(x, v, m, p, chunk)
-    return v, idx, u, obj, steps, moved < tol * scale
+    ok = jnp.isfinite(obj) & jnp.all(jnp.isfinite(v))
+    bad_in = ~(jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(v0)))
+    result = result_from_flags(
+        converged=(moved < tol * scale) & ok, nonfinite_input=bad_in, nonfinite_output=~ok
+    )
+    stats = {
+        "max_steps": jnp.asarray(max_steps, jnp.int32),
+        "moved": moved,
+        "tol_abs": tol * scale,
+    }
+    conv = (moved < tol * scale) & ok & ~bad_in
+    v, u, obj = (jnp.where(bad_in, jnp.nan, a) for a in (v, u, obj))
+    return SparseFCMResult(v, idx, u, obj, steps, conv, result, stats)
 
 
+@checked
 def sparse_fuzzy_cmeans(
     x: Float[Array, "n d"],
     n_clusters: int,
@@ -112,6 +135,7 @@ def sparse_fuzzy_cmeans(
     tol: float = 1e-4,
     max_steps: int = 300,
     chunk: int = 8192,
+    throw: bool = False,
 ) -> SparseFCMResult:
     """Fuzzy c-means whose memberships keep each point's `nearest` centres (memory O(n·p)).
 
@@ -123,8 +147,11 @@ def sparse_fuzzy_cmeans(
     - `key`: k-means++ seeding key, or `init_centers` ``(c, d)`` to warm-start.
     - `tol`: stop when no centre moves more than ``tol`` × RMS spread of the data.
     - `max_steps`: iteration cap; `chunk`: points per block of the distance pass.
+    - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] unless the result is
+      `RESULTS.successful` (under `jit` through `equinox.error_if`).
 
-    **Returns:** :class:`SparseFCMResult`.
+    **Returns:** [`SparseFCMResult`][fxspace.cluster.SparseFCMResult] with `.result`,
+    `.num_steps`, `.stats`; NaN/inf input gives `RESULTS.nonfinite_input`.
 
     **Example:**
 
@@ -135,6 +162,8 @@ def sparse_fuzzy_cmeans(
     x = jnp.asarray(x)
     if x.ndim != 2 or x.shape[0] < 1:
         raise FxspaceError(f"x must be (n_samples, n_features), got shape {x.shape}")
+    if throw and not _is_tracer(x):
+        check_finite(x, "x")
     n = x.shape[0]
     c = int(n_clusters)
     if not 1 <= c <= n:
@@ -152,7 +181,5 @@ def sparse_fuzzy_cmeans(
         raise FxspaceError("pass key (k-means++ seeding) or init_centers")
     else:
         v0 = kmeanspp_init(x, c, key)
-    v, idx, u, obj, steps, conv = _loop(
-        x, v0, float(m), p, jnp.asarray(tol, x.dtype), int(max_steps), min(int(chunk), n)
-    )
-    return SparseFCMResult(v, idx, u, obj, steps, conv)
+    res = _loop(x, v0, float(m), p, jnp.asarray(tol, x.dtype), int(max_steps), min(int(chunk), n))
+    return check_result(res.result, throw, "sparse_fuzzy_cmeans", res)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import os
 from functools import partial
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -24,8 +24,16 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
-from fxspace._validate import as_float_array, check_int, check_scalar
+from fxspace._validate import (
+    _is_tracer,
+    as_float_array,
+    check_finite,
+    check_int,
+    check_scalar,
+    checked,
+)
 from fxspace.errors import FxspaceError
+from fxspace.results import check_result, result_from_flags
 
 __all__ = [
     "KernelKMeansResult",
@@ -38,18 +46,25 @@ __all__ = [
 
 
 class KernelKMeansResult(NamedTuple):
-    """Result of :func:`kernel_kmeans` (the best of ``n_init`` restarts by objective).
+    """Result of [`kernel_kmeans`][fxspace.kernel_kmeans] (the best of ``n_init`` restarts
+    by objective).
 
     **Fields:**
 
-    - `labels`: ``(n,)`` cluster of each point.
+    - `labels`: ``(n,)`` cluster of each point (``-1`` everywhere when the input holds
+      NaN/inf).
     - `objective`: Σ_i d(i, label_i), the within-cluster feature-space sum of squares.
     - `num_steps`: Lloyd steps run (all restarts advance together).
-    - `converged`: the best restart's labels stopped changing before ``max_steps``.
+    - `converged`: the best restart's labels stopped changing before ``max_steps``
+      (`result == RESULTS.successful`).
     - `medoids`: ``(c,)`` index of the point nearest (in feature space) to each centre;
       ``-1`` for an empty cluster.
     - `sizes`: ``(c,)`` points per cluster.
     - `restart_objectives`: ``(n_init,)`` objective of every restart.
+    - `result`: a [`RESULTS`][fxspace.RESULTS] member (`successful`,
+      `max_steps_reached`, `nonfinite_input` for NaN/inf in the points or the Gram
+      matrix, `nonfinite_output`).
+    - `stats`: `max_steps` and `n_unsettled` (restarts whose labels still changed).
     """
 
     labels: Int[Array, " n"]
@@ -59,8 +74,11 @@ class KernelKMeansResult(NamedTuple):
     medoids: Int[Array, " c"]
     sizes: Int[Array, " c"]
     restart_objectives: Float[Array, " n_init"]
+    result: Any
+    stats: dict[str, Array]
 
 
+@checked
 def gaussian_kernel(
     X: Float[ArrayLike, "n d"], gamma: float | Float[Array, ""]
 ) -> Float[Array, "n n"]:
@@ -71,20 +89,34 @@ def gaussian_kernel(
     return jnp.exp(-gamma * d2)
 
 
+@checked
 def median_gamma(X: Float[ArrayLike, "n d"], max_points: int = 1000) -> Float[Array, ""]:
     """Median heuristic ``γ = 1 / median ‖x_i − x_j‖²`` (≤ ``max_points`` evenly spaced points)."""
-    X = jnp.asarray(X)
+    if max_points < 2:
+        raise FxspaceError(f"max_points must be >= 2 (a median needs a pair), got {max_points}")
+    X = as_float_array(X, "X", ndim=2, min_frames=2)
     step = max(1, X.shape[0] // max_points)
     S = X[::step]
+    # scaled before squaring, so float32 points at 1e-25 or 1e19 neither underflow nor overflow
+    scale = jnp.max(jnp.abs(S))
+    scale = jnp.where(scale > 0, scale, 1.0)
+    S = S / scale
     sq = jnp.sum(S * S, axis=1)
     d2 = jnp.maximum(sq[:, None] + sq[None, :] - 2.0 * (S @ S.T), 0.0)
     iu = jnp.triu_indices(S.shape[0], 1)
     med = jnp.median(d2[iu])
-    return 1.0 / jnp.where(med > 0, med, 1.0)
+    gamma = jnp.where(med > 0, 1.0 / jnp.where(med > 0, med, 1.0) / scale**2, 1.0)
+    if not _is_tracer(gamma) and not bool(jnp.isfinite(gamma)):
+        raise FxspaceError(
+            f"median_gamma: the median squared distance of X ({float(med):g} x {float(scale):g}²) "
+            f"is out of the {X.dtype} range; rescale X (or pass gamma explicitly)"
+        )
+    return gamma
 
 
 def kernel_kmeans_memory(n: int, n_clusters: int, n_init: int, itemsize: int = 8) -> int:
-    """Bytes :func:`kernel_kmeans` needs: the Gram matrix plus the batched label products."""
+    """Bytes [`kernel_kmeans`][fxspace.kernel_kmeans] needs: the Gram matrix plus the
+    batched label products."""
     return itemsize * (2 * n * n + 4 * n * n_clusters * n_init)
 
 
@@ -165,6 +197,7 @@ def _reseed_empty(labels, mind, c):
     return labels.at[target].set(jnp.arange(c, dtype=labels.dtype), mode="drop")
 
 
+@checked
 def kernel_kmeans_gram(
     K: Float[ArrayLike, "n n"],
     n_clusters: int,
@@ -173,9 +206,13 @@ def kernel_kmeans_gram(
     n_init: int = 20,
     max_steps: int = 100,
     init: Literal["k-means++", "random"] | Int[ArrayLike, "n_init n"] = "k-means++",
+    throw: bool = False,
 ) -> KernelKMeansResult:
-    """Kernel k-means on a precomputed Gram matrix ``K`` (see :func:`kernel_kmeans`)."""
-    K = as_float_array(K, "K", ndim=2)  # dtype policy; NaN/inf named and rejected
+    """Kernel k-means on a precomputed Gram matrix ``K`` (see
+    [`kernel_kmeans`][fxspace.kernel_kmeans]; `throw` as there)."""
+    K = as_float_array(K, "K", ndim=2, finite="allow")
+    if throw and not _is_tracer(K):
+        check_finite(K, "K")  # names where the NaN/inf are
     if K.shape[0] != K.shape[1]:
         raise FxspaceError(f"K must be a square (n, n) Gram matrix; got shape {K.shape}")
     if not isinstance(n_clusters, int | np.integer) or not 1 <= n_clusters <= K.shape[0]:
@@ -192,7 +229,8 @@ def kernel_kmeans_gram(
         labels0 = jnp.asarray(init, jnp.int32).reshape(-1, K.shape[0])
         n_init = labels0.shape[0]
         mode = "labels"
-    return _kkm_core(K, int(n_clusters), key, int(n_init), int(max_steps), mode, labels0)
+    res = _kkm_core(K, int(n_clusters), key, int(n_init), int(max_steps), mode, labels0)
+    return check_result(res.result, throw, "kernel_kmeans", res)
 
 
 @partial(jax.jit, static_argnums=(1, 3, 4, 5))
@@ -209,10 +247,11 @@ def _kkm_core(K, n_clusters, key, n_init, max_steps, init, labels0):
             labels0 = jax.vmap(lambda k: jax.random.randint(k, (n,), 0, c))(keys).astype(jnp.int32)
 
     budget = max(8, min(n, n // 16))
+    bad_in = ~jnp.all(jnp.isfinite(K))  # no Lloyd steps on garbage
 
     def cond(s):
         _, _, changed, it = s
-        return jnp.logical_and(jnp.any(changed), it < max_steps)
+        return jnp.any(changed) & (it < max_steps) & ~bad_in
 
     def body(s):
         labels, KH, _, it = s
@@ -243,10 +282,21 @@ def _kkm_core(K, n_clusters, key, n_init, max_steps, init, labels0):
     sz = sizes[best].astype(jnp.int32)
     med = jnp.where(sz > 0, med, -1)
     # NaN/inf in K (e.g. a NaN point or a bad γ under jit) never reports convergence
-    ok = jnp.isfinite(objs[best]) & jnp.all(jnp.isfinite(K))
-    return KernelKMeansResult(lab, objs[best], steps, ~changed[best] & ok, med, sz, objs)
+    ok = jnp.isfinite(objs[best])
+    result = result_from_flags(
+        converged=~changed[best] & ok, nonfinite_input=bad_in, nonfinite_output=~ok
+    )
+    lab = jnp.where(bad_in, -1, lab)
+    med = jnp.where(bad_in, -1, med)
+    stats = {
+        "max_steps": jnp.asarray(max_steps, jnp.int32),
+        "n_unsettled": jnp.sum(changed).astype(jnp.int32),
+    }
+    conv = ~changed[best] & ok & ~bad_in
+    return KernelKMeansResult(lab, objs[best], steps, conv, med, sz, objs, result, stats)
 
 
+@checked
 def kernel_kmeans(
     X: Float[ArrayLike, "n d"],
     n_clusters: int,
@@ -257,6 +307,7 @@ def kernel_kmeans(
     max_steps: int = 100,
     init: Literal["k-means++", "random"] | Int[ArrayLike, "n_init n"] = "k-means++",
     memory_limit_bytes: int | None = None,
+    throw: bool = False,
 ) -> KernelKMeansResult:
     """Gaussian-kernel k-means, ``n_init`` restarts batched, the best by objective.
 
@@ -273,14 +324,36 @@ def kernel_kmeans(
 
     - `X`: ``(n, d)`` points (e.g. vertex trajectories flattened to ``d = 3T``).
     - `n_clusters`: c, static.
-    - `gamma`: kernel width γ > 0; ``None`` → median heuristic (:func:`median_gamma`).
+    - `gamma`: kernel width γ > 0; ``None`` → median heuristic
+      ([`median_gamma`][fxspace.median_gamma]).
     - `key`: PRNG key for the seeding; `n_init`: restarts (the paper used 20).
     - `max_steps`: bound on Lloyd steps. `init`: ``"k-means++"``, ``"random"`` or
       initial labels ``(n_init, n)``.
+    - `memory_limit_bytes`: refuse inputs whose Gram matrix would need more.
+    - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] unless the result is
+      `RESULTS.successful` (NaN/inf in `X` is named by position before any work; under
+      `jit` the check runs through `equinox.error_if`).
 
-    **Returns:** :class:`KernelKMeansResult`.
+    **Returns:** [`KernelKMeansResult`][fxspace.KernelKMeansResult] with `.result`,
+    `.num_steps` and `.stats`; NaN/inf in `X` gives `RESULTS.nonfinite_input` and labels
+    of ``-1``, never a plausible partition.
+
+    **Example:**
+
+    ```python
+    import jax
+    import numpy as np
+    import fxspace as fx
+
+    rng = np.random.default_rng(0)
+    X = np.concatenate([rng.normal(size=(50, 2)), rng.normal(size=(50, 2)) + 6])
+    res = fx.kernel_kmeans(X, 2, gamma=0.5, key=jax.random.key(0), n_init=4)
+    assert res.result == fx.RESULTS.successful
+    ```
     """
-    X = as_float_array(X, "X", axes=("n_points", "n_features"))  # dtype, NaN/inf checked
+    X = as_float_array(X, "X", axes=("n_points", "n_features"), finite="allow")
+    if throw and not _is_tracer(X):
+        check_finite(X, "X")  # names where the NaN/inf are
     n = X.shape[0]
     if not isinstance(n_clusters, int | np.integer) or not 1 <= n_clusters <= n:
         raise FxspaceError(f"n_clusters must be an int in [1, n_points={n}]; got {n_clusters!r}")
@@ -293,7 +366,10 @@ def kernel_kmeans(
     if gamma is not None:
         gamma = check_scalar(gamma, "gamma", low=0.0, low_open=True)
     need = kernel_kmeans_memory(n, int(n_clusters), n_init, X.dtype.itemsize)
-    limit = _default_limit() if memory_limit_bytes is None else int(memory_limit_bytes)
+    if memory_limit_bytes is None:
+        limit = _default_limit()
+    else:
+        limit = check_int(memory_limit_bytes, "memory_limit_bytes", low=1)
     if need > limit:
         n_fit = int(math.sqrt(limit / (2 * X.dtype.itemsize)))
         raise FxspaceError(
@@ -306,5 +382,5 @@ def kernel_kmeans(
         gamma = median_gamma(X)
     K = gaussian_kernel(X, gamma)
     return kernel_kmeans_gram(
-        K, int(n_clusters), key=key, n_init=n_init, max_steps=max_steps, init=init
+        K, int(n_clusters), key=key, n_init=n_init, max_steps=max_steps, init=init, throw=throw
     )

@@ -15,30 +15,34 @@ starting error and ``S₀`` the starting ``Σ‖R‖²`` (a dimensionless object
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import optax
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from fxspace._validate import check_int, check_scalar
 from fxspace.controlpoints._model import (
     ControlPointModel,
     _control_residuals,
     linear_interpolation,
+    reconstruct,
     residual_trajectories,
 )
 from fxspace.errors import FxspaceError
+from fxspace.results import check_result, result_from_flags
 
 __all__ = ["FitResult", "refine_control_points", "fit_objective"]
 
 
 class FitResult(NamedTuple):
-    """Result of :func:`refine_control_points`.
+    """Result of `refine_control_points`.
 
-    **Fields:** ``model`` (refined :class:`ControlPointModel`), ``losses`` ``(steps,)``,
+    **Fields:** ``model`` (refined `ControlPointModel`), ``losses`` ``(steps,)``,
     ``num_steps``, ``converged`` (relative change of the loss over the last tenth of the
-    steps below ``tol``), ``error`` (eq. (1) of the refined model).
+    steps below ``tol``), ``error`` (eq. (1) of the refined model), ``result`` (a
+    `fxspace.RESULTS` member), ``stats`` (``max_steps``, ``relative_change``).
     """
 
     model: ControlPointModel
@@ -46,6 +50,8 @@ class FitResult(NamedTuple):
     num_steps: Int[Array, ""]
     converged: Array
     error: Float[Array, ""]
+    result: Any = None
+    stats: dict | None = None
 
 
 def _weights(logits: Array, support: Array, c: int) -> Array:
@@ -108,21 +114,24 @@ def refine_control_points(
     support: int = 3,
     fit_weights: bool = True,
     tol: float = 1e-3,
+    throw: bool = False,
 ) -> FitResult:
     """Refine a control-point model by gradient descent (Adam) on eq. (1) + smoothness.
 
     **Arguments:**
 
     - `X`: ``(T, N, 3)`` the segment; `model`: a starting model (e.g. from
-      :func:`fxspace.fit_control_points`).
+      `fxspace.fit_control_points`).
     - `steps`, `learning_rate`: Adam iterations and step (parameters are in units of the
       RMS residual, so the step is scale-free).
     - `smoothness`: α, weight of the second-difference roughness of the trajectories.
     - `support`: control points each vertex may blend (its nearest in trajectory space,
       its own cluster first); `fit_weights`: fit the memberships too (else only the
       trajectories).
+    - `throw`: raise `fxspace.errors.FxspaceError` when the result is not ``successful``
+      (NaN/inf in `X`, a non-finite loss, or the loss still changing after `steps`).
 
-    **Returns:** :class:`FitResult`. Cost per step O(T·N·c).
+    **Returns:** `FitResult`. Cost per step O(T·N·c).
     """
     X = jnp.asarray(X)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 3:
@@ -132,6 +141,10 @@ def refine_control_points(
         raise FxspaceError(
             f"X {X.shape} does not match the model (T={T}, N={model.first.shape[0]})"
         )
+    steps = check_int(steps, "steps", low=1)
+    support = check_int(support, "support", low=1)
+    learning_rate = check_scalar(learning_rate, "learning_rate", low=0.0, low_open=True)
+    smoothness = check_scalar(smoothness, "smoothness", low=0.0)
     if not 1 <= support <= c:
         raise FxspaceError(f"support must be in [1, {c}] (control points); got {support}")
     R0 = _control_residuals(model.controls)  # (c, T, 3)
@@ -164,7 +177,13 @@ def refine_control_points(
     k = max(1, steps // 10)
     rel = jnp.abs(losses[-1] - losses[-k - 1 if steps > k else 0]) / jnp.maximum(losses[-1], 1e-30)
     err = jnp.sum((X - _recon_model(new)) ** 2)
-    return FitResult(new, losses, jnp.int32(steps), rel < tol, err)
+    bad_in = ~jnp.all(jnp.isfinite(X))
+    bad_out = ~jnp.all(jnp.isfinite(losses)) | ~jnp.isfinite(err)
+    conv = (rel < tol) & ~bad_out & ~bad_in
+    res = result_from_flags(converged=conv, nonfinite_input=bad_in, nonfinite_output=bad_out)
+    stats = {"max_steps": jnp.int32(steps), "relative_change": rel}
+    out = FitResult(new, losses, jnp.int32(steps), conv, err, res, stats)
+    return check_result(res, throw, "refine_control_points", out)
 
 
 def _recon(Xs, interior, logits, sup):
@@ -176,6 +195,4 @@ def _recon(Xs, interior, logits, sup):
 
 
 def _recon_model(model: ControlPointModel) -> Array:
-    from fxspace.controlpoints._model import reconstruct
-
     return reconstruct(model)

@@ -29,7 +29,7 @@ implemented as a ``jax.custom_vjp`` (no unrolling of the solver).
 from __future__ import annotations
 
 from functools import partial
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,22 +39,27 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from fxspace._validate import as_float_array, check_dtype, check_int, check_scalar
 from fxspace.errors import FxspaceError
+from fxspace.results import check_result, result_from_flags
 
 __all__ = ["fused_lasso", "fused_lasso_solve", "flsa_objective", "tv_denoise", "FusedLassoResult"]
 
 
 class FusedLassoResult(NamedTuple):
-    """Result of :func:`fused_lasso_solve`.
+    """Result of `fused_lasso_solve`.
 
     **Fields:** ``solution`` (same shape as ``Y``), ``objective`` (per channel, the FLSA
     objective at the solution), ``num_steps`` (solver steps: events of the direct
-    algorithm, or dual iterations), ``converged`` (bool).
+    algorithm, or dual / proximal-gradient iterations), ``converged`` (bool, kept for old
+    callers), ``result`` (a `fxspace.RESULTS` member: ``successful``,
+    ``max_steps_reached``, ``nonfinite_input``), ``stats`` (``{"max_steps": …}``).
     """
 
     solution: Float[Array, "T ..."]
     objective: Float[Array, ...]
     num_steps: Array
     converged: Array
+    result: Any = None
+    stats: dict | None = None
 
 
 # ----------------------------------------------------------------------------------------
@@ -207,10 +212,26 @@ def _condat_chunked(y: Float[Array, "C T"], lam: Float[Array, " C"], max_steps: 
     return x, starts, jnp.max(steps), jnp.all(conv)
 
 
+def _tv_direct(y, lam, max_steps):
+    """The default path: jaxopt's ``ProximalGradient`` whose prox is Condat's exact TV
+    prox (one step solves the unweighted problem exactly); the prox's group starts,
+    event count and completion flag ride along as auxiliary parameters."""
+    from fxspace.controlpoints._jaxopt_adapter import flsa_proximal_gradient
+
+    dt = y.dtype
+
+    def prox(v, eta):
+        x, starts, steps, conv = _condat_chunked(v.T, eta * lam, max_steps)
+        return x.T, (starts.T.astype(dt), steps.astype(dt), conv.astype(dt))
+
+    aux0 = (jnp.zeros_like(y), jnp.zeros((), dt), jnp.zeros((), dt))
+    x, (starts, steps, conv), _ = flsa_proximal_gradient(y, prox, aux0)
+    return x, starts > 0.5, steps.astype(jnp.int32), conv > 0.5
+
+
 def _tv_solve(y, lam, method, max_steps):
     if method == "direct":
-        x, starts, steps, conv = _condat_chunked(y.T, lam, max_steps)
-        return x.T, starts.T, steps, conv
+        return _tv_direct(y, lam, max_steps)
     from fxspace.controlpoints._jaxopt_adapter import tv_dual_projected_gradient
 
     sol = tv_dual_projected_gradient(y, lam, maxiter=max_steps)
@@ -344,10 +365,28 @@ def flsa_objective(
 ) -> Float[Array, ...]:
     """FLSA objective ``½ Σ w (y − b)² + λ₁‖b‖₁ + λ₂ Σ|b_t − b_{t−1}|`` per channel
     (``w = 1`` without `weights`; samples of weight 0 do not count, even when NaN)."""
-    Y, B = jnp.asarray(Y), jnp.asarray(B)
+    Y = as_float_array(Y, "Y", finite="allow")
+    B = as_float_array(B, "B", finite="allow")
+    if Y.ndim < 1 or B.shape != Y.shape:
+        raise FxspaceError(f"B must have the shape of Y {tuple(Y.shape)} (T, ...), got {B.shape}")
+    lams = []
+    for nm, lam in (("lam_l1", lam_l1), ("lam_tv", lam_tv)):
+        lam = as_float_array(lam, nm, min_frames=0, finite="allow")
+        try:
+            ok = np.broadcast_shapes(lam.shape, Y.shape[1:]) == Y.shape[1:]
+        except ValueError:
+            ok = False
+        if not ok:
+            raise FxspaceError(
+                f"{nm} must be a scalar or broadcast to Y.shape[1:] {Y.shape[1:]}, got {lam.shape}"
+            )
+        lams.append(lam)
+    lam_l1, lam_tv = lams
     R2 = (Y - B) ** 2
     if weights is not None:
-        w = jnp.asarray(weights)
+        w = as_float_array(weights, "weights", finite="allow")
+        if w.shape != Y.shape:
+            raise FxspaceError(f"weights must have the shape of Y {tuple(Y.shape)}, got {w.shape}")
         R2 = jnp.where(w > 0, w * R2, 0.0)
     return (
         0.5 * jnp.sum(R2, axis=0)
@@ -365,6 +404,7 @@ def fused_lasso_solve(
     max_steps: int | None = None,
     weights: Float[ArrayLike, "T ..."] | None = None,
     tol: float = 1e-6,
+    throw: bool = False,
 ) -> FusedLassoResult:
     """Fused lasso signal approximator along axis 0, with solver diagnostics.
 
@@ -387,8 +427,9 @@ def fused_lasso_solve(
       prox above (``soft(TV_{ηλ₂}(v), ηλ₁)``), to the fixed-point residual `tol` × the
       data scale; not differentiable (the unweighted path is).
     - `tol`: stopping tolerance of the weighted solver (relative to ``max |y|``).
+    - `throw`: raise `fxspace.errors.FxspaceError` when the result is not ``successful``.
 
-    **Returns:** :class:`FusedLassoResult`. Cost: O(C·T) per step, typically O(T) steps for
+    **Returns:** `FusedLassoResult`. Cost: O(C·T) per step, typically O(T) steps for
     the direct solver; memory O(C·T).
     """
     if method not in ("direct", "dual"):
@@ -399,13 +440,22 @@ def fused_lasso_solve(
         max_steps = 20000 if max_steps is None else check_int(max_steps, "max_steps", low=1)
         tol = check_scalar(tol, "tol", low=0.0, low_open=True)
         b, obj, steps, conv = _weighted_jit(y2, w2, l1, l2, int(max_steps), float(tol))
-        return FusedLassoResult(b.reshape((T, *chan)), obj.reshape(chan), steps, conv)
-    if max_steps is None:
-        max_steps = 4 * T * T + 64 if method == "direct" else 20000
-    max_steps = check_int(max_steps, "max_steps", low=1)
-    b, obj, steps, conv = _flsa_core(y2, l1, l2, method, int(max_steps))
-    conv = conv & jnp.all(jnp.isfinite(b))  # NaN λ or data under jit never "converges"
-    return FusedLassoResult(b.reshape((T, *chan)), obj.reshape(chan), steps, conv)
+        bad_in = ~jnp.all(jnp.where(w2 > 0, jnp.isfinite(y2), True))
+    else:
+        if max_steps is None:
+            max_steps = 4 * T * T + 64 if method == "direct" else 20000
+        max_steps = check_int(max_steps, "max_steps", low=1)
+        b, obj, steps, conv = _flsa_core(y2, l1, l2, method, int(max_steps))
+        bad_in = ~jnp.all(jnp.isfinite(y2))
+    bad_in = bad_in | ~jnp.all(jnp.isfinite(l1)) | ~jnp.all(jnp.isfinite(l2))
+    bad_out = ~jnp.all(jnp.isfinite(b))
+    conv = conv & ~bad_out  # NaN λ or data under jit never "converges"
+    res = result_from_flags(converged=conv, nonfinite_input=bad_in, nonfinite_output=bad_out)
+    out = FusedLassoResult(
+        b.reshape((T, *chan)), obj.reshape(chan), steps, conv, res,
+        {"max_steps": jnp.asarray(max_steps, jnp.int32)},
+    )  # fmt: skip
+    return check_result(res, throw, "fused_lasso", out)
 
 
 def fused_lasso(
@@ -422,7 +472,7 @@ def fused_lasso(
     (Condat's direct TV algorithm + soft-threshold) by default; differentiable w.r.t.
     ``Y``, ``lam_l1`` and ``lam_tv`` through the fused-group Jacobian (custom VJP). With
     `weights` (0 on missing frames) the weighted problem is solved by proximal gradient.
-    See :func:`fused_lasso_solve` for the arguments and diagnostics.
+    See `fused_lasso_solve` for the arguments and diagnostics.
     """
     return fused_lasso_solve(Y, lam_l1, lam_tv, method=method, weights=weights).solution
 

@@ -1,7 +1,11 @@
 """The one module that imports jaxopt (unmaintained upstream): swap it here, nowhere else.
 
-It exposes the two jaxopt solvers of :func:`fxspace.fused_lasso`:
+It exposes the jaxopt solvers of `fxspace.fused_lasso`:
 
+- the default path (``method="direct"``): jaxopt's ``ProximalGradient`` on
+  ``½‖y − b‖² + g(b)`` with step 1 and the exact fused-lasso prox passed in by the caller
+  (Condat's direct TV algorithm + soft-threshold) — one step from any start is
+  ``prox_g(y)``, the exact solution, so it runs one step (`flsa_proximal_gradient`);
 - ``method="dual"``: the box-constrained dual of the 1-D total-variation prox, solved with
   jaxopt's ``ProjectedGradient`` (accelerated projected gradient, i.e. FISTA on the dual);
 - ``weights=``: the *weighted* fused lasso (weight 0 on missing frames), solved with
@@ -13,7 +17,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -23,7 +27,12 @@ with warnings.catch_warnings():
     import jaxopt
     from jaxopt.projection import projection_box
 
-__all__ = ["tv_dual_projected_gradient", "DualTVSolution", "weighted_proximal_gradient"]
+__all__ = [
+    "tv_dual_projected_gradient",
+    "DualTVSolution",
+    "weighted_proximal_gradient",
+    "flsa_proximal_gradient",
+]
 
 
 class DualTVSolution(NamedTuple):
@@ -54,7 +63,7 @@ def tv_dual_projected_gradient(
     Dual: ``min_u ½‖y − Dᵀu‖²`` s.t. ``|u_t| ≤ λ``; primal ``x = y − Dᵀu``. The dual is
     smooth with Lipschitz constant ``‖DDᵀ‖ ≤ 4`` (step 1/4), so accelerated projected
     gradient converges at O(1/k²) — exact in the limit but slow for long signals (the
-    direct algorithm in :mod:`fxspace.controlpoints._fused_lasso` is the default).
+    direct algorithm in `fxspace.controlpoints._fused_lasso` is the default).
     """
     if init is None:
         init = jnp.zeros((y.shape[0] - 1, *y.shape[1:]), y.dtype)
@@ -112,3 +121,38 @@ def weighted_proximal_gradient(
     )
     sol = pg.run(init, None, y=y, w=w)
     return sol.params, sol.state.iter_num, sol.state.error
+
+
+def flsa_proximal_gradient(
+    y: Float[Array, "T C"], prox: Callable[[Array, Array], tuple[Array, Any]], aux_init: Any
+) -> tuple[Array, Any, Array]:
+    """``argmin_b ½‖y − b‖² + g(b)`` by jaxopt's ``ProximalGradient`` with step 1.
+
+    `prox(v, η)` returns ``(prox_{η g}(v), aux)`` — the exact prox, whose diagnostics
+    (`aux`, a pytree of arrays of ``y``'s dtype shaped like `aux_init`) ride along as
+    parameters that the smooth part ignores. The smooth part ``½‖y − b‖²`` has
+    Lipschitz constant 1, so one step from ``b = y`` is ``prox_g(y)``: the exact solution,
+    and jaxopt is asked for exactly one step. Returns ``(b, aux, num_steps)``.
+    """
+
+    def fun(params, y):
+        r = params[0] - y
+        return 0.5 * jnp.sum(r * r)
+
+    def prox_params(params, hyper, scaling):
+        b, aux = prox(params[0], scaling)
+        return (b, aux)
+
+    pg = jaxopt.ProximalGradient(
+        fun=fun,
+        prox=prox_params,
+        stepsize=1.0,
+        maxiter=1,
+        tol=0.0,
+        acceleration=False,
+        implicit_diff=False,
+        jit=True,
+    )
+    sol = pg.run((y, aux_init), None, y=y)
+    b, aux = sol.params
+    return b, aux, sol.state.iter_num

@@ -33,7 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
-from fxspace.cluster._kernel_kmeans import KernelKMeansResult, kernel_kmeans
+from fxspace._validate import as_float_array, check_indices, check_int, check_scalar, checked
+from fxspace.cluster import KernelKMeansResult, kernel_kmeans
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -67,6 +68,7 @@ class ControlPointModel(NamedTuple):
     labels: Int[Array, " N"]
 
 
+@checked
 def linear_interpolation(
     first: Float[ArrayLike, ...], last: Float[ArrayLike, ...], n_frames: int
 ) -> Float[Array, "T ..."]:
@@ -92,10 +94,21 @@ def reconstruction_error(X: Float[ArrayLike, "T ..."], X_hat: Float[ArrayLike, "
     return jnp.sum((X - X_hat) ** 2)
 
 
+@checked
 def residual_trajectories(X: Float[ArrayLike, "T N 3"]) -> Float[Array, "T N 3"]:
     """``x_i(t) − L_i(t)``: the part of the motion linear interpolation misses (0 at the ends)."""
     X = jnp.asarray(X)
     return X - linear_interpolation(X[0], X[-1], X.shape[0])
+
+
+def _check_labels(labels, n: int, n_clusters: int) -> Array:
+    """``labels`` as an int32 ``(n,)`` array of cluster indices in ``[0, n_clusters)``."""
+    if isinstance(labels, jax.core.Tracer):
+        return jnp.asarray(labels, jnp.int32)
+    lab = check_indices(labels, "labels", n_clusters)
+    if lab.shape[0] != n:
+        raise FxspaceError(f"labels must hold one cluster index per vertex ({n}), got {lab.size}")
+    return jnp.asarray(lab, jnp.int32)
 
 
 def blend_weights(
@@ -110,8 +123,12 @@ def blend_weights(
     ``w_ik ∝ Σ_j exp(−‖p_i − p_j‖² / (2 r²)) [label_j = k]`` on the rest positions ``p``;
     ``radius = 0`` gives the one-hot labels. O(N²) time, O(chunk·N) memory.
     """
-    P = jnp.asarray(rest)
-    H = jax.nn.one_hot(jnp.asarray(labels), n_clusters, dtype=P.dtype)
+    P = as_float_array(rest, "rest", shape=(None, 3))
+    n_clusters = check_int(n_clusters, "n_clusters", low=1)
+    radius = check_scalar(radius, "radius", low=0.0)
+    chunk = check_int(chunk, "chunk", low=1)
+    labels = _check_labels(labels, P.shape[0], n_clusters)
+    H = jax.nn.one_hot(labels, n_clusters, dtype=P.dtype)
     if radius <= 0:
         return H
     N = P.shape[0]
@@ -136,12 +153,18 @@ def control_point_model(
     weights: Float[ArrayLike, "N c"] | None = None,
 ) -> ControlPointModel:
     """Model whose control points are the clusters' mean trajectories (``weights``: one-hot)."""
-    X = jnp.asarray(X)
-    labels = jnp.asarray(labels, jnp.int32)
+    X = as_float_array(X, "X", ndim=3, finite="allow")
+    if X.shape[2] != 3 or X.shape[0] < 2:
+        raise FxspaceError(f"X must be (frames >= 2, vertices, 3); got shape {tuple(X.shape)}")
+    n_clusters = check_int(n_clusters, "n_clusters", low=1)
+    labels = _check_labels(labels, X.shape[1], n_clusters)
     H = jax.nn.one_hot(labels, n_clusters, dtype=X.dtype)  # (N, c)
     sizes = jnp.sum(H, axis=0)
     C = jnp.einsum("nk,tnd->ktd", H, X) / jnp.maximum(sizes, 1.0)[:, None, None]
-    W = H if weights is None else jnp.asarray(weights, X.dtype)
+    if weights is None:
+        W = H
+    else:
+        W = as_float_array(weights, "weights", shape=(X.shape[1], n_clusters)).astype(X.dtype)
     return ControlPointModel(X[0], X[-1], C, W, labels)
 
 
@@ -191,7 +214,7 @@ def fit_control_points(
     """Control points of a segment by kernel k-means on the vertices' residual trajectories.
 
     Each vertex is the point ``vec(x_i(t) − L_i(t))_{t=1…T−2}`` (3(T−2) numbers) divided by
-    the RMS norm; Gaussian kernel k-means (:func:`fxspace.kernel_kmeans`, ``n_init``
+    the RMS norm; Gaussian kernel k-means (`fxspace.kernel_kmeans`, ``n_init``
     restarts — the paper used 20) clusters them and each cluster's mean trajectory is a
     control point. ``gamma`` is the kernel width on these scaled trajectories (``None`` →
     median heuristic).
@@ -204,12 +227,14 @@ def fit_control_points(
     residual trajectories). ``max_points=None`` clusters every vertex.
 
     ``blend_radius`` (units of ``X``) smooths the memberships across cluster borders
-    (:func:`blend_weights`, on the first frame).
+    (`blend_weights`, on the first frame).
 
     **Returns:** ``(model, clustering)`` — the clustering of the (sub)set.
     """
     X = _check_X(X)
     T, N, _ = X.shape
+    n_clusters = check_int(n_clusters, "n_clusters", low=1)
+    n_init = check_int(n_init, "n_init", low=1)
     if not 1 <= n_clusters <= N:
         raise FxspaceError(f"n_clusters must be in [1, {N}] (vertices); got {n_clusters}")
     R = residual_trajectories(X)[1:-1]  # (T-2, N, 3)
@@ -243,8 +268,11 @@ def reconstruct(model: ControlPointModel) -> Float[Array, "T N 3"]:
     return L + jnp.einsum("nk,ktd->tnd", model.weights, _control_residuals(model.controls))
 
 
+@checked
 def temporal_window(n_frames: int, center: float, width: float) -> Float[Array, " T"]:
     """Hann bump ``½(1 + cos(π (t − center)/width))`` for ``|t − center| < width``, else 0."""
+    if not isinstance(width, jax.core.Tracer) and width <= 0:
+        raise FxspaceError(f"width must be > 0 frames, got {width}")
     t = jnp.arange(n_frames, dtype=jnp.result_type(float))
     u = (t - center) / width
     return jnp.where(jnp.abs(u) < 1.0, 0.5 * (1.0 + jnp.cos(jnp.pi * u)), 0.0)
@@ -271,10 +299,10 @@ def edit_control_point(
     off = jnp.asarray(offset, model.controls.dtype)
     if off.shape != (3,):
         raise FxspaceError(f"offset must be a 3-vector; got shape {off.shape}")
-    center = (T - 1) / 2 if center is None else center
-    width = (T - 1) / 2 if width is None else width
-    if width <= 0:
-        raise FxspaceError(f"width must be > 0 frames; got {width}")
+    if not isinstance(off, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(off))):
+        raise FxspaceError(f"offset must be finite (no NaN/inf); got {np.asarray(off).tolist()}")
+    center = (T - 1) / 2 if center is None else check_scalar(center, "center")
+    width = (T - 1) / 2 if width is None else check_scalar(width, "width", low=0.0, low_open=True)
     h = temporal_window(T, center, width).astype(model.controls.dtype)
     h = h.at[0].set(0.0).at[-1].set(0.0)
     controls = model.controls.at[index].add(h[:, None] * off[None, :])

@@ -11,20 +11,22 @@ The rest markers are fixed, so the interpolation system is solved once: the tran
 fixed linear map ``A ∈ R^{N×M}`` from marker displacements to vertex displacements and a
 whole sequence costs one ``(N × M)·(M × 3T)`` product.
 
-:func:`face_surface` builds a dense face surface from the neutral markers alone (a grid
+`face_surface` builds a dense face surface from the neutral markers alone (a grid
 on the markers' principal plane inside their dilated convex hull, depth from a 2-D
 thin-plate spline through the markers); a user mesh with its own rest vertices can be
-driven the same way with :func:`rbf_deform`.
+driven the same way with `rbf_deform`.
 """
 
 from __future__ import annotations
 
 from typing import Literal, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 
 __all__ = ["rbf_transfer_matrix", "rbf_deform", "face_surface", "FaceSurface"]
@@ -47,6 +49,25 @@ def _dist(a: Array, b: Array) -> Array:
     return jnp.sqrt(jnp.maximum(d2, 0.0))
 
 
+def _check_distinct(S, name: str) -> None:
+    """Refuse coinciding source points (the interpolation system would be singular and
+    every vertex NaN); skipped under jit."""
+    if isinstance(S, jax.core.Tracer):
+        return
+    P = np.asarray(S, np.float64)
+    if not np.all(np.isfinite(P)):
+        raise FxspaceError(f"{name} contain NaN/inf; use a frame where every marker is seen")
+    scale = max(float(np.ptp(P, axis=0).max()) if len(P) else 0.0, 1e-300)
+    d = np.sqrt(np.maximum(np.sum((P[:, None] - P[None]) ** 2, -1), 0.0))
+    d[np.diag_indices(len(P))] = np.inf
+    i, j = np.unravel_index(int(np.argmin(d)), d.shape) if len(P) > 1 else (0, 0)
+    if len(P) > 1 and d[i, j] <= 1e-9 * scale:
+        raise FxspaceError(
+            f"{name} {min(i, j)} and {max(i, j)} are at the same place; drop or merge "
+            "duplicate markers (the RBF system is singular otherwise)"
+        )
+
+
 def rbf_transfer_matrix(
     targets: Float[ArrayLike, "N D"],
     sources: Float[ArrayLike, "M D"],
@@ -66,6 +87,7 @@ def rbf_transfer_matrix(
             f"targets {X.shape} and sources {S.shape} must be (N, D) and (M, D) with the same D"
         )
     M, D = S.shape
+    _check_distinct(S, "sources")
     if M < D + 1:
         raise FxspaceError(
             f"need at least D+1 = {D + 1} source points for the affine part; got {M}"
@@ -81,6 +103,7 @@ def rbf_transfer_matrix(
     return E @ coef
 
 
+@checked
 def rbf_deform(
     rest_vertices: Float[ArrayLike, "N 3"],
     rest_markers: Float[ArrayLike, "M 3"],

@@ -1,7 +1,7 @@
 """Whole-scene control points (Hirose & Higuchi §1–2): segment the whole capture, one
 control-point model per segment, stitched at the shared boundary frames.
 
-With boundaries ``0 = b_0 < … < b_s = T − 1`` (:func:`fxspace.segment_motion`), segment
+With boundaries ``0 = b_0 < … < b_s = T − 1`` (`fxspace.segment_motion`), segment
 ``i`` covers frames ``b_i … b_{i+1}`` inclusive; its model stores its first and last frame
 (the scene's key frames) and ``c`` control-point trajectories. A boundary frame is the
 last frame of one segment and the first of the next, stored once, so the stitched
@@ -14,7 +14,7 @@ scene:
 
 Storage: the ``s + 1`` key frames (``(s+1)·N·3``), every segment's control trajectories
 (``c·(T_i − 2)·3``) and labels (``N``) or sparse weights. The paper thinned its 300-frame
-capture to 150 frames by dropping the even-numbered frames (:func:`thin_frames`).
+capture to 150 frames by dropping the even-numbered frames (`thin_frames`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from fxspace._progress import progress
-from fxspace.cluster._kernel_kmeans import KernelKMeansResult
+from fxspace._validate import check_index, check_int, checked
+from fxspace.cluster import KernelKMeansResult
 from fxspace.controlpoints._fitting import refine_control_points
 from fxspace.controlpoints._model import (
     ControlPointModel,
@@ -39,6 +40,7 @@ from fxspace.controlpoints._model import (
 )
 from fxspace.controlpoints._segment import (
     Segmentation,
+    check_boundaries,
     segment_motion,
     segments_from_boundaries,
 )
@@ -65,7 +67,7 @@ class SceneModel(NamedTuple):
     """A whole scene as per-segment control-point models.
 
     **Fields:** ``boundaries`` ``(s + 1,)`` frames from 0 to T−1; ``segments`` one
-    :class:`ControlPointModel` per segment (segment ``i`` spans ``boundaries[i] …
+    `ControlPointModel` per segment (segment ``i`` spans ``boundaries[i] …
     boundaries[i+1]`` inclusive).
     """
 
@@ -82,7 +84,7 @@ class SceneModel(NamedTuple):
 
 
 class SceneFit(NamedTuple):
-    """Result of :func:`fit_scene`: ``model``, the ``segmentation`` (None when boundaries
+    """Result of `fit_scene`: ``model``, the ``segmentation`` (None when boundaries
     were given), each segment's kernel k-means ``clusterings``, and each segment's
     gradient-refinement ``num_steps``/``converged`` (0/True when not refined)."""
 
@@ -104,6 +106,7 @@ class SceneErrors(NamedTuple):
     ratio_scene: float
 
 
+@checked
 def thin_frames(X: Float[ArrayLike, "T ..."], step: int = 2) -> Float[Array, "T2 ..."]:
     """Keep every ``step``-th frame, starting at the first: with ``step = 2`` the paper's
     thinning (300 → 150 frames at 60 Hz, the even-numbered frames — counting from 1 —
@@ -123,12 +126,13 @@ def _check_boundaries(boundaries, T: int) -> np.ndarray:
     return b
 
 
+@checked
 def fit_scene(
     X: Float[ArrayLike, "T N 3"],
     n_clusters: int = 25,
     *,
     boundaries: Int[ArrayLike, " s1"] | None = None,
-    n_segments: int = 8,
+    n_segments: int | str = 8,
     min_length: int = 4,
     segment_on: str = "velocity",
     gamma: float | None = None,
@@ -145,16 +149,17 @@ def fit_scene(
 
     **Arguments:**
 
-    - `X`: ``(T, N, 3)`` the dense scene (e.g. :func:`fxspace.rbf_deform` of a capture).
+    - `X`: ``(T, N, 3)`` the dense scene (e.g. `fxspace.rbf_deform` of a capture).
     - `n_clusters`: control points per segment (capped at the vertex count).
-    - `boundaries`: given segment boundaries; ``None`` → :func:`fxspace.segment_motion`
-      with `n_segments`, `min_length` and `segment_on`.
-    - `gamma`, `n_init`, `max_points`, `refine_steps`: :func:`fxspace.fit_control_points`.
-    - `fit_steps`: > 0 refines every segment by :func:`fxspace.refine_control_points`
+    - `boundaries`: given segment boundaries; ``None`` → `fxspace.segment_motion`
+      with `n_segments` (a count, or ``"auto"``: chosen from the data), `min_length` and
+      `segment_on`.
+    - `gamma`, `n_init`, `max_points`, `refine_steps`: `fxspace.fit_control_points`.
+    - `fit_steps`: > 0 refines every segment by `fxspace.refine_control_points`
       (Adam; `fit_support`, `fit_smoothness`).
     - `key`: PRNG key (split per segment).
 
-    **Returns:** :class:`SceneFit`.
+    **Returns:** `SceneFit`.
 
     **Example:**
 
@@ -168,6 +173,11 @@ def fit_scene(
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 3:
         raise FxspaceError(f"X must be (frames >= 3, vertices, 3); got {X.shape}")
     T, N, _ = X.shape
+    n_clusters = check_int(n_clusters, "n_clusters", low=1)
+    n_init = check_int(n_init, "n_init", low=1)
+    fit_steps = check_int(fit_steps, "fit_steps", low=0)
+    if not isinstance(n_segments, str):
+        n_segments = check_int(n_segments, "n_segments", low=1)
     seg = None
     if boundaries is None:
         seg = segment_motion(X, n_segments, min_length=min_length, on=segment_on)  # type: ignore[arg-type]
@@ -203,7 +213,7 @@ def _stitch(parts: list[Array]) -> Array:
 
 
 def reconstruct_scene(scene: SceneModel) -> Float[Array, "T N 3"]:
-    """The stitched sequence: every segment's :func:`fxspace.reconstruct`, each shared
+    """The stitched sequence: every segment's `fxspace.reconstruct`, each shared
     boundary frame once. O(T·N·c)."""
     return _stitch([reconstruct(m) for m in scene.segments])
 
@@ -238,14 +248,14 @@ def scene_errors(X: Float[ArrayLike, "T N 3"], scene: SceneModel) -> SceneErrors
 
 def scene_storage_size(scene: SceneModel) -> int:
     """Numbers stored for the scene: shared key frames once, plus each segment's controls
-    and labels/weights (see :func:`fxspace.storage_size`)."""
+    and labels/weights (see `fxspace.storage_size`)."""
     N = scene.n_vertices
     per = sum(storage_size(m) - 2 * N * 3 for m in scene.segments)
     return (len(scene.boundaries)) * N * 3 + per
 
 
 def scene_compression_ratio(scene: SceneModel) -> float:
-    """Numbers in the dense scene (T·N·3) over :func:`scene_storage_size`."""
+    """Numbers in the dense scene (T·N·3) over `scene_storage_size`."""
     return scene.n_frames * scene.n_vertices * 3 / scene_storage_size(scene)
 
 
@@ -253,17 +263,15 @@ def segment_of_frame(boundaries: Int[ArrayLike, " s1"], frame: int) -> tuple[int
     """``(segment, local frame)`` of scene ``frame``: the segment whose in-between frames
     contain it; a boundary frame is a stored key frame and belongs to the segment it
     starts (the last frame to the last segment), at local frame 0 (or its end)."""
-    b = np.asarray(boundaries, dtype=np.int64)
-    f = int(frame)
-    if not 0 <= f <= int(b[-1]):
-        raise FxspaceError(f"frame must be in [0, {int(b[-1])}]; got {frame}")
+    b = check_boundaries(boundaries)
+    f = check_index(frame, "frame", int(b[-1]) + 1)
     s = int(np.searchsorted(b, f, side="right") - 1)
     s = min(s, len(b) - 2)
     return s, f - int(b[s])
 
 
 def scene_to_arrays(scene: SceneModel) -> dict[str, np.ndarray]:
-    """Flat arrays of a scene (for ``np.savez``); inverse :func:`scene_from_arrays`."""
+    """Flat arrays of a scene (for ``np.savez``); inverse `scene_from_arrays`."""
     out: dict[str, np.ndarray] = {"boundaries": np.asarray(scene.boundaries, np.int64)}
     for i, m in enumerate(scene.segments):
         for f in ControlPointModel._fields:
@@ -272,10 +280,20 @@ def scene_to_arrays(scene: SceneModel) -> dict[str, np.ndarray]:
 
 
 def scene_from_arrays(arrays) -> SceneModel:
-    """The :class:`SceneModel` stored by :func:`scene_to_arrays` (e.g. an ``np.load``)."""
-    b = np.asarray(arrays["boundaries"], np.int64)
-    segs = tuple(
-        ControlPointModel(*(jnp.asarray(arrays[f"seg{i}_{f}"]) for f in ControlPointModel._fields))
-        for i in range(len(b) - 1)
-    )
+    """The `SceneModel` stored by `scene_to_arrays` (e.g. an ``np.load``)."""
+    try:
+        b = check_boundaries(arrays["boundaries"], "arrays['boundaries']")
+        segs = tuple(
+            ControlPointModel(
+                *(jnp.asarray(arrays[f"seg{i}_{f}"]) for f in ControlPointModel._fields)
+            )
+            for i in range(len(b) - 1)
+        )
+    except (KeyError, IndexError, TypeError, ValueError) as e:
+        if isinstance(e, FxspaceError):
+            raise
+        raise FxspaceError(
+            f"arrays must be the mapping written by scene_to_arrays (an np.load of it); "
+            f"reading it failed: {type(e).__name__}: {e}"
+        ) from None
     return SceneModel(b, segs)

@@ -2,6 +2,7 @@
 Pearson r, and threshold sweeps over that one chain.
 """
 
+from fxspace.expression._features import PAIR_WEIGHT as PAIR_WEIGHT
 from fxspace.expression._features import clean_frames as clean_frames
 from fxspace.expression._features import distance_features as distance_features
 from fxspace.expression._features import pairwise_distances as pairwise_distances
@@ -30,6 +31,7 @@ from fxspace.expression._missing import fill_gaps as fill_gaps
 from fxspace.expression._missing import missing_report as missing_report
 from fxspace.expression._missing import require_complete as require_complete
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
+from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
@@ -38,8 +40,10 @@ from fxspace.expression._sparse import neighbourhood_graph as neighbourhood_grap
 from fxspace.expression._sparse import sparse_components as sparse_components
 from fxspace.expression._sparse import sparse_shortest_path as sparse_shortest_path
 from fxspace.expression._sparse import to_scipy as to_scipy
+from fxspace.expression._sweep import CRITERIA as CRITERIA
 from fxspace.expression._sweep import SweepResult as SweepResult
 from fxspace.expression._sweep import choose_threshold as choose_threshold
+from fxspace.expression._sweep import sweep_message as sweep_message
 from fxspace.expression._sweep import threshold_grid as threshold_grid
 from fxspace.expression._sweep import threshold_sweep as threshold_sweep
 
@@ -80,6 +84,10 @@ __all__ = [
     "require_complete",
     "classical_mds",
     "pearson_score",
+    "CRITERIA",
+    "PAIR_WEIGHT",
+    "embed_graph",
+    "sweep_message",
     "SweepResult",
     "choose_threshold",
     "threshold_grid",

@@ -1,8 +1,14 @@
-"""Expression state: pairwise marker distances (Kim & Jung, §3.1).
+"""Expression state: the marker-distance matrix (Kim & Jung, §2.1–2.2).
 
-A frame of ``M`` markers is represented by the ``P = M(M−1)/2`` distances between every
-pair of markers, ``f_t = (‖x_i(t) − x_j(t)‖)_{i<j}``. The state is invariant to rigid head
-motion (rotation + translation), so the expression space measures expression, not pose.
+The paper represents a frame of ``M`` markers by its whole ``M × M`` distance matrix
+``D_t[i, j] = ‖x_i(t) − x_j(t)‖``, laid out row by row as one vector, and measures the
+straight-line distance between two frames as the Euclidean distance between those vectors
+(the Frobenius distance ``‖D_s − D_t‖_F``). The matrix is symmetric with a zero diagonal, so
+``distance_features`` keeps only the ``P = M(M−1)/2`` pairs ``i < j`` (a stable shape),
+each weighted by ``√2``: ``‖f_s − f_t‖ = ‖D_s − D_t‖_F`` exactly, and thresholds ε are in
+the paper's millimetres (its 230 mm compares with ours). ``full_matrix=False`` gives the
+plain pair distances. The state is invariant to rigid head motion (rotation +
+translation), so the expression space measures expression, not pose.
 """
 
 from __future__ import annotations
@@ -18,7 +24,17 @@ from jaxtyping import Array, Float
 from fxspace._validate import as_float_array
 from fxspace.errors import FxspaceError
 
-__all__ = ["distance_features", "pairwise_distances", "marker_pairs", "clean_frames"]
+__all__ = [
+    "PAIR_WEIGHT",
+    "distance_features",
+    "pairwise_distances",
+    "marker_pairs",
+    "clean_frames",
+]
+
+PAIR_WEIGHT = float(np.sqrt(2.0))
+"""Weight of each ``i < j`` pair: it stands for both ``D[i, j]`` and ``D[j, i]`` of the
+paper's full distance matrix, so feature distances are Frobenius distances."""
 
 
 def marker_pairs(n_markers: int) -> tuple[np.ndarray, np.ndarray]:
@@ -27,38 +43,63 @@ def marker_pairs(n_markers: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _safe_norm(x: Array, axis: int = -1) -> Array:
-    """Euclidean norm whose gradient at 0 is 0 instead of NaN; NaN stays NaN."""
-    sq = jnp.sum(x * x, axis=axis)
+    """Euclidean norm whose gradient at 0 is 0 instead of NaN; NaN stays NaN.
+
+    Each vector is scaled by its largest entry before squaring (and the norm scaled
+    back), so float32 coordinates near 1e19 do not overflow to inf nor near 1e-25
+    underflow to 0."""
+    s = jax.lax.stop_gradient(jnp.max(jnp.abs(x), axis=axis, keepdims=True))
+    s = jnp.where(s > 0, s, jnp.where(jnp.isnan(s), s, 1.0))
+    y = x / s
+    sq = jnp.sum(y * y, axis=axis)
     pos = sq > 0
     zero = jnp.where(jnp.isnan(sq), jnp.nan, 0.0).astype(sq.dtype)
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), zero)
+    return jnp.where(pos, jnp.squeeze(s, axis) * jnp.sqrt(jnp.where(pos, sq, 1.0)), zero)
 
 
 def distance_features(
     positions: Float[Array, "frames markers 3"],
+    *,
+    full_matrix: bool = True,
 ) -> Float[Array, "frames pairs"]:
-    """Pairwise marker distances ``f_t[(i,j)] = ‖x_i(t) − x_j(t)‖`` for ``i < j`` (row-major).
+    """The paper's state vector: the marker-distance matrix of each frame (Kim & Jung §2.2).
+
+    ``f_t[(i,j)] = √2 · ‖x_i(t) − x_j(t)‖`` for the pairs ``i < j`` (row-major, see
+    `marker_pairs`): the upper triangle of the symmetric ``M × M`` distance matrix, each
+    entry weighted by ``√2`` (`PAIR_WEIGHT`) because it stands for ``D[i, j]`` and
+    ``D[j, i]``. Hence ``‖f_s − f_t‖`` is the Euclidean distance between the two frames'
+    full distance matrices laid out as vectors — the paper's straight-line distance, in
+    the capture's units (mm), so a threshold compares with the paper's 230 mm.
 
     **Arguments:**
     - `positions`: ``(T, M, 3)`` marker positions (float32/float64; integers are converted);
       NaN marks a missing marker and propagates: every pair that touches a missing marker
-      is NaN, never 0 (fill the gaps with :func:`fxspace.fill_gaps` or drop the frames with
-      :func:`clean_frames` first). ±inf is rejected.
+      is NaN, never 0 (fill the gaps with `fxspace.fill_gaps` or drop the frames with
+      `clean_frames` first). ±inf is rejected.
+    - `full_matrix`: ``True`` (default) weights the pairs by ``√2`` as above; ``False``
+      returns the plain pair distances ``‖x_i − x_j‖`` (distances between such features
+      are the paper's divided by ``√2``).
 
-    **Returns:** ``(T, M(M−1)/2)`` distances, invariant to rigid motion of each frame.
-    Cost O(T·M²). Differentiable (the gradient at a zero distance is taken as 0).
+    **Returns:** ``(T, M(M−1)/2)`` features, invariant to rigid motion of each frame.
+    Cost O(T·M²). Differentiable (the gradient at a zero distance is taken as 0). Each
+    difference is scaled before squaring, so float32 coordinates near 1e19 or 1e-25 give
+    finite, non-zero distances.
 
     **Example:**
 
     ```python
     F = fx.distance_features(positions)        # (T, M(M-1)/2)
+    P = fx.pairwise_distances(F)               # ‖D_s − D_t‖_F, mm
     ```
     """
     positions = as_float_array(positions, "positions", shape=(None, None, 3), finite="nan")
     if positions.shape[1] < 2:
         raise FxspaceError("positions needs at least 2 markers to form a distance")
+    if not isinstance(full_matrix, bool | np.bool_):
+        raise FxspaceError(f"full_matrix must be True or False, got {full_matrix!r}")
     i, j = marker_pairs(positions.shape[1])
-    return _safe_norm(positions[:, i, :] - positions[:, j, :])
+    d = _safe_norm(positions[:, i, :] - positions[:, j, :])
+    return d * jnp.asarray(PAIR_WEIGHT, d.dtype) if full_matrix else d
 
 
 def _finite_mean(F: Array) -> Array:
@@ -70,8 +111,18 @@ def _finite_mean(F: Array) -> Array:
 
 
 def _gram_distances(F: Array) -> Array:
-    """Gram-expansion distances on centred features, NaN rows kept NaN (used in float64)."""
+    """Gram-expansion distances on centred features, NaN rows kept NaN (used in float64).
+
+    The centred features are scaled by their largest finite magnitude before the product
+    (and the distances scaled back), so neither tiny nor huge values under/overflow."""
     F = F - _finite_mean(F)[None, :]
+    a = jnp.abs(F)
+    s = jax.lax.stop_gradient(jnp.max(jnp.where(jnp.isfinite(a), a, 0.0)))
+    s = jnp.where(s > 0, s, 1.0)
+    return s * _gram_unit(F / s)
+
+
+def _gram_unit(F: Array) -> Array:
     sq = jnp.sum(F * F, axis=1)
     G = jnp.dot(F, F.T, precision=jax.lax.Precision.HIGHEST)
     d2 = sq[:, None] + sq[None, :] - 2.0 * G

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from fxspace._validate import as_float_array, check_choice, check_int, check_scalar, checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 
 __all__ = [
@@ -65,11 +66,29 @@ class Geodesics(NamedTuple):
     next_hop: Int[Array, "n n"]
 
 
+def _check_square(x, name: str) -> Array:
+    """``x`` as a non-empty square ``(n, n)`` float array (NaN/inf kept), else a `FxspaceError`."""
+    a = as_float_array(x, name, ndim=2, finite="allow")
+    if a.shape[0] != a.shape[1]:
+        raise FxspaceError(f"{name} must be a square (n, n) matrix, got shape {a.shape}")
+    return a
+
+
 def epsilon_graph(pairwise: Float[Array, "n n"], threshold: float | Array) -> Float[Array, "n n"]:
     """ε-neighbour graph: ``W[i,j] = P[i,j]`` if ``P[i,j] ≤ ε`` else ``inf``; ``W[i,i] = 0``."""
-    P = jnp.asarray(pairwise)
+    P = as_float_array(pairwise, "pairwise", ndim=2, finite="allow")
     if P.ndim != 2 or P.shape[0] != P.shape[1]:
         raise FxspaceError(f"pairwise must be a square (n, n) matrix, got shape {P.shape}")
+    if not isinstance(threshold, jax.core.Tracer) and np.ndim(threshold) == 0:
+        threshold = check_scalar(threshold, "threshold")
+    elif not isinstance(threshold, jax.core.Tracer):
+        threshold = as_float_array(threshold, "threshold", min_frames=0)
+        try:
+            ok = np.broadcast_shapes(threshold.shape, P.shape) == P.shape
+        except ValueError:
+            ok = False
+        if not ok:
+            raise FxspaceError(f"threshold must be a scalar (or broadcast to {P.shape})")
     W = jnp.where(P <= threshold, P, jnp.inf)
     return jnp.where(jnp.eye(P.shape[0], dtype=bool), jnp.zeros((), P.dtype), W)
 
@@ -83,26 +102,58 @@ def _minplus(A: Array, B: Array) -> Array:
     return jnp.min(A[:, :, None] + B[None, :, :], axis=1)
 
 
+_COL_TILE = 512  # columns of a D tile kept in cache while a row block streams its pivots
+_TILE_FROM_BYTES = 1 << 20  # row blocks larger than this (about half an L2) are tiled
+
+
+def _col_tiles(m: int, rb: int, itemsize: int) -> int:
+    """Column tiles of the phase-3 update: 1 (whole row blocks) while an ``rb × m`` row
+    block fits `_TILE_FROM_BYTES`, else tiles of ≈ `_COL_TILE` columns."""
+    return 1 if rb * m * itemsize <= _TILE_FROM_BYTES else max(1, round(m / _COL_TILE))
+
+
+def _col_pad(m: int, rb: int, itemsize: int) -> int:
+    """Padded column count of the blocked Floyd matrix, so that `_minplus_update` can cut
+    it into `_col_tiles` tiles whose widths are multiples of 8 (padding columns are inf)."""
+    nc = _col_tiles(m, rb, itemsize)
+    return m if nc == 1 else nc * (-(-m // (8 * nc)) * 8)
+
+
 def _minplus_update(D: Array, C: Array, R: Array, rb: int) -> Array:
     """``min(D, C ⊗ R)`` for a tall ``D`` (rows a multiple of ``rb``), cache-friendly.
 
     Streams the ``k`` index over blocks of ``rb`` rows, so each row block of ``D`` stays
-    in cache while the pivot rows ``R[k]`` are broadcast-added — plain vector code,
-    ~20–30 % less CPU time than one fused ``(n, b, n)`` reduction.
+    in cache while the pivot rows ``R[k]`` are broadcast-added (eight pivots fused per
+    pass) — plain vector code, ~20–30 % less CPU time than one fused ``(n, b, n)``
+    reduction. Past ~1 MiB a row block no longer stays in cache: it is then cut into
+    ``rb × cw`` tiles (``cw`` ≈ `_COL_TILE` columns) that the pivots stream through.
     """
     n, m = D.shape
     b = C.shape[1]
+    nc = _col_tiles(m, rb, D.dtype.itemsize)
+    while m % nc or (m // nc) % 8:
+        nc -= 1
+    cw = m // nc
 
-    def blk(args):
-        d, c = args
-
+    def tile(c, d, r):
         def body(k, d):
-            return jnp.minimum(d, c[:, k, None] + R[k][None, :])
+            return jnp.minimum(d, c[:, k, None] + r[k][None, :])
 
         return jax.lax.fori_loop(0, b, body, d, unroll=8)
 
-    out = jax.lax.map(blk, (D.reshape(n // rb, rb, m), C.reshape(n // rb, rb, b)))
-    return out.reshape(n, m)
+    Cb = C.reshape(n // rb, rb, b)
+    if nc == 1:
+        out = jax.lax.map(lambda a: tile(a[1], a[0], R), (D.reshape(n // rb, rb, m), Cb))
+        return out.reshape(n, m)
+    Dt = D.reshape(n // rb, rb, nc, cw).transpose(0, 2, 1, 3)  # (row blocks, tiles, rb, cw)
+    Rt = R.reshape(b, nc, cw).transpose(1, 0, 2)  # (tiles, b, cw)
+
+    def row_block(args):
+        d_row, c = args
+        return jax.lax.map(lambda a: tile(c, a[0], a[1]), (d_row, Rt))
+
+    out = jax.lax.map(row_block, (Dt, Cb))
+    return out.transpose(0, 2, 1, 3).reshape(n, m)
 
 
 def _floyd_scan(W: Array) -> Array:
@@ -119,14 +170,15 @@ def _floyd_blocked(W: Array, block: int) -> Array:
     n = W.shape[0]
     nb = -(-n // block)
     m = nb * block
-    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
+    mc = _col_pad(m, block, W.dtype.itemsize)  # columns past m: inf, never on a path
+    D = jnp.full((m, mc), jnp.inf, W.dtype).at[:n, :n].set(W)
     idx = jnp.arange(n, m)
     D = D.at[idx, idx].set(0)
 
     def phase(kb, D):
         s = kb * block
         dkk = _floyd_scan(jax.lax.dynamic_slice(D, (s, s), (block, block)))
-        R = jax.lax.dynamic_slice(D, (s, 0), (block, m))
+        R = jax.lax.dynamic_slice(D, (s, 0), (block, mc))
         C = jax.lax.dynamic_slice(D, (0, s), (m, block))
         R = jnp.minimum(R, _minplus(dkk, R))
         C = jnp.minimum(C, _minplus(C, dkk))
@@ -156,7 +208,8 @@ def _floyd_sharded(W: Array, block: int) -> Array:
     unit = block * nd
     m = -(-n // unit) * unit
     rows = m // nd
-    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
+    mc = _col_pad(m, block, W.dtype.itemsize)  # columns past m: inf, never on a path
+    D = jnp.full((m, mc), jnp.inf, W.dtype).at[:n, :n].set(W)
     idx = jnp.arange(n, m)
     D = D.at[idx, idx].set(0)
     mesh = Mesh(np.array(devs), ("rows",))
@@ -167,7 +220,7 @@ def _floyd_sharded(W: Array, block: int) -> Array:
         def phase(kb, Dl):
             s = kb * block
             owner = s // rows
-            mine = jax.lax.dynamic_slice(Dl, (s - owner * rows, 0), (block, m))
+            mine = jax.lax.dynamic_slice(Dl, (s - owner * rows, 0), (block, mc))
             R = jax.lax.psum(jnp.where(me == owner, mine, jnp.zeros_like(mine)), "rows")
             dkk = _floyd_scan(jax.lax.dynamic_slice(R, (0, s), (block, block)))
             R = jnp.minimum(R, _minplus(dkk, R))
@@ -186,6 +239,7 @@ def _floyd_sharded(W: Array, block: int) -> Array:
     return D[:n, :n]
 
 
+@checked
 def floyd_warshall(
     graph: Float[Array, "n n"], method: FloydMethod = "auto", block: int | None = None
 ) -> Float[Array, "n n"]:
@@ -204,6 +258,10 @@ def floyd_warshall(
     gathered to the first local device when called outside ``jit`` (so what follows runs
     once, unpartitioned), and replicated on every device under ``jit``.
     """
+    _check_square(graph, "graph")
+    check_choice(method, "method", ("auto", "scan", "blocked", "sharded"))
+    if block is not None:
+        block = check_int(block, "block", low=1)
     D = _floyd_jit(graph, method, block)
     if not isinstance(D, jax.core.Tracer) and len(D.sharding.device_set) > 1:
         D = jax.device_put(D, jax.local_devices()[0])
@@ -226,6 +284,7 @@ def _floyd_jit(graph: Array, method: str, block: int | None) -> Array:
     raise FxspaceError(f"method must be 'auto', 'scan', 'blocked' or 'sharded', got {method!r}")
 
 
+@checked
 @partial(jax.jit, static_argnames=("max_degree", "chunk"))
 def next_hops(
     graph: Float[Array, "n n"],
@@ -245,8 +304,13 @@ def next_hops(
     final distances, the hops stay valid under float32 ties (carrying them through the
     Floyd recurrence made next-hop cycles on real data).
     """
-    W = jnp.asarray(graph)
-    D = jnp.asarray(distances)
+    W = _check_square(graph, "graph")
+    D = _check_square(distances, "distances")
+    if D.shape != W.shape or chunk < 1 or (max_degree is not None and max_degree < 1):
+        raise FxspaceError(
+            f"next_hops needs distances of the graph's shape {W.shape} (got {D.shape}), "
+            f"chunk >= 1 (got {chunk}) and max_degree >= 1 or None (got {max_degree})"
+        )
     n = W.shape[0]
     Woff = jnp.where(jnp.eye(n, dtype=bool), jnp.inf, W)
     K = n if max_degree is None else min(max_degree, n)
@@ -295,12 +359,12 @@ def geodesic_distances(
 
     **Arguments:**
     - `graph`: ``(n, n)`` symmetric or directed edge weights (``inf`` = no edge, 0 diagonal),
-      e.g. from :func:`epsilon_graph`.
-    - `method`, `block`: see :func:`floyd_warshall`.
+      e.g. from `epsilon_graph`.
+    - `method`, `block`: see `floyd_warshall`.
 
-    **Returns:** :class:`Geodesics`. Unreachable pairs keep ``inf`` distance and next hop
-    ``-1`` — check with :func:`check_connected` before embedding. The next-hop matrix is
-    found from the distances by :func:`next_hops` (the Bellman equation over each
+    **Returns:** `Geodesics`. Unreachable pairs keep ``inf`` distance and next hop
+    ``-1`` — check with `check_connected` before embedding. The next-hop matrix is
+    found from the distances by `next_hops` (the Bellman equation over each
     vertex's neighbours), which stays valid under float32 ties — carrying it through the
     Floyd recurrence does not (rounding ties made next-hop cycles on real data).
     O(n³); jit/vmap compatible; ``jax.grad`` flows through the distances.
@@ -334,6 +398,7 @@ def shortest_path(geo: Geodesics, i: int, j: int) -> np.ndarray:
     return np.asarray(path, dtype=np.int64)
 
 
+@checked
 @jax.jit
 def connected_components(graph: Float[Array, "n n"]) -> tuple[Array, Int[Array, " n"]]:
     """Connected components of an undirected graph (finite off-diagonal = edge).
@@ -342,7 +407,7 @@ def connected_components(graph: Float[Array, "n n"]) -> tuple[Array, Int[Array, 
     nothing changes; returns ``(n_components, labels)`` with labels the smallest vertex
     index of each component. O(n² · diameter).
     """
-    A = jnp.isfinite(jnp.asarray(graph))
+    A = jnp.isfinite(_check_square(graph, "graph"))
     A = A | A.T
     n = A.shape[0]
     big = jnp.int32(n)
@@ -358,6 +423,7 @@ def connected_components(graph: Float[Array, "n n"]) -> tuple[Array, Int[Array, 
     return n_comp, lab
 
 
+@checked
 @jax.jit
 def connecting_threshold(pairwise: Float[Array, "n n"]) -> Array:
     """Smallest ε for which the ε-graph of ``pairwise`` is connected.
@@ -365,7 +431,7 @@ def connecting_threshold(pairwise: Float[Array, "n n"]) -> Array:
     It is the largest edge of a minimum spanning tree (the minimax path bound), found
     with Prim's algorithm in O(n²).
     """
-    P = jnp.asarray(pairwise)
+    P = _check_square(pairwise, "pairwise")
     n = P.shape[0]
     in_tree = jnp.zeros(n, bool).at[0].set(True)
     best = P[0]
@@ -384,7 +450,7 @@ def connecting_threshold(pairwise: Float[Array, "n n"]) -> Array:
 
 
 def check_connected(graph: Array, pairwise: Array | None = None) -> None:
-    """Raise :class:`DisconnectedGraphError` naming the components and the fix."""
+    """Raise `DisconnectedGraphError` naming the components and the fix."""
     n_comp, labels = connected_components(graph)
     n_comp = int(n_comp)
     if n_comp == 1:

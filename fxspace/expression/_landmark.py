@@ -33,9 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from fxspace._validate import checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 from fxspace.expression._mds import MDSResult, _fix_signs, double_centre
-from fxspace.expression._sparse import NeighbourGraph, to_scipy
+from fxspace.expression._sparse import NeighbourGraph, dijkstra_csr
 
 __all__ = [
     "LandmarkGeodesics",
@@ -110,14 +111,17 @@ def _relax(indices: Array, weights: Array, sources: Array, max_steps: int) -> tu
 
 
 def _rows(graph: NeighbourGraph, sources: np.ndarray, method: str, csr=None) -> np.ndarray:
-    """Shortest-path rows from `sources` ``(L, T)`` on the host or with the relaxation."""
+    """Shortest-path rows from `sources` ``(L, T)`` on the host or with the relaxation.
+
+    `csr` is ``dijkstra_csr(graph)`` when the caller runs many single sources (converted and
+    checked once; a symmetric graph runs scipy's directed search, half the work)."""
     if method == "auto":
         method = "dijkstra" if jax.default_backend() == "cpu" else "relax"
     if method == "dijkstra":
         from scipy.sparse.csgraph import dijkstra
 
-        csr = to_scipy(graph) if csr is None else csr
-        D = dijkstra(csr, directed=False, indices=np.asarray(sources))
+        mat, directed = dijkstra_csr(graph) if csr is None else csr
+        D = dijkstra(mat, directed=directed, indices=np.asarray(sources))
         return np.atleast_2d(D).astype(np.asarray(graph.weights).dtype)
     if method == "relax":
         n = graph.indices.shape[0]
@@ -151,7 +155,7 @@ def landmark_geodesics(
 
     **Arguments:**
 
-    - `graph`: a :class:`~fxspace.expression.NeighbourGraph`.
+    - `graph`: a `fxspace.expression.NeighbourGraph`.
     - `landmarks`: ``(L,)`` frame indices.
     - `method`: ``"dijkstra"`` (host, scipy's csgraph), ``"relax"`` (jit Bellman–Ford of all
       rows at once; GPUs) or ``"auto"`` (dijkstra on a CPU, relax otherwise).
@@ -159,7 +163,7 @@ def landmark_geodesics(
     Under ``jax.distributed`` (more than one process) the landmarks are split over the
     processes and the rows gathered, so every process returns the same array.
 
-    **Returns:** :class:`LandmarkGeodesics` with ``(L, T)`` distances (memory O(T·L)).
+    **Returns:** `LandmarkGeodesics` with ``(L, T)`` distances (memory O(T·L)).
     """
     _check_graph(graph)
     lm = np.asarray(landmarks, np.int64).reshape(-1)
@@ -180,9 +184,9 @@ def farthest_point_landmarks(
     landmarks spread over the whole data and give stable triangulation). Costs ``num``
     single-source shortest paths, whose rows are returned, so no second pass is needed.
 
-    **Raises:** :class:`~fxspace.errors.DisconnectedGraphError` if the graph is disconnected.
+    **Raises:** `fxspace.errors.DisconnectedGraphError` if the graph is disconnected.
 
-    **Returns:** :class:`LandmarkGeodesics` (landmarks in the order chosen).
+    **Returns:** `LandmarkGeodesics` (landmarks in the order chosen).
     """
     _check_graph(graph)
     n = graph.num_frames
@@ -191,7 +195,7 @@ def farthest_point_landmarks(
     s = 0 if start is None else int(start)
     if not 0 <= s < n:
         raise FxspaceError(f"start must be a frame in [0, {n}), got {start}")
-    csr = to_scipy(graph) if method != "relax" else None
+    csr = dijkstra_csr(graph) if method != "relax" else None
     d0 = _rows(graph, np.array([s]), method, csr)[0]
     if not np.all(np.isfinite(d0)):
         n_unreached = int(np.sum(~np.isfinite(d0)))
@@ -212,11 +216,12 @@ def farthest_point_landmarks(
     return LandmarkGeodesics(jnp.asarray(np.stack(rows)), jnp.asarray(lm, jnp.int32))
 
 
+@checked
 def landmark_basis(landmark_distances: Float[Array, "L L"], dim: int = 2) -> LandmarkBasis:
     """Classical MDS of the ``L × L`` landmark geodesics, kept for triangulation (eq. 3).
 
     Non-positive eigenvalues (non-Euclidean geodesics) give a zero axis, as in
-    :func:`fxspace.classical_mds`.
+    `fxspace.classical_mds`.
     """
     DL = jnp.asarray(landmark_distances)
     L = DL.shape[0]
@@ -236,7 +241,7 @@ def landmark_basis(landmark_distances: Float[Array, "L L"], dim: int = 2) -> Lan
 def place_frames(basis: LandmarkBasis, distances: Float[Array, "... L"]) -> Float[Array, "... dim"]:
     """Out-of-sample placement: ``x_a = −½ L_k^# (δ_a − δ_μ)`` from geodesics to landmarks.
 
-    **Arguments:** `basis` from :func:`landmark_basis`; `distances` ``(..., L)`` geodesic
+    **Arguments:** `basis` from `landmark_basis`; `distances` ``(..., L)`` geodesic
     distances of each frame to the landmarks (in the landmark order of the basis).
 
     **Returns:** ``(..., dim)`` coordinates; a landmark is placed at its own coordinates.
@@ -249,11 +254,11 @@ def place_frames(basis: LandmarkBasis, distances: Float[Array, "... L"]) -> Floa
 def landmark_mds(geodesics: LandmarkGeodesics, dim: int = 2) -> MDSResult:
     """Landmark MDS of every frame (de Silva & Tenenbaum 2004), O(T·L·dim + L³).
 
-    **Arguments:** `geodesics` from :func:`landmark_geodesics` or
-    :func:`farthest_point_landmarks`; `dim` the embedding dimension (< L).
+    **Arguments:** `geodesics` from `landmark_geodesics` or
+    `farthest_point_landmarks`; `dim` the embedding dimension (< L).
 
-    **Returns:** :class:`~fxspace.expression.MDSResult` — the same type as
-    :func:`fxspace.classical_mds`, which it equals (up to float error) when every frame is a
+    **Returns:** `fxspace.expression.MDSResult` — the same type as
+    `fxspace.classical_mds`, which it equals (up to float error) when every frame is a
     landmark; ``num_steps`` is 0 (dense ``eigh`` of the ``L × L`` matrix).
 
     **Example:**
@@ -287,7 +292,7 @@ def _landmark_mds(D: Array, lm: Array, dim: int) -> MDSResult:
 def landmark_score(geodesics: LandmarkGeodesics, embedding: Float[Array, "n dim"]) -> Array:
     """Pearson r between landmark-to-frame geodesics and embedded distances (O(T·L)).
 
-    The seed paper's quality criterion (:func:`fxspace.pearson_score`) over the ``L × T``
+    The seed paper's quality criterion (`fxspace.pearson_score`) over the ``L × T``
     landmark–frame pairs instead of all ``T²/2`` pairs (self pairs excluded).
     """
     D = jnp.asarray(geodesics.distances)
@@ -313,7 +318,7 @@ def landmark_space(
     neighbours: int = 32,
     method: PathMethod = "auto",
 ) -> tuple[NeighbourGraph, LandmarkGeodesics, MDSResult, Array]:
-    """The landmark route of :func:`fxspace.expression_space`: sparse graph → max-min
+    """The landmark route of `fxspace.expression_space`: sparse graph → max-min
     landmarks → landmark MDS → landmark score (memory O(T·(K + L)))."""
     from fxspace.expression._sparse import check_sparse_connected, neighbourhood_graph
 

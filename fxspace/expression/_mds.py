@@ -21,7 +21,6 @@ from typing import Literal, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.experimental.sparse.linalg import lobpcg_standard
 from jaxtyping import Array, Bool, Float, Int
 
 from fxspace._validate import as_float_array, check_int
@@ -76,6 +75,9 @@ def _top_eigh_primal(B: Array, k: int, method: str) -> tuple[Array, Array, Array
         w, V = jnp.linalg.eigh(B)
         return w[::-1][:k], _fix_signs(V[:, ::-1][:, :k]), jnp.zeros((), jnp.int32)
     if method == "lobpcg":
+        # imported here: jax.experimental.sparse loads scipy.sparse (import fxspace stays light)
+        from jax.experimental.sparse.linalg import lobpcg_standard
+
         m = k + _EXTRA
         X0 = jax.random.normal(jax.random.PRNGKey(0), (n, m), B.dtype)
         theta, U, steps = lobpcg_standard(B, X0, m=_LOBPCG_STEPS)
@@ -117,20 +119,18 @@ def _top_eigh_jvp(k, method, primals, tangents):
     return (lam, V, steps), (dlam, dV_in + dV_out, np.zeros((), dtype=jax.dtypes.float0))
 
 
-def classical_mds(
-    D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "auto"
-) -> MDSResult:
+def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "auto") -> MDSResult:
     """Classical (Torgerson) MDS of a distance matrix.
 
     **Arguments:**
     - `D`: ``(n, n)`` symmetric distances, finite (check connectivity first): NaN/inf
-      raise a :class:`~fxspace.errors.FxspaceError`, or under ``jit`` give
+      raise a `fxspace.errors.FxspaceError`, or under ``jit`` give
       ``converged = False``.
     - `dim`: embedding dimension (2 for the expression space).
     - `method`: ``"eigh"`` (dense, O(n³)), ``"lobpcg"`` (top-k, O(n²k) per step) or
       ``"auto"`` (LOBPCG from 400 points on).
 
-    **Returns:** :class:`MDSResult`. Negative eigenvalues (non-Euclidean ``D``) give zero
+    **Returns:** `MDSResult`. Negative eigenvalues (non-Euclidean ``D``) give zero
     coordinates on that axis. jit/vmap/grad compatible.
     """
     D = as_float_array(D, "D", ndim=2, min_frames=2)  # NaN/inf rejected when concrete
@@ -152,11 +152,24 @@ def pearson_score(D: Float[Array, "n n"], embedding: Float[Array, "n dim"]) -> A
     """Pearson correlation ``r`` between ``D[i,j]`` and ``‖y_i − y_j‖`` over pairs ``i < j``.
 
     The seed paper's criterion for the quality of the 2-D expression space (r = 0.9647 at
-    its chosen threshold). Differentiable; NaN if ``D`` has non-finite entries.
+    its chosen threshold). Differentiable and jit/vmap compatible; both sides are scaled
+    by their largest entry before squaring (``r`` is scale-invariant), so tiny (1e-25) or
+    huge (1e19) float32 inputs neither underflow nor overflow.
+
+    ``r`` is NaN — by definition, not a failure of the computation — when it is undefined:
+    ``D`` has non-finite entries, fewer than 2 points, or either side is constant over the
+    pairs (all ``D[i, j]`` equal, or all embedding distances equal, e.g. a collapsed
+    embedding). Check ``jnp.isfinite(r)`` before comparing scores.
     """
-    D = jnp.asarray(D)
-    Y = jnp.asarray(embedding)
+    D = as_float_array(D, "D", ndim=2, finite="allow")
+    if D.shape[0] != D.shape[1]:
+        raise FxspaceError(f"D must be a square (n, n) distance matrix, got shape {D.shape}")
     n = D.shape[0]
+    Y = as_float_array(embedding, "embedding", shape=(n, None), finite="allow")
+    sD = jnp.max(jnp.abs(D))
+    D = D / jnp.where(sD > 0, sD, 1.0)
+    sY = jnp.max(jnp.abs(Y))
+    Y = Y / jnp.where(sY > 0, sY, 1.0)
     diff = Y[:, None, :] - Y[None, :, :]
     sq = jnp.sum(diff * diff, axis=-1)
     mask = jnp.triu(jnp.ones((n, n), dtype=bool), k=1)

@@ -2,10 +2,10 @@
 
 A real capture loses markers for 1 to 100+ frames at a time (a hand in front of the face,
 a marker leaving the cameras' view). fxspace never turns a missing marker into a number:
-:func:`fill_gaps` interpolates each marker's trajectory across gaps of at most
+`fill_gaps` interpolates each marker's trajectory across gaps of at most
 ``max_gap`` frames and leaves the longer ones NaN, listing them, so the caller can drop
-those frames (:func:`fxspace.clean_frames`) or stop with an error naming the markers and
-frames (:func:`fxspace.expression.require_complete`).
+those frames (`fxspace.clean_frames`) or stop with an error naming the markers and
+frames (`fxspace.expression.require_complete`).
 
 Interpolation (per marker, per coordinate, across one gap ``[a, b]`` with the samples
 ``x(a−1)`` and ``x(b+1)`` present):
@@ -33,7 +33,7 @@ __all__ = ["GapFill", "fill_gaps", "missing_report", "require_complete"]
 
 
 class GapFill(NamedTuple):
-    """Result of :func:`fill_gaps`.
+    """Result of `fill_gaps`.
 
     - `positions`: ``(T, M, 3)``, gaps of at most `max_gap` frames filled, longer gaps
       (and gaps touching the first or last frame) left NaN.
@@ -67,7 +67,7 @@ def missing_report(
 
 
 def require_complete(positions, marker_names: Sequence[str] | None = None) -> None:
-    """Raise a :class:`~fxspace.errors.FxspaceError` naming the missing markers and frames.
+    """Raise a `fxspace.errors.FxspaceError` naming the missing markers and frames.
 
     Does nothing when every marker is present in every frame.
     """
@@ -82,7 +82,7 @@ def require_complete(positions, marker_names: Sequence[str] | None = None) -> No
 
 
 def _runs_with_index(pos: np.ndarray, names):
-    """:func:`missing_report` runs paired with their marker index."""
+    """`missing_report` runs paired with their marker index."""
     out = []
     for m in range(pos.shape[1]):
         sub = _runs(pos[:, m : m + 1], None if names is None else [names[m]])
@@ -117,7 +117,7 @@ def fill_gaps(
     - `method`: ``"linear"`` or ``"cubic"`` (Hermite, see the module docstring).
     - `marker_names`: names used in the report (default ``"marker <m>"``).
 
-    **Returns:** a :class:`GapFill` with `.positions`, `.filled` ``(T, M)`` and `.unfilled`.
+    **Returns:** a `GapFill` with `.positions`, `.filled` ``(T, M)`` and `.unfilled`.
     Cost O(T·M).
 
     **Example:**

@@ -1,8 +1,8 @@
 """The expression space in one call: markers → features → graph → geodesics → 2-D (Kim & Jung §3).
 
 This module is the one home of the chain; the threshold sweep maps its kernel
-:func:`embed_graph` over thresholds, and every pipeline and app builds its space through
-:func:`expression_space`.
+`embed_graph` over thresholds, and every pipeline and app builds its space through
+`expression_space`.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from fxspace._validate import check_choice, check_int, check_scalar
 from fxspace.errors import FxspaceError
 from fxspace.expression._features import distance_features, pairwise_distances
 from fxspace.expression._geodesic import (
@@ -34,7 +35,7 @@ _LANDMARK_FROM = 5000  # frames; above this expression_space takes the landmark 
 
 
 class GraphEmbedding(NamedTuple):
-    """Output of :func:`embed_graph`: geodesic distances, the MDS, Pearson r, connectivity."""
+    """Output of `embed_graph`: geodesic distances, the MDS, Pearson r, connectivity."""
 
     distances: Float[Array, "n n"]
     mds: MDSResult
@@ -50,8 +51,8 @@ def embed_graph(
 ) -> GraphEmbedding:
     """Geodesics (min-plus Floyd) → classical MDS → Pearson r of one ε-graph, branch-free.
 
-    The kernel of the chain, shared by :func:`expression_space` and
-    :func:`fxspace.threshold_sweep`. A disconnected graph is reported by ``connected =
+    The kernel of the chain, shared by `expression_space` and
+    `fxspace.threshold_sweep`. A disconnected graph is reported by ``connected =
     False`` and ``score = nan`` (the MDS then runs on the finite part only, so no ``inf``
     reaches the eigensolver). jit/vmap compatible; differentiable through the distances.
     """
@@ -101,26 +102,26 @@ def expression_space(
 
     **Arguments:**
 
-    - `positions`: ``(n, M, 3)`` marker frames (no NaN: see :func:`fxspace.clean_frames`),
+    - `positions`: ``(n, M, 3)`` marker frames (no NaN: see `fxspace.clean_frames`),
       or ``None`` when `features` or `pairwise` is given.
     - `threshold`: ε, in the units of the state distance (mm for marker data).
     - `dim`: embedding dimension (2 in the paper).
     - `features`: precomputed ``(n, P)`` distance features.
     - `pairwise`: precomputed ``(n, n)`` state distances (e.g. shared with a sweep).
-    - `paths`: also compute the next-hop matrix (needed for :func:`fxspace.shortest_path`
+    - `paths`: also compute the next-hop matrix (needed for `fxspace.shortest_path`
       and navigation; skip it for a score or a figure).
     - `method`, `mds_method`: Floyd and eigensolver variants.
     - `route`: ``"dense"`` (T × T geodesics), ``"landmark"`` (de Silva & Tenenbaum 2004:
       sparse ε-graph capped at `neighbours` per frame, geodesics from `landmarks` max-min
-      landmarks, landmark MDS; memory O(T·L); see :func:`fxspace.landmark_mds`) or
+      landmarks, landmark MDS; memory O(T·L); see `fxspace.landmark_mds`) or
       ``"auto"`` (landmark above 5000 frames unless `pairwise` is given). On the
       landmark route ``pairwise`` is ``None``, ``graph`` a
-      :class:`~fxspace.expression.NeighbourGraph`, ``geodesics`` a
-      :class:`~fxspace.expression.LandmarkGeodesics` and ``score`` the landmark r.
+      `fxspace.expression.NeighbourGraph`, ``geodesics`` a
+      `fxspace.expression.LandmarkGeodesics` and ``score`` the landmark r.
 
-    **Returns:** an :class:`ExpressionSpace`.
+    **Returns:** an `ExpressionSpace`.
 
-    **Raises:** :class:`~fxspace.errors.DisconnectedGraphError` (with the component count
+    **Raises:** `fxspace.errors.DisconnectedGraphError` (with the component count
     and the smallest connecting ε) when the ε-graph is disconnected.
 
     **Example:**
@@ -130,6 +131,9 @@ def expression_space(
     es.embedding, es.score
     ```
     """
+    threshold = check_scalar(threshold, "threshold", low=0.0, low_open=True)
+    dim = check_int(dim, "dim", low=1)
+    check_choice(route, "route", ("auto", "dense", "landmark"))
     if pairwise is None:
         if features is None:
             require_complete(positions)  # names the missing markers and frames

@@ -2,7 +2,7 @@
 
 The dense chain holds the ``(T, T)`` state distances; past a few thousand frames that no
 longer fits (one float32 matrix is 10 GB at T = 50 000). Here each frame keeps only its
-nearest neighbours, as a padded adjacency list :class:`NeighbourGraph` (``(T, K)``
+nearest neighbours, as a padded adjacency list `NeighbourGraph` (``(T, K)``
 indices and weights, ``inf`` = padding), so memory is O(T·K).
 
 Neighbour search, for features of many dimensions (``P = M(M−1)/2`` marker distances):
@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from fxspace._validate import checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 
 __all__ = [
@@ -87,8 +88,8 @@ def _pack(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int, dtype) -
 
 
 def graph_from_dense(graph: Float[Array, "n n"]) -> NeighbourGraph:
-    """The :class:`NeighbourGraph` of a dense graph (``inf`` = no edge), e.g. of
-    :func:`fxspace.epsilon_graph` — for tests and for small inputs."""
+    """The `NeighbourGraph` of a dense graph (``inf`` = no edge), e.g. of
+    `fxspace.epsilon_graph` — for tests and for small inputs."""
     W = np.asarray(graph)
     if W.ndim != 2 or W.shape[0] != W.shape[1]:
         raise FxspaceError(f"graph must be a square (n, n) matrix, got shape {W.shape}")
@@ -106,6 +107,21 @@ def to_scipy(graph: NeighbourGraph):
     ok = np.isfinite(w)
     rows = np.repeat(np.arange(n), idx.shape[1]).reshape(idx.shape)[ok]
     return csr_matrix((w[ok], (rows, idx[ok])), shape=(n, n))
+
+
+def dijkstra_csr(graph: NeighbourGraph):
+    """``(csr, directed)`` for ``scipy.sparse.csgraph.dijkstra`` on this graph, fastest form.
+
+    scipy's ``directed=False`` walks the matrix and its transpose for every source (about
+    twice the work of ``directed=True``). A symmetric matrix gives the same distances either
+    way (each ``d[v] = min_u d[u] + w_uv`` is an exact minimum), so a symmetric graph — every
+    `neighbourhood_graph` is — is passed as float64 with ``directed=True`` (validated and
+    converted once, not per call); an asymmetric one keeps ``directed=False``.
+    """
+    csr = to_scipy(graph).astype(np.float64)
+    csr.sort_indices()
+    symmetric = (csr != csr.T).nnz == 0
+    return csr, bool(symmetric)  # directed=True is exact on a symmetric matrix
 
 
 def _principal_axes(F: np.ndarray, dim: int, sample: int = 20000, seed: int = 0) -> np.ndarray:
@@ -170,6 +186,7 @@ def _exact_distances(F: Array, cand: Array, chunk: int) -> Array:
     return out.reshape(-1, C)[:n]
 
 
+@checked
 def neighbourhood_graph(
     features: Float[Array, "n p"],
     k: int = 10,
@@ -184,7 +201,7 @@ def neighbourhood_graph(
 
     **Arguments:**
 
-    - `features`: ``(T, P)`` frame features (e.g. :func:`fxspace.distance_features`).
+    - `features`: ``(T, P)`` frame features (e.g. `fxspace.distance_features`).
     - `k`: neighbours chosen by each frame (the graph is then symmetrised, so degrees are
       ``≥ k``).
     - `threshold`: ε; if given, edges longer than ε are dropped (the ε-graph, with each
@@ -197,7 +214,7 @@ def neighbourhood_graph(
       20 000 frames in ≤ 10 dimensions, else brute).
     - `chunk`: rows per block in the brute-force and refinement passes.
 
-    **Returns:** a :class:`NeighbourGraph`; memory O(T·K).
+    **Returns:** a `NeighbourGraph`; memory O(T·K).
 
     **Example:**
 
@@ -241,7 +258,7 @@ def neighbourhood_graph(
 
 
 def sparse_components(graph: NeighbourGraph) -> tuple[int, np.ndarray]:
-    """``(n_components, labels)`` of a :class:`NeighbourGraph` (host, O(T·K))."""
+    """``(n_components, labels)`` of a `NeighbourGraph` (host, O(T·K))."""
     from scipy.sparse.csgraph import connected_components as cc
 
     n_comp, labels = cc(to_scipy(graph), directed=False)
@@ -249,7 +266,7 @@ def sparse_components(graph: NeighbourGraph) -> tuple[int, np.ndarray]:
 
 
 def check_sparse_connected(graph: NeighbourGraph) -> None:
-    """Raise :class:`DisconnectedGraphError` naming the components and the fix."""
+    """Raise `DisconnectedGraphError` naming the components and the fix."""
     n_comp, labels = sparse_components(graph)
     if n_comp == 1:
         return
@@ -262,12 +279,12 @@ def check_sparse_connected(graph: NeighbourGraph) -> None:
 
 
 def sparse_shortest_path(graph: NeighbourGraph, i: int, j: int) -> np.ndarray:
-    """Frames of a shortest path from ``i`` to ``j`` inclusive on a :class:`NeighbourGraph`.
+    """Frames of a shortest path from ``i`` to ``j`` inclusive on a `NeighbourGraph`.
 
     One single-source Dijkstra from ``i`` with predecessors (host, O(E log T), stopped once
     ``j`` is settled) — paths between frames without a ``T × T`` next-hop matrix.
 
-    **Raises:** :class:`DisconnectedGraphError` when ``j`` is unreachable from ``i``.
+    **Raises:** `DisconnectedGraphError` when ``j`` is unreachable from ``i``.
     """
     from scipy.sparse.csgraph import dijkstra
 

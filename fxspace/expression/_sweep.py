@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from fxspace._validate import as_float_array, check_choice, check_int, check_scalar
 from fxspace.errors import FxspaceError
 from fxspace.expression._geodesic import (
     _BLOCKED_FROM,
@@ -25,11 +26,21 @@ from fxspace.expression._geodesic import (
 )
 from fxspace.expression._space import embed_graph
 
-__all__ = ["SweepResult", "threshold_sweep", "threshold_grid", "choose_threshold", "sweep_message"]
+__all__ = [
+    "CRITERIA",
+    "SweepResult",
+    "threshold_sweep",
+    "threshold_grid",
+    "choose_threshold",
+    "sweep_message",
+]
+
+CRITERIA = ("max_r", "bounded_degree", "elbow")
+"""The threshold criteria of `choose_threshold`; ``"max_r"`` is the paper's (the default)."""
 
 
 class SweepResult(NamedTuple):
-    """Per-threshold results of :func:`threshold_sweep`.
+    """Per-threshold results of `threshold_sweep`.
 
     - `thresholds`: ``(S,)`` the ε values.
     - `scores`: ``(S,)`` Pearson r of geodesic vs embedded distances; NaN where disconnected.
@@ -105,7 +116,7 @@ def threshold_sweep(
     """Score every threshold: ε-graph → geodesics → classical MDS → Pearson r.
 
     **Arguments:**
-    - `pairwise`: ``(n, n)`` state distances (:func:`pairwise_distances`).
+    - `pairwise`: ``(n, n)`` state distances (`pairwise_distances`).
     - `thresholds`: ``(S,)`` ε values.
     - `dim`: embedding dimension.
     - `batch_size`: thresholds evaluated together (vmapped); ``None`` = one at a time
@@ -120,22 +131,21 @@ def threshold_sweep(
 
     Under ``jax.distributed`` (several processes, e.g. one per GPU node) the thresholds
     are first split over the processes, each sweeps its share on its local devices, and
-    the results are gathered, so every process returns the same :class:`SweepResult`,
+    the results are gathered, so every process returns the same `SweepResult`,
     identical to a one-process run.
 
-    **Returns:** :class:`SweepResult`. Cost O(S·n³); the dense Floyd costs the same at every
+    **Returns:** `SweepResult`. Cost O(S·n³); the dense Floyd costs the same at every
     ε, while Dijkstra slows down as the graph densifies.
     """
-    P = jnp.asarray(pairwise)
+    P = as_float_array(pairwise, "pairwise", ndim=2, finite="allow")
     if P.ndim != 2 or P.shape[0] != P.shape[1]:
         raise FxspaceError(f"pairwise must be a square (n, n) matrix, got shape {P.shape}")
-    th = jnp.atleast_1d(jnp.asarray(thresholds, P.dtype))
-    if th.ndim != 1 or th.shape[0] == 0:
-        raise FxspaceError("thresholds must be a non-empty 1-D array of ε values")
-    if not isinstance(th, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(th) & (th > 0))):
-        raise FxspaceError("thresholds must be finite and positive")
-    if batch_size is not None and batch_size < 1:
-        raise FxspaceError(f"batch_size must be >= 1 or None, got {batch_size}")
+    th = _as_thresholds(thresholds, P.dtype)
+    dim = check_int(dim, "dim", low=1)
+    if batch_size is not None:
+        batch_size = check_int(batch_size, "batch_size", low=1)
+    check_choice(method, "method", ("auto", "scan", "blocked", "sharded"))
+    check_choice(mds_method, "mds_method", ("auto", "eigh", "lobpcg"))
     traced = isinstance(P, jax.core.Tracer) or isinstance(th, jax.core.Tracer)
     shard = (jax.local_device_count() > 1 and not traced) if shard is None else bool(shard)
     if jax.process_count() > 1 and not traced:
@@ -146,6 +156,29 @@ def threshold_sweep(
         out = tuple(a[:S] if traced else np.asarray(a)[:S] for a in out)
     r, conn, ncomp, deg, eig = (jnp.asarray(a) for a in out)
     return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]))
+
+
+def _as_thresholds(thresholds, dtype) -> Array:
+    """``thresholds`` as a non-empty 1-D array of finite ε > 0 (a string or a NaN refused)."""
+    if isinstance(thresholds, jax.core.Tracer):
+        return jnp.atleast_1d(thresholds.astype(dtype))
+    th = as_float_array(jnp.atleast_1d(_numeric(thresholds)), "thresholds", finite="raise")
+    if th.ndim != 1:
+        raise FxspaceError(f"thresholds must be a 1-D array of ε values, got shape {th.shape}")
+    if not bool(jnp.all(th > 0)):
+        raise FxspaceError("thresholds must all be > 0 (ε is a distance)")
+    return th.astype(dtype)
+
+
+def _numeric(x):
+    if isinstance(x, str | bytes) or (
+        isinstance(x, list | tuple) and any(isinstance(v, str | bytes) for v in x)
+    ):
+        raise FxspaceError(f"thresholds must be numbers (ε in the features' units), got {x!r}")
+    try:
+        return jnp.asarray(x)
+    except (TypeError, ValueError) as e:
+        raise FxspaceError(f"thresholds must be a numeric array ({e})") from None
 
 
 def _across_processes(P, th, dim, batch_size, method, mds_method, shard):
@@ -171,42 +204,69 @@ def _across_processes(P, th, dim, batch_size, method, mds_method, shard):
 def threshold_grid(
     pairwise: Float[Array, "n n"],
     num: int = 16,
-    upper_quantile: float = 0.5,
-    lower_factor: float = 0.9,
+    upper_quantile: float = 1.0,
+    lower_factor: float = 1.0,
 ) -> np.ndarray:
-    """``num`` geometrically spaced ε from just below the connecting threshold (×
-    ``lower_factor``) to the ``upper_quantile`` of the off-diagonal distances."""
-    P = np.asarray(pairwise)
-    if num < 2:
-        raise FxspaceError(f"num must be >= 2, got {num}")
-    if not 0 < upper_quantile <= 1:
-        raise FxspaceError(f"upper_quantile must be in (0, 1], got {upper_quantile}")
+    """``num`` geometrically spaced ε over the whole meaningful range (Kim & Jung §2.2:
+    thresholds "between the smallest and the largest distance"): from the connecting
+    threshold (× ``lower_factor``; below it the graph falls apart) up to the
+    ``upper_quantile`` of the off-diagonal distances — by default the largest pairwise
+    distance, where the ε-graph is complete and geodesics are straight lines. The last
+    grid point is exactly that distance.
+
+    **Arguments:** `pairwise` ``(n, n)`` state distances; `num` ≥ 2 (an integer);
+    `upper_quantile` in (0, 1]; `lower_factor` > 0.
+
+    **Returns:** ``(num,)`` ascending float64 thresholds.
+    """
+    num = check_int(num, "num", low=2)
+    upper_quantile = check_scalar(
+        upper_quantile, "upper_quantile", low=0.0, high=1.0, low_open=True
+    )
+    lower_factor = check_scalar(lower_factor, "lower_factor", low=0.0, low_open=True)
+    P = np.asarray(as_float_array(pairwise, "pairwise", ndim=2, xp="numpy"), np.float64)
+    if P.shape[0] != P.shape[1] or P.shape[0] < 2:
+        raise FxspaceError(f"pairwise must be a square (n, n) matrix, n ≥ 2; got {P.shape}")
     lo = float(connecting_threshold(jnp.asarray(P))) * lower_factor
     off = P[~np.eye(len(P), dtype=bool)]
-    hi = float(np.quantile(off, upper_quantile))
+    hi = float(off.max()) if upper_quantile == 1.0 else float(np.quantile(off, upper_quantile))
+    if not lo > 0:
+        lo = float(off[off > 0].min()) if (off > 0).any() else 1.0
     if hi <= lo:
         hi = lo * 4
-    return np.geomspace(lo, hi, num)
+    grid = np.geomspace(lo, hi, num)
+    grid[0], grid[-1] = lo, hi
+    return grid
 
 
 def choose_threshold(
     sweep: SweepResult,
     criterion: Literal["max_r", "bounded_degree", "elbow"] = "max_r",
-    max_mean_degree: float | None = None
+    max_mean_degree: float | None = None,
 ) -> dict:
     """Pick a threshold from a sweep.
 
     **Criteria:**
-    - ``"max_r"``: the seed paper's — the highest Pearson r. On real data r keeps rising
-      toward the complete graph (Euclidean, least geodesic) so this drifts upward.
+    - ``"max_r"`` (default): the paper's — the threshold whose 2-D embedding best keeps
+      the geodesic distances (highest Pearson r; Kim & Jung §2.2 choose 230 mm at
+      r = 0.9647). Over the whole range (`threshold_grid`) r rises from the connecting
+      threshold, peaks, and falls toward the complete graph; on AnimFace it peaks near
+      220 mm.
     - ``"bounded_degree"``: the highest r among graphs whose mean degree is at most
-      ``max_mean_degree`` (default: a quarter of the frames) — stays geodesic.
+      ``max_mean_degree`` (default: a quarter of the frames) — for when the peak lies at
+      a nearly complete graph, whose geodesics are straight lines (no manifold left).
     - ``"elbow"``: the knee of the r-vs-log ε curve (largest height above the chord
-      between the first and last connected thresholds; Kneedle) — where extra
-      neighbours stop buying correlation.
+      between the first and last connected thresholds; Kneedle) — the smallest ε past
+      which extra neighbours buy little correlation (sparser graph, cheaper geodesics).
 
-    **Returns:** dict with ``threshold``, ``score``, ``index``, ``criterion``.
+    **Returns:** dict with ``threshold``, ``score``, ``index``, ``criterion``,
+    ``mean_degree``.
     """
+    check_choice(criterion, "criterion", CRITERIA)
+    if max_mean_degree is not None:
+        max_mean_degree = check_scalar(max_mean_degree, "max_mean_degree", low=0.0)
+    if not isinstance(sweep, SweepResult):
+        raise FxspaceError(f"sweep must be a SweepResult (threshold_sweep), got {type(sweep)}")
     th = np.asarray(sweep.thresholds, float)
     r = np.asarray(sweep.scores, float)
     conn = np.asarray(sweep.connected, bool) & np.isfinite(r)

@@ -1,8 +1,8 @@
 """Readers and writers only: markers (C3D, TRC, NPZ), body motion (ASF/AMC, BVH) and
-skinned glTF. The data types live with their system (:class:`fxspace.motion.Motion`,
-:class:`fxspace.mesh.SkinnedMesh`) or in ``io/_types`` (:class:`MarkerSequence`).
+skinned glTF. The data types live with their system (`fxspace.motion.Motion`,
+`fxspace.mesh.SkinnedMesh`) or in ``io/_types`` (`MarkerSequence`).
 
-The seeded synthetic face lives in :mod:`fxspace.synthetic`; ``fx.io.synthetic_face`` and
+The seeded synthetic face lives in `fxspace.synthetic`; ``fx.io.synthetic_face`` and
 its companions stay reachable here as aliases (resolved lazily, so there is no cycle).
 """
 
@@ -20,16 +20,19 @@ from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
 from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
 from fxspace.io._markers import read_markers as read_markers
 from fxspace.io._markers import write_npz as write_npz
+from fxspace.io._meshseq import MorphAnimation as MorphAnimation
+from fxspace.io._meshseq import read_gltf_morph as read_gltf_morph
+from fxspace.io._meshseq import read_obj as read_obj
 from fxspace.io._meshseq import write_gltf_morph as write_gltf_morph
 from fxspace.io._meshseq import write_obj_sequence as write_obj_sequence
 from fxspace.io._meshseq import write_ply_sequence as write_ply_sequence
 from fxspace.io._trc import write_trc as write_trc
 from fxspace.io._types import UNIT_SCALES as UNIT_SCALES
 from fxspace.io._types import MarkerSequence as MarkerSequence
-from fxspace.mesh._types import Animation as Animation
-from fxspace.mesh._types import LocalPose as LocalPose
-from fxspace.mesh._types import SkinnedMesh as SkinnedMesh
-from fxspace.motion._types import Motion as Motion
+from fxspace.mesh import Animation as Animation
+from fxspace.mesh import LocalPose as LocalPose
+from fxspace.mesh import SkinnedMesh as SkinnedMesh
+from fxspace.motion import Motion as Motion
 
 _SYNTHETIC_ALIASES = (
     "EXPRESSION_MODES",
@@ -55,6 +58,9 @@ __all__ = [
     "read_markers",
     "write_npz",
     "write_gltf_morph",
+    "read_gltf_morph",
+    "read_obj",
+    "MorphAnimation",
     "write_obj_sequence",
     "write_ply_sequence",
     "write_trc",

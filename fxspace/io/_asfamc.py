@@ -13,11 +13,11 @@ Conventions (Acclaim / CMU):
   ``L = C M C⁻¹``; its tip is ``start + A · length · direction`` with ``A`` the product of
   the ``L``'s from the root down.
 
-The result is a BVH-style :class:`Motion`: one joint per bone, placed at the bone's
+The result is a BVH-style `Motion`: one joint per bone, placed at the bone's
 *start* (the root, then the bones in hierarchy order), plus an end site ``<bone>_end`` at
 the tip of each leaf bone. ``offsets[b]`` is the parent bone's ``length · direction``.
 Channels are recorded as ``Zrotation Yrotation Xrotation`` (and root positions) so that
-:func:`write_bvh` produces a standard CMU-style BVH.
+`write_bvh` produces a standard CMU-style BVH.
 """
 
 from __future__ import annotations
@@ -27,9 +27,10 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from fxspace._validate import check_scalar
 from fxspace.errors import CorruptFileError
 from fxspace.io._bvh import _open_text
-from fxspace.motion._types import Motion
+from fxspace.motion import Motion
 from fxspace.rotations import euler_to_quat, quat_conj, quat_mul
 
 __all__ = ["read_amc", "read_asf", "AsfSkeleton"]
@@ -181,56 +182,8 @@ def _acclaim_quat(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
     )
 
 
-def read_amc(asf_path: str | Path, amc_path: str | Path, rate: float = 120.0) -> Motion:
-    """Read a CMU ASF skeleton and an AMC motion (``.amc`` or ``.amc.gz``) into a :class:`Motion`.
-
-    **Arguments:**
-
-    - ``asf_path``: the skeleton (``.asf``).
-    - ``amc_path``: the motion (``.amc`` / ``.amc.gz``).
-    - ``rate``: frames per second (AMC files do not store it; CMU captures at 120 Hz).
-
-    **Returns:** a ``Motion`` in metres (``length`` units converted), one joint per bone at
-    the bone's start plus ``<bone>_end`` tips; see the module docstring for the conventions.
-    Malformed files raise ``CorruptFileError`` naming the line.
-    """
-    sk = read_asf(asf_path)
-    amc_path = Path(amc_path)
-    k = sk.metres_per_unit
-    # joint layout: root, bones depth-first in hierarchy order, tips of leaf bones
-    names = ["root"]
-    parents = [-1]
-    offsets = [np.asarray(sk.root_position) * k]
-    channels: list[tuple[str, ...]] = [_ROOT_CH]
-    bone_joint: dict[str, int] = {}
-    local_c: list[np.ndarray] = [
-        _acclaim_quat(np.asarray(sk.root_orientation), sk.root_axis, sk.degrees)
-    ]
-
-    def visit(bname: str, parent_j: int, parent_vec: np.ndarray) -> None:
-        b = sk.bones[bname]
-        j = len(names)
-        bone_joint[bname] = j
-        names.append(bname)
-        parents.append(parent_j)
-        offsets.append(parent_vec)
-        channels.append(_BONE_CH)
-        local_c.append(_acclaim_quat(b["axis"], b["axis_order"], sk.degrees))
-        vec = b["direction"] * b["length"] * k
-        kids = sk.children.get(bname, [])
-        for c in kids:
-            visit(c, j, vec)
-        if not kids:
-            names.append(f"{bname}_end")
-            parents.append(j)
-            offsets.append(vec)
-            channels.append(())
-            local_c.append(np.asarray([1.0, 0.0, 0.0, 0.0]))
-
-    for c in sk.children.get("root", []):
-        visit(c, 0, np.zeros(3))
-
-    # AMC values
+def _read_amc_frames(sk, asf_path, amc_path) -> list[dict[str, list[float]]]:
+    """The AMC frames as ``{bone: values}`` dicts; errors name the line."""
     lines = _open_text(amc_path).splitlines()
     frames: list[dict[str, list[float]]] = []
     cur: dict[str, list[float]] | None = None
@@ -272,6 +225,61 @@ def read_amc(asf_path: str | Path, amc_path: str | Path, rate: float = 120.0) ->
             raise CorruptFileError(
                 f"{amc_path}, line {n}: non-numeric value for bone {bname!r}"
             ) from None
+    return frames
+
+
+def read_amc(asf_path: str | Path, amc_path: str | Path, rate: float = 120.0) -> Motion:
+    """Read a CMU ASF skeleton and an AMC motion (``.amc`` or ``.amc.gz``) into a `Motion`.
+
+    **Arguments:**
+
+    - ``asf_path``: the skeleton (``.asf``).
+    - ``amc_path``: the motion (``.amc`` / ``.amc.gz``).
+    - ``rate``: frames per second (AMC files do not store it; CMU captures at 120 Hz).
+
+    **Returns:** a ``Motion`` in metres (``length`` units converted), one joint per bone at
+    the bone's start plus ``<bone>_end`` tips; see the module docstring for the conventions.
+    Malformed files raise ``CorruptFileError`` naming the line; a ``rate`` that is not a
+    finite positive number raises `FxspaceError`.
+    """
+    rate = check_scalar(rate, "rate", low=0.0, low_open=True)
+    sk = read_asf(asf_path)
+    amc_path = Path(amc_path)
+    k = sk.metres_per_unit
+    # joint layout: root, bones depth-first in hierarchy order, tips of leaf bones
+    names = ["root"]
+    parents = [-1]
+    offsets = [np.asarray(sk.root_position) * k]
+    channels: list[tuple[str, ...]] = [_ROOT_CH]
+    bone_joint: dict[str, int] = {}
+    local_c: list[np.ndarray] = [
+        _acclaim_quat(np.asarray(sk.root_orientation), sk.root_axis, sk.degrees)
+    ]
+
+    def visit(bname: str, parent_j: int, parent_vec: np.ndarray) -> None:
+        b = sk.bones[bname]
+        j = len(names)
+        bone_joint[bname] = j
+        names.append(bname)
+        parents.append(parent_j)
+        offsets.append(parent_vec)
+        channels.append(_BONE_CH)
+        local_c.append(_acclaim_quat(b["axis"], b["axis_order"], sk.degrees))
+        vec = b["direction"] * b["length"] * k
+        kids = sk.children.get(bname, [])
+        for c in kids:
+            visit(c, j, vec)
+        if not kids:
+            names.append(f"{bname}_end")
+            parents.append(j)
+            offsets.append(vec)
+            channels.append(())
+            local_c.append(np.asarray([1.0, 0.0, 0.0, 0.0]))
+
+    for c in sk.children.get("root", []):
+        visit(c, 0, np.zeros(3))
+
+    frames = _read_amc_frames(sk, asf_path, amc_path)
     if not frames:
         raise CorruptFileError(f"{amc_path}: no frames (is this an AMC file?)")
     T = len(frames)

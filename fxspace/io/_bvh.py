@@ -15,9 +15,9 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._validate import check_readable
-from fxspace.errors import CorruptFileError
-from fxspace.motion._types import Motion
+from fxspace._validate import check_readable, check_scalar
+from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.motion import Motion
 from fxspace.rotations import euler_to_quat, quat_rotate, quat_to_euler
 
 __all__ = ["read_bvh", "write_bvh"]
@@ -72,7 +72,7 @@ class _Tokens:
 
 
 def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
-    """Read a ``.bvh`` (or ``.bvh.gz``) file into a :class:`Motion`.
+    """Read a ``.bvh`` (or ``.bvh.gz``) file into a `Motion`.
 
     **Arguments:**
 
@@ -86,11 +86,13 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     dataset, 6 channels per joint): their values replace the joint's OFFSET. Constant ones
     become the offset; a varying one on the root's only child (the usual ``Hips`` under a
     static ``Root``) is folded into the root translation, so every joint below the root
-    keeps its world position (:func:`fxspace.motion.drop_root` then removes the static root).
+    keeps its world position (`fxspace.motion.drop_root` then removes the static root).
     Other varying translations (stretching bones) raise ``CorruptFileError``.
 
-    Raises ``CorruptFileError`` naming the line of the first malformed token.
+    Raises ``CorruptFileError`` naming the line of the first malformed token, and
+    `FxspaceError` for a ``scale`` that is not a finite positive number.
     """
+    scale = check_scalar(scale, "scale", low=0.0, low_open=True)
     path = Path(path)
     lines = _open_text(path).splitlines()
     try:
@@ -143,7 +145,26 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     if tk.i != len(tk.toks):
         raise tk.error(f"unexpected {tk.toks[tk.i][0]!r} after the root joint")
 
-    # MOTION section
+    n_ch = sum(len(c) for c in channels)
+    data, dt = _read_frames(path, lines, mline, n_ch)
+    quats, root, local = _decode_channels(data, channels, parents, offsets)
+    offsets_np = np.asarray(offsets, dtype=np.float64)
+    if local:
+        _fold_joint_translations(path, names, parents, offsets_np, root, quats, local)
+    return Motion(
+        names=tuple(names),
+        parents=tuple(parents),
+        offsets=jnp.asarray(offsets_np * scale),
+        root_translation=jnp.asarray(root * scale),
+        rotations=jnp.asarray(quats),
+        rate=float(1.0 / dt),
+        channels=tuple(channels),
+    )
+
+
+def _read_frames(path, lines: list[str], mline: int, n_ch: int) -> tuple[np.ndarray, float]:
+    """The MOTION section: ``(frames × channels data, frame time)``; errors name the line."""
+
     def header(k: int, key: str) -> tuple[str, int]:
         while k < len(lines) and not lines[k].strip():
             k += 1
@@ -163,7 +184,6 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
         raise CorruptFileError(f"{path}, line {k}: bad frame time {val!r}") from None
     if dt <= 0:
         raise CorruptFileError(f"{path}, line {k}: frame time must be positive, got {dt}")
-    n_ch = sum(len(c) for c in channels)
     rows = []
     for ln_no in range(k, len(lines)):
         s = lines[ln_no].split()
@@ -182,11 +202,15 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     if len(rows) != n_frames:
         hint = "truncated file?" if len(rows) < n_frames else "fix the 'Frames:' line"
         raise CorruptFileError(
-            f"{path}, line {len(lines)}: header says {n_frames} frames, "
-            f"found {len(rows)} ({hint})"
+            f"{path}, line {len(lines)}: header says {n_frames} frames, found {len(rows)} ({hint})"
         )
-    data = np.asarray(rows, dtype=np.float64).reshape(n_frames, n_ch)
-    J = len(names)
+    return np.asarray(rows, dtype=np.float64).reshape(n_frames, n_ch), dt
+
+
+def _decode_channels(data: np.ndarray, channels, parents, offsets):
+    """Channel columns → ``(quaternions (T, J, 4), root (T, 3), {joint: local translations})``."""
+    n_frames = data.shape[0]
+    J = len(channels)
     quats = np.zeros((n_frames, J, 4))
     quats[..., 0] = 1.0
     root = np.zeros((n_frames, 3))
@@ -205,18 +229,7 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
         if order:
             quats[:, j] = euler_to_quat(data[:, rcols], order)
         col += len(chans)
-    offsets_np = np.asarray(offsets, dtype=np.float64)
-    if local:
-        _fold_joint_translations(path, names, parents, offsets_np, root, quats, local)
-    return Motion(
-        names=tuple(names),
-        parents=tuple(parents),
-        offsets=jnp.asarray(offsets_np * scale),
-        root_translation=jnp.asarray(root * scale),
-        rotations=jnp.asarray(quats),
-        rate=float(1.0 / dt),
-        channels=tuple(channels),
-    )
+    return quats, root, local
 
 
 def _fold_joint_translations(path, names, parents, offsets, root, quats, local) -> None:
@@ -227,7 +240,7 @@ def _fold_joint_translations(path, names, parents, offsets, root, quats, local) 
     into the root translation, which is exact for every joint but the root when the joint
     is the root's only child (``X_j = X_root + R_root t_j``; the root itself then sits at
     ``X_j − R_root OFFSET_j``). Anything else cannot be represented by a
-    :class:`Motion` (rigid bones) and raises ``CorruptFileError``. Edits in place."""
+    `Motion` (rigid bones) and raises ``CorruptFileError``. Edits in place."""
     children = [sum(1 for p in parents if p == j) for j in range(len(parents))]
     for j, tr in local.items():
         if np.ptp(tr, axis=0).max() <= 1e-6 * max(1.0, float(np.abs(tr).max())):
@@ -252,10 +265,17 @@ def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
     Joints without channels that have no children are written as ``End Site``; a joint
     whose rotation channels are not three distinct axes must have identity rotation.
     Lengths are divided by ``scale`` (metres per file unit). Written atomically; ``.gz``
-    paths are compressed.
+    paths are compressed. A ``scale`` or ``motion.rate`` that is not a finite positive
+    number, or non-finite rotations/translations, raise `FxspaceError`.
     """
     from fxspace.runs import write_bytes_atomic
 
+    scale = check_scalar(scale, "scale", low=0.0, low_open=True)
+    check_scalar(motion.rate, "motion.rate", low=0.0, low_open=True)
+    for what, arr in (("motion.rotations", motion.rotations), ("motion.offsets", motion.offsets),
+                      ("motion.root_translation", motion.root_translation)):  # fmt: skip
+        if not np.all(np.isfinite(np.asarray(arr))):
+            raise FxspaceError(f"write_bvh: {what} holds NaN/inf; BVH cannot store them")
     path = Path(path)
     J = motion.num_joints
     children: list[list[int]] = [[] for _ in range(J)]

@@ -3,7 +3,7 @@
 Points whose residual word is negative are invalid (the C3D convention for a marker
 not seen by the cameras): they become NaN, never 0. The ``c3d`` package reports a
 truncated data section with a warning and stops early; here that is a
-:class:`~fxspace.errors.CorruptFileError` naming the file and the frame counts.
+`CorruptFileError` naming the file and the frame counts.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def write_c3d(path: str | Path, seq: MarkerSequence) -> Path:
     """Write ``seq`` as a C3D file (float32 points, no analog channels), atomically.
 
     Missing markers (NaN) are written as invalid points (residual −1), so
-    :func:`~fxspace.io.read_markers` reads them back as NaN; coordinates round-trip to
+    `read_markers` reads them back as NaN; coordinates round-trip to
     float32 precision. Units go to ``POINT:UNITS``, the rate to the header and
     ``POINT:RATE``, the names to ``POINT:LABELS``.
     """

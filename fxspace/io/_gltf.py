@@ -1,4 +1,4 @@
-"""Skinned glTF 2.0 meshes (``.glb`` / ``.gltf``) → :class:`SkinnedMesh`.
+"""Skinned glTF 2.0 meshes (``.glb`` / ``.gltf``) → `SkinnedMesh`.
 
 Reads, with ``pygltflib``, everything linear blend skinning needs: bind-pose vertices,
 triangles, the joint hierarchy (in an order where every parent precedes its children),
@@ -11,7 +11,7 @@ Posed vertices of an animation at given times (the stable entry point other code
 on)::
 
     mesh = fx.io.read_gltf("CesiumMan.glb")
-    V = mesh.animation_vertices("Anim_0", np.linspace(0.0, 1.0, 30))   # (30, V, 3)
+    V = fx.mesh.animation_vertices(mesh, "Anim_0", np.linspace(0.0, 1.0, 30))  # (30, V, 3)
 
 The skinning follows the glTF specification: a vertex ``v`` is posed as
 ``Σ_i w_i · G_{j_i} · IBM_{j_i} · v`` where ``G_j`` is joint ``j``'s global (scene)
@@ -28,7 +28,7 @@ import numpy as np
 
 from fxspace._validate import check_readable
 from fxspace.errors import CorruptFileError, FxspaceError
-from fxspace.mesh._types import Animation, AnimationChannel, LocalPose, SkinnedMesh
+from fxspace.mesh import Animation, AnimationChannel, LocalPose, SkinnedMesh
 from fxspace.rotations import matrix_to_quat, quat_normalize, quat_to_matrix
 
 __all__ = ["SkinnedMesh", "Animation", "AnimationChannel", "LocalPose", "read_gltf"]
@@ -191,7 +191,7 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
     triangles (points, lines, strips, fans) is refused with a clear message, as is a
     skeleton with a non-joint node between two joints.
 
-    **Returns:** a :class:`SkinnedMesh`.
+    **Returns:** a `SkinnedMesh`.
     """
     path = Path(path)
     if path.is_dir():
@@ -208,6 +208,31 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
     if not skin_nodes:
         raise CorruptFileError(f"{path}: skin {node.skin} has no joints")
 
+    vertices, tris, skin_joints, skin_weights = _read_primitives(r, gmesh, len(skin_nodes), path)
+    sk = _read_skeleton(r, skin, skin_nodes, path)
+    skin_joints = sk["new_of_old"][skin_joints].astype(np.int32)
+    anims = _read_animations(r, sk["joint_nodes"], path)
+    names = tuple(g.nodes[n].name or f"joint{n}" for n in sk["joint_nodes"])
+    return SkinnedMesh(
+        name=path.stem,
+        vertices=vertices,
+        faces=tris,
+        joint_names=names,
+        joint_nodes=sk["joint_nodes"],
+        parents=sk["parents"],
+        rest_translations=sk["rest_t"],
+        rest_rotations=sk["rest_q"],
+        rest_scales=sk["rest_s"],
+        base_transforms=sk["base"],
+        inverse_bind=sk["ibm"],
+        skin_joints=skin_joints,
+        skin_weights=skin_weights,
+        animations=anims,
+    )
+
+
+def _read_primitives(r: _Reader, gmesh, n_joints: int, path: Path):
+    """All triangle primitives merged: vertices, faces, joint indices and weights."""
     # -- primitives → one vertex / triangle list
     verts, faces, sj, sw = [], [], [], []
     offset = 0
@@ -270,7 +295,7 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
     tris = np.concatenate(faces, axis=0).astype(np.int32)
     skin_joints = np.concatenate(sj, axis=0)
     skin_weights = np.concatenate(sw, axis=0)
-    if skin_joints.size and (skin_joints.min() < 0 or skin_joints.max() >= len(skin_nodes)):
+    if skin_joints.size and (skin_joints.min() < 0 or skin_joints.max() >= n_joints):
         raise CorruptFileError(f"{path}: JOINTS_n refer to joints outside the skin")
     skin_weights = np.where(skin_weights > 0, skin_weights, 0.0)
     wsum = skin_weights.sum(axis=1, keepdims=True)
@@ -278,6 +303,12 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
         raise CorruptFileError(f"{path}: {int(np.sum(wsum <= 0))} vertices have zero skin weight")
     skin_weights = skin_weights / wsum
 
+    return vertices, tris, skin_joints, skin_weights
+
+
+def _read_skeleton(r: _Reader, skin, skin_nodes: list, path: Path) -> dict:
+    """Parents (parents first), rest transforms, base transforms and inverse binds."""
+    g = r.g
     # -- skeleton: parents, topological order, base transforms
     parent_node = {}
     for i, n in enumerate(g.nodes):
@@ -334,7 +365,6 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
         [new_of_old[parent_skin[o]] if parent_skin[o] >= 0 else -1 for o in order], dtype=np.int32
     )
     joint_nodes = tuple(int(skin_nodes[o]) for o in order)
-    names = tuple(g.nodes[n].name or f"joint{n}" for n in joint_nodes)
     rest_t = np.stack([trs[n][0] for n in joint_nodes])
     rest_q = np.stack([trs[n][1] for n in joint_nodes])
     rest_s = np.stack([trs[n][2] for n in joint_nodes])
@@ -348,8 +378,22 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
         ibm = ibm[order]
     else:
         ibm = np.tile(np.eye(4), (len(skin_nodes), 1, 1))
-    skin_joints = new_of_old[skin_joints].astype(np.int32)
 
+    return dict(
+        new_of_old=new_of_old,
+        joint_nodes=joint_nodes,
+        parents=parents,
+        rest_t=rest_t,
+        rest_q=rest_q,
+        rest_s=rest_s,
+        base=base,
+        ibm=ibm,
+    )
+
+
+def _read_animations(r: _Reader, joint_nodes: tuple, path: Path) -> dict[str, Animation]:
+    """The translation / rotation / scale channels on the skin's joints, per animation."""
+    g = r.g
     # -- animations
     node_to_joint = {n: k for k, n in enumerate(joint_nodes)}
     anims: dict[str, Animation] = {}
@@ -386,19 +430,4 @@ def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
             name = f"{name}_{ai}"
         anims[name] = Animation(name, tuple(chans))
 
-    return SkinnedMesh(
-        name=path.stem,
-        vertices=vertices,
-        faces=tris,
-        joint_names=names,
-        joint_nodes=joint_nodes,
-        parents=parents,
-        rest_translations=rest_t,
-        rest_rotations=rest_q,
-        rest_scales=rest_s,
-        base_transforms=base,
-        inverse_bind=ibm,
-        skin_joints=skin_joints,
-        skin_weights=skin_weights,
-        animations=anims,
-    )
+    return anims

@@ -1,6 +1,6 @@
 """Skinned meshes, their poses and IK poses → glTF 2.0 (``.glb``, or ``.gltf`` + data URI).
 
-The file holds what :func:`fxspace.io.read_gltf` reads (glTF 2.0 §3.7.3 skins, §3.11
+The file holds what `fxspace.io.read_gltf` reads (glTF 2.0 §3.7.3 skins, §3.11
 animations):
 
 - one triangle primitive: bind-pose ``POSITION`` (float32), ``indices`` (uint32) and the
@@ -10,17 +10,17 @@ animations):
   rest ``translation``/``rotation`` (x, y, z, w)/``scale``, and the inverse bind matrices;
 - above each root joint whose ``base_transforms`` is not the identity, a non-joint node
   holding that fixed transform as a ``matrix`` (so the re-read ``base_transforms`` match);
-- with ``poses`` (a :class:`~fxspace.mesh.LocalPose` ``(T, J, ·)``): one animation with
+- with ``poses`` (a `fxspace.mesh.LocalPose` ``(T, J, ·)``): one animation with
   ``LINEAR`` translation / rotation / scale channels per joint keyed at ``times``
   (quaternion signs made continuous over time, so interpolation takes the short arc).
 
-IK poses (:class:`fxspace.Pose`: per-joint XYZ Euler angles ``θ_j`` after the rest
+IK poses (`fxspace.Pose`: per-joint XYZ Euler angles ``θ_j`` after the rest
 rotation, plus a world translation ``τ``) become local transforms with
-:func:`ik_poses_to_local`: ``R_j = R_rest,j · R_x R_y R_z(θ_j)``, rest translations and
+`ik_poses_to_local`: ``R_j = R_rest,j · R_x R_y R_z(θ_j)``, rest translations and
 scales, and ``τ`` moved into each root's translation as ``t_root + B⁻¹ τ`` (``B`` the
 linear part of the root's base transform), which moves every joint's global transform by
 ``τ``: with weights summing to one, the skinned vertices move by ``τ`` exactly as
-:func:`fxspace.pose_vertices` does.
+`fxspace.pose_vertices` does.
 
 Example:
 
@@ -44,11 +44,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fxspace.errors import FxspaceError
-from fxspace.mesh._types import LocalPose
+from fxspace.mesh import LocalPose
 from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
 
 if TYPE_CHECKING:  # pragma: no cover
-    from fxspace.mesh._types import SkinnedMesh
+    from fxspace.mesh import SkinnedMesh
 
 __all__ = ["ik_poses_to_local", "write_gltf", "write_ik_gltf"]
 
@@ -196,7 +196,7 @@ def _check_times(times, rate, n: int) -> np.ndarray:
 
 
 def ik_poses_to_local(mesh: SkinnedMesh, angles, translation) -> LocalPose:
-    """Local joint transforms of IK poses (:class:`fxspace.Pose` fields) of ``mesh``.
+    """Local joint transforms of IK poses (`fxspace.Pose` fields) of ``mesh``.
 
     Joint ``j`` gets rotation ``R_rest,j · R_x R_y R_z(θ_j)`` (as an ``(x, y, z, w)``
     quaternion), its rest scale, and its rest translation; a root ``r`` also gets the world
@@ -208,8 +208,8 @@ def ik_poses_to_local(mesh: SkinnedMesh, angles, translation) -> LocalPose:
     **Arguments:** `mesh`; `angles` ``(J, 3)`` or ``(T, J, 3)`` radians; `translation`
     ``(3,)`` or ``(T, 3)``.
 
-    **Returns:** a :class:`~fxspace.mesh.LocalPose` with leading shape ``(J,)`` or
-    ``(T, J)`` (float64), the input of :func:`write_gltf` and :func:`fxspace.skin_local_pose`.
+    **Returns:** a `fxspace.mesh.LocalPose` with leading shape ``(J,)`` or
+    ``(T, J)`` (float64), the input of `write_gltf` and `fxspace.skin_local_pose`.
     """
     ang, tr, single = _check_ik(mesh, angles, translation)
     nt, nj = ang.shape[:2]
@@ -306,9 +306,9 @@ def write_gltf(
     **Arguments:**
 
     - `path`: ``.glb`` (binary) or ``.gltf`` (JSON with the buffer as a base64 data URI).
-    - `mesh`: the :class:`~fxspace.mesh.SkinnedMesh` (bind pose, skin, skeleton).
+    - `mesh`: the `fxspace.mesh.SkinnedMesh` (bind pose, skin, skeleton).
     - `poses`: local joint transforms with leading shape ``(T, J)`` (or ``(J,)``), as
-      :meth:`SkinnedMesh.sample_animation` or :func:`ik_poses_to_local` return; ``None``
+      `SkinnedMesh.sample_animation` or `ik_poses_to_local` return; ``None``
       writes the mesh without animations.
     - `times`: ``(T,)`` key times in seconds, ``≥ 0`` and strictly increasing (default
       ``arange(T) / rate``).
@@ -353,6 +353,41 @@ def write_gltf(
         m["inverse_bind"].transpose(0, 2, 1).reshape(nj, 16).astype(np.float32), _FLOAT, "MAT4"
     )
 
+    nodes, scene = _nodes(mesh, m)
+    gltf: dict = {
+        "asset": {"version": "2.0", "generator": "fxspace"},
+        "scene": 0,
+        "scenes": [{"nodes": scene}],
+        "nodes": nodes,
+        "meshes": [
+            {
+                "name": str(mesh.name),
+                "primitives": [{"attributes": attributes, "indices": faces, "mode": 4}],
+            }
+        ],
+        "skins": [{"joints": list(range(nj)), "inverseBindMatrices": ibm}],
+    }
+    if poses is not None:
+        t_in = buf.add(keys, _FLOAT, "SCALAR", minmax=True)
+        q = _continuous(quat_normalize(pq))
+        samplers, channels = [], []
+        for j in range(nj):
+            for prop, vals, kind in (
+                ("translation", pt[:, j], "VEC3"),
+                ("rotation", q[:, j], "VEC4"),
+                ("scale", ps[:, j], "VEC3"),
+            ):
+                out = buf.add(vals.astype(np.float32), _FLOAT, kind)
+                channels.append({"sampler": len(samplers), "target": {"node": j, "path": prop}})
+                samplers.append({"input": t_in, "output": out, "interpolation": "LINEAR"})
+        gltf["animations"] = [{"name": animation, "samplers": samplers, "channels": channels}]
+    return write_bytes_atomic(p, _encode(gltf, buf, suffix))
+
+
+def _nodes(mesh: SkinnedMesh, m: dict) -> tuple[list[dict], list[int]]:
+    """The joint nodes (rest TRS, children), one node per distinct base transform above
+    the roots, and the mesh node; and the scene's root nodes."""
+    nj = mesh.num_joints
     q_rest = quat_normalize(m["rest_rotations"])
     nodes: list[dict] = [
         {
@@ -387,40 +422,18 @@ def write_gltf(
         nodes[bases[key]]["children"].append(r)
     scene.append(len(nodes))
     nodes.append({"name": str(mesh.name), "mesh": 0, "skin": 0})
-    gltf: dict = {
-        "asset": {"version": "2.0", "generator": "fxspace"},
-        "scene": 0,
-        "scenes": [{"nodes": scene}],
-        "nodes": nodes,
-        "meshes": [
-            {
-                "name": str(mesh.name),
-                "primitives": [{"attributes": attributes, "indices": faces, "mode": 4}],
-            }
-        ],
-        "skins": [{"joints": list(range(nj)), "inverseBindMatrices": ibm}],
-    }
-    if poses is not None:
-        t_in = buf.add(keys, _FLOAT, "SCALAR", minmax=True)
-        q = _continuous(quat_normalize(pq))
-        samplers, channels = [], []
-        for j in range(nj):
-            for prop, vals, kind in (
-                ("translation", pt[:, j], "VEC3"),
-                ("rotation", q[:, j], "VEC4"),
-                ("scale", ps[:, j], "VEC3"),
-            ):
-                out = buf.add(vals.astype(np.float32), _FLOAT, kind)
-                channels.append({"sampler": len(samplers), "target": {"node": j, "path": prop}})
-                samplers.append({"input": t_in, "output": out, "interpolation": "LINEAR"})
-        gltf["animations"] = [{"name": animation, "samplers": samplers, "channels": channels}]
+    return nodes, scene
+
+
+def _encode(gltf: dict, buf: _Buffer, suffix: str) -> bytes:
+    """The file's bytes: JSON with an embedded base64 buffer (``.gltf``) or GLB chunks."""
     binary = b"".join(buf.chunks)
     gltf["bufferViews"], gltf["accessors"] = buf.views, buf.accessors
     gltf["buffers"] = [{"byteLength": len(binary)}]
     if suffix == ".gltf":
         uri = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
         gltf["buffers"][0]["uri"] = uri
-        return write_bytes_atomic(p, json.dumps(gltf, separators=(",", ":")).encode("utf-8"))
+        return json.dumps(gltf, separators=(",", ":")).encode("utf-8")
     js = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
     js += b" " * (-len(js) % 4)
     total = 12 + 8 + len(js) + 8 + len(binary)
@@ -433,7 +446,7 @@ def write_gltf(
             binary,
         ]
     )
-    return write_bytes_atomic(p, blob)
+    return blob
 
 
 def write_ik_gltf(
@@ -445,12 +458,12 @@ def write_ik_gltf(
 ) -> Path:
     """Write IK poses (one ``(J, 3)`` or ``(T, J, 3)``) of ``mesh`` as an animated glTF.
 
-    The glTF counterpart of :func:`fxspace.io.write_ik_bvh` (same arguments), without its
+    The glTF counterpart of `fxspace.io.write_ik_bvh` (same arguments), without its
     limits: several roots and non-uniform scales are fine, and the mesh travels with the
     motion. Frames are keyed at ``arange(T) / rate``.
 
     **Arguments:** `path` (``.glb``/``.gltf``), `mesh` (the skinned mesh the poses belong
-    to), `angles`/`translation` (:class:`fxspace.Pose` fields, stacked over frames), `rate`
+    to), `angles`/`translation` (`fxspace.Pose` fields, stacked over frames), `rate`
     (frames per second).
 
     **Returns:** the path written (atomically).

@@ -1,6 +1,6 @@
 """Write mesh-IK poses (per-joint Euler angles on a glTF skeleton) as BVH.
 
-A :class:`fxspace.Pose` rotates joint ``j`` by ``R_rest,j · R_x R_y R_z(θ_j)`` and moves
+A `fxspace.Pose` rotates joint ``j`` by ``R_rest,j · R_x R_y R_z(θ_j)`` and moves
 the skeleton by a world translation. BVH has no rest rotations and no scales, so the
 writer bakes them: each joint's BVH rotation is the full local rotation
 ``R_rest,j · E(θ_j)`` (the base transform's rotation in front for the root), each offset
@@ -20,11 +20,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fxspace.errors import FxspaceError
-from fxspace.motion._types import Motion
+from fxspace.motion import Motion
 from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
 
 if TYPE_CHECKING:  # pragma: no cover
-    from fxspace.mesh._types import SkinnedMesh
+    from fxspace.mesh import SkinnedMesh
 
 __all__ = ["ik_poses_to_motion", "write_ik_bvh"]
 
@@ -34,7 +34,7 @@ _ROT = ("Xrotation", "Yrotation", "Zrotation")
 def ik_poses_to_motion(
     mesh: SkinnedMesh, angles: np.ndarray, translation: np.ndarray, rate: float = 30.0
 ) -> Motion:
-    """A :class:`fxspace.io.Motion` of IK poses ``angles (T, J, 3)``, ``translation (T, 3)``."""
+    """A `fxspace.io.Motion` of IK poses ``angles (T, J, 3)``, ``translation (T, 3)``."""
     ang = np.asarray(angles, np.float64)
     tr = np.asarray(translation, np.float64)
     nj = mesh.num_joints
@@ -88,7 +88,7 @@ def write_ik_bvh(
     """Write IK poses (one frame ``(J, 3)`` or ``(T, J, 3)``) of ``mesh`` as BVH.
 
     **Arguments:** `path` (``.bvh``/``.bvh.gz``), `mesh` (the skinned mesh the poses
-    belong to), `angles`/`translation` (:class:`fxspace.Pose` fields, stacked over
+    belong to), `angles`/`translation` (`fxspace.Pose` fields, stacked over
     frames), `rate` (frames per second).
 
     **Returns:** the path written (atomically).

@@ -4,7 +4,7 @@ A marker sequence is ``positions`` of shape ``(T, M, 3)`` (frames, markers, xyz)
 NaN wherever a marker is missing (occluded, C3D negative residual, empty TRC cell):
 missing is never 0. ``read_markers`` picks the format from the file name (``.c3d``,
 ``.trc``, ``.trc.gz``, ``.npz``); every reader raises
-:class:`~fxspace.errors.CorruptFileError` naming the file and what is wrong.
+`CorruptFileError` naming the file and what is wrong.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from fxspace._validate import check_readable
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.io._c3d import _read_c3d
 from fxspace.io._trc import _read_trc
-from fxspace.io._types import UNIT_SCALES, MarkerSequence, _check_seq
+from fxspace.io._types import UNIT_SCALES, MarkerSequence, _check_seq, to_house_units
 from fxspace.runs import save_npz_atomic
 
 __all__ = [
@@ -40,7 +40,7 @@ _NPZ_KEYS = ("positions", "names", "rate", "units")
 def write_npz(path: str | Path, seq: MarkerSequence) -> Path:
     """Write ``seq`` to ``path`` (``.npz``, compressed, atomic; keys positions, names, rate, units).
 
-    Round-trips exactly (dtype included) with :func:`read_markers`.
+    Round-trips exactly (dtype included) with `read_markers`.
     """
     _check_seq(seq)
     p = Path(path)
@@ -92,26 +92,32 @@ def _format_of(path: Path) -> str:
 
 
 def read_markers(path: str | Path) -> MarkerSequence:
-    """Read a marker file: ``.c3d``, ``.trc``, ``.trc.gz`` or ``.npz`` → :class:`MarkerSequence`.
+    """Read a marker file: ``.c3d``, ``.trc``, ``.trc.gz`` or ``.npz`` → `MarkerSequence`.
 
     - **C3D** (via the ``c3d`` package): rate from the header, units from
       ``POINT:UNITS``, names from ``POINT:LABELS`` (stripped); points with a negative
       residual (invalid) are NaN, never 0. Analog channels are ignored.
     - **TRC** (OpenSim / Motion Analysis text, tab separated; ``.trc.gz`` gzipped): rate
       from ``DataRate``, units from ``Units``; empty cells are NaN.
-    - **NPZ**: keys ``positions``, ``names``, ``rate``, ``units`` (see :func:`write_npz`).
+    - **NPZ**: keys ``positions``, ``names``, ``rate``, ``units`` (see `write_npz`).
+
+    **Units**: a file in inches or feet is converted to millimetres (the house unit):
+    ``seq.units == "mm"`` and ``seq.file_units`` records the file's unit (``"in"``);
+    metric files keep their unit (``seq.to_units("mm")`` converts them).
 
     Positions are float64, except NPZ which keeps the stored dtype.
 
     **Raises:** ``FileNotFoundError`` when ``path`` does not exist; ``ValueError`` for an
-    unknown extension; :class:`~fxspace.errors.CorruptFileError` (naming the file, and the
+    unknown extension; `CorruptFileError` (naming the file, and the
     line for text files) for truncated or malformed files.
     """
     p = Path(path)
     fmt = _format_of(p)
     check_readable(p, "marker file")  # absent / a directory / unreadable, said as such
     if fmt == ".c3d":
-        return _read_c3d(p)
-    if fmt in (".trc", ".trc.gz"):
-        return _read_trc(p)
-    return _read_npz(p)
+        seq = _read_c3d(p)
+    elif fmt in (".trc", ".trc.gz"):
+        seq = _read_trc(p)
+    else:
+        seq = _read_npz(p)
+    return to_house_units(seq)

@@ -5,6 +5,9 @@ The glTF holds the first frame as the base positions, frame ``t``'s displacement
 morph target ``t`` and an animation whose weights step through the targets one-hot at
 ``fps`` (glTF 2.0 §3.7.2.2 morph targets, §3.11 ``weights`` animation path, STEP
 interpolation).
+
+Readers: `read_gltf_morph` loads such a .glb back (a static .glb mesh is one frame) and
+`read_obj` a static OBJ mesh (polygons fanned into triangles), e.g. a user's character.
 """
 
 from __future__ import annotations
@@ -12,12 +15,20 @@ from __future__ import annotations
 import json
 import struct
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from fxspace.errors import FxspaceError
+from fxspace.errors import CorruptFileError, FxspaceError
 
-__all__ = ["write_obj_sequence", "write_ply_sequence", "write_gltf_morph"]
+__all__ = [
+    "write_obj_sequence",
+    "write_ply_sequence",
+    "write_gltf_morph",
+    "read_gltf_morph",
+    "read_obj",
+    "MorphAnimation",
+]
 
 
 def _check(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +79,9 @@ def write_ply_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame"
     return paths
 
 
-def write_gltf_morph(path: str | Path, vertices, faces, fps: float = 30.0) -> Path:
+def write_gltf_morph(
+    path: str | Path, vertices, faces, fps: float = 30.0, name: str = "edited"
+) -> Path:
     """One ``.glb``: base = frame 0, morph target ``t`` = frame ``t`` − frame 0, and an
     animation stepping the weights one-hot through the frames at ``fps``."""
     V, F = _check(vertices, faces)
@@ -114,7 +127,7 @@ def write_gltf_morph(path: str | Path, vertices, faces, fps: float = 30.0) -> Pa
         "meshes": [{"primitives": [{"attributes": {"POSITION": pos}, "indices": idx,
                                     "targets": targets}],
                     "weights": [1.0] + [0.0] * (T - 1)}],
-        "animations": [{"name": "edited", "samplers": [
+        "animations": [{"name": str(name), "samplers": [
             {"input": t_acc, "output": w_acc, "interpolation": "STEP"}],
             "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}]}],
         "buffers": [{"byteLength": sum(len(c) for c in chunks)}],
@@ -136,3 +149,98 @@ def write_gltf_morph(path: str | Path, vertices, faces, fps: float = 30.0) -> Pa
     tmp.write_bytes(blob)
     tmp.replace(p)
     return p
+
+
+class MorphAnimation(NamedTuple):
+    """A vertex animation read back: ``vertices`` ``(T, N, 3)``, ``faces`` ``(F, 3)``,
+    ``fps`` (0 for a static mesh), ``name`` of the animation ("" when none)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    fps: float
+    name: str
+
+
+_COMPONENTS = {5126: "<f4", 5125: "<u4", 5123: "<u2", 5121: "u1"}
+_WIDTH = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
+
+
+def _glb_parts(p: Path) -> tuple[dict, bytes]:
+    raw = p.read_bytes()
+    if len(raw) < 20 or raw[:4] != b"glTF":
+        raise CorruptFileError(f"{p}: not a binary glTF (.glb) file (no 'glTF' header)")
+    (jlen,) = struct.unpack_from("<I", raw, 12)
+    try:
+        gltf = json.loads(raw[20 : 20 + jlen])
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CorruptFileError(f"{p}: damaged glTF JSON chunk ({e})") from None
+    off = 20 + jlen
+    binary = raw[off + 8 :] if len(raw) >= off + 8 else b""
+    return gltf, binary
+
+
+def _accessor(gltf: dict, binary: bytes, i: int, p: Path) -> np.ndarray:
+    try:
+        acc = gltf["accessors"][i]
+        view = gltf["bufferViews"][acc["bufferView"]]
+        dt = np.dtype(_COMPONENTS[acc["componentType"]])
+        width = _WIDTH[acc["type"]]
+        start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+        a = np.frombuffer(binary, dt, acc["count"] * width, start)
+    except (KeyError, IndexError, ValueError, TypeError) as e:
+        raise CorruptFileError(f"{p}: damaged or unsupported accessor {i} ({e!r})") from None
+    return a.reshape(acc["count"], width) if width > 1 else a
+
+
+def read_gltf_morph(path: str | Path) -> MorphAnimation:
+    """Read a .glb written by `write_gltf_morph` (or any .glb whose first mesh primitive
+    has positions, triangle indices and optionally one morph target per frame): frame
+    ``t`` = base + target ``t``. A damaged file raises `CorruptFileError` naming it."""
+    p = Path(path)
+    if not p.is_file():
+        raise FxspaceError(f"{p}: no such file")
+    gltf, binary = _glb_parts(p)
+    try:
+        prim = gltf["meshes"][0]["primitives"][0]
+        pos_i, idx_i = prim["attributes"]["POSITION"], prim["indices"]
+    except (KeyError, IndexError, TypeError) as e:
+        raise CorruptFileError(
+            f"{p}: no mesh primitive with POSITION and indices ({e!r})"
+        ) from None
+    base = _accessor(gltf, binary, pos_i, p).astype(np.float64)
+    F = _accessor(gltf, binary, idx_i, p).astype(np.int64).reshape(-1, 3)
+    targets = prim.get("targets") or []
+    V = np.stack([base] + [base + _accessor(gltf, binary, t["POSITION"], p) for t in targets])
+    V = V[1:] if targets else V
+    fps, name = 0.0, ""
+    anims = gltf.get("animations") or []
+    if anims and targets:
+        times = _accessor(gltf, binary, anims[0]["samplers"][0]["input"], p)
+        fps = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 0.0
+        name = str(anims[0].get("name", ""))
+    return MorphAnimation(V, F, fps, name)
+
+
+def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (N, 3), faces (F, 3))`` of a static OBJ mesh; polygons are fanned into
+    triangles, texture/normal indices ignored. A malformed line raises `CorruptFileError`
+    with its line number."""
+    p = Path(path)
+    if not p.is_file():
+        raise FxspaceError(f"{p}: no such file")
+    V, F = [], []
+    for n, line in enumerate(p.read_text(errors="replace").splitlines(), 1):
+        parts = line.split()
+        try:
+            if parts and parts[0] == "v":
+                V.append([float(x) for x in parts[1:4]])
+            elif parts and parts[0] == "f":
+                idx = [int(x.split("/")[0]) for x in parts[1:]]
+                idx = [i - 1 if i > 0 else len(V) + i for i in idx]
+                F += [[idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1)]
+        except ValueError as e:
+            raise CorruptFileError(f"{p}:{n}: malformed line ({e})") from None
+    Va, Fa = np.asarray(V, np.float64).reshape(-1, 3), np.asarray(F, np.int64).reshape(-1, 3)
+    if len(Va) == 0 or (len(Fa) and (Fa.min() < 0 or Fa.max() >= len(Va))):
+        raise CorruptFileError(f"{p}: no vertices, or a face refers to a missing vertex")
+    return Va, Fa

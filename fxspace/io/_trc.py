@@ -11,7 +11,7 @@ Layout (tab separated)::
     1  0.00000  x  y  z  x  y  z ...
 
 An empty cell is a missing coordinate (NaN). The reader checks the declared frame and
-marker counts against the data and raises :class:`~fxspace.errors.CorruptFileError`
+marker counts against the data and raises `CorruptFileError`
 with the file and the line number of the first problem.
 """
 
@@ -148,7 +148,7 @@ def write_trc(path: str | Path, seq: MarkerSequence, *, precision: int | None = 
 
     Missing markers (NaN) are written as empty cells. With ``precision=None``
     (default) each coordinate is written with the shortest text that reads back to the
-    same float64, so :func:`~fxspace.io.read_markers` returns exactly the written
+    same float64, so `read_markers` returns exactly the written
     values; ``precision=k`` writes ``k`` decimals (smaller files, rounding ≤ 0.5e-k).
     Marker names must not contain tabs or line breaks.
     """

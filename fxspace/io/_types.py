@@ -1,7 +1,14 @@
-"""The marker data type: :class:`MarkerSequence` (trajectories with NaN where missing).
+"""The marker data type: `MarkerSequence` (trajectories with NaN where missing).
 
 It lives apart from the readers so that every reader (C3D, TRC, NPZ) and every user of
-marker data imports it without importing the others (no cycles).
+marker data imports it without importing the others (no cycles). A `MarkerSequence` is a
+registered JAX pytree (leaf: ``positions``; names, rate and units are static).
+
+**Units**: millimetres are the house unit. ``UNIT_SCALES`` lists the known length units
+(``mm``, ``cm``, ``m``, ``in``, ``ft``) and `canonical_units` maps their spellings
+(``"inch"``, ``"Millimeters"``…) to those keys. The readers convert a file in inches or
+feet to millimetres and record the file's unit in ``file_units`` (`to_house_units`), so
+an inch file is never read as millimetres.
 """
 
 from __future__ import annotations
@@ -10,15 +17,50 @@ import dataclasses
 from collections import Counter
 from collections.abc import Sequence
 
+import jax
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
+from fxspace._validate import check_int, check_scalar
 from fxspace.errors import FxspaceError
 
-__all__ = ["MarkerSequence", "UNIT_SCALES"]
+__all__ = ["MarkerSequence", "UNIT_SCALES", "HOUSE_UNITS", "canonical_units", "to_house_units"]
 
 #: Length units and their size in millimetres.
-UNIT_SCALES = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+UNIT_SCALES = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "ft": 304.8}
+
+#: The unit fxspace computes in; readers convert non-metric files to it.
+HOUSE_UNITS = "mm"
+
+_ALIASES = {
+    "millimeter": "mm",
+    "millimeters": "mm",
+    "millimetre": "mm",
+    "millimetres": "mm",
+    "centimeter": "cm",
+    "centimeters": "cm",
+    "centimetre": "cm",
+    "centimetres": "cm",
+    "meter": "m",
+    "meters": "m",
+    "metre": "m",
+    "metres": "m",
+    "inch": "in",
+    "inches": "in",
+    '"': "in",
+    "foot": "ft",
+    "feet": "ft",
+}
+
+
+def canonical_units(units: str) -> str:
+    """The ``UNIT_SCALES`` key of a length-unit spelling (``"Inches"`` → ``"in"``,
+    ``"MM"`` → ``"mm"``); another string is returned stripped, unchanged."""
+    u = units.strip()
+    low = u.lower()
+    if low in UNIT_SCALES:
+        return low
+    return _ALIASES.get(low, u)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -32,17 +74,21 @@ class MarkerSequence:
       whole (all three coordinates become NaN). The array is copied and made read-only.
     - ``names``: ``M`` unique, non-empty marker names.
     - ``rate``: frame rate in Hz, finite and > 0.
-    - ``units``: length unit of ``positions`` (``"mm"``, ``"cm"``, ``"m"`` or any other
-      non-empty string; only the three known ones convert with :meth:`to_units`).
+    - ``units``: length unit of ``positions`` (a ``UNIT_SCALES`` key such as ``"mm"`` or
+      ``"in"``, spellings like ``"inches"`` are canonicalised, or any other non-empty
+      string; only the known ones convert with `MarkerSequence.to_units`).
+    - ``file_units``: the unit the file declared when a reader converted it (e.g.
+      ``"in"`` for an inch file read as millimetres); ``None`` when not converted.
 
-    Invalid arguments raise :class:`~fxspace.errors.FxspaceError` (a ``ValueError``)
-    naming the argument.
+    Invalid arguments raise `fxspace.errors.FxspaceError` (a ``ValueError``) naming the
+    argument.
     """
 
     positions: Float[np.ndarray, "frames markers 3"]
     names: tuple[str, ...]
     rate: float
     units: str = "mm"
+    file_units: str | None = None
 
     def __post_init__(self) -> None:
         pos = np.asarray(self.positions)
@@ -81,19 +127,18 @@ class MarkerSequence:
             dup = sorted(n for n, c in Counter(names).items() if c > 1)
             raise FxspaceError(f"names must be unique; duplicated: {dup}")
 
-        try:
-            rate = float(self.rate)
-        except (TypeError, ValueError):
-            raise FxspaceError(f"rate must be a number (Hz), got {self.rate!r}") from None
-        if not np.isfinite(rate) or rate <= 0:
-            raise FxspaceError(f"rate must be finite and > 0 (Hz), got {self.rate!r}")
+        rate = check_scalar(self.rate, "rate", low=0.0, low_open=True)  # Hz
         if not isinstance(self.units, str) or not self.units.strip():
             raise FxspaceError(f"units must be a non-empty string such as 'mm', got {self.units!r}")
+        fu = self.file_units
+        if fu is not None and (not isinstance(fu, str) or not fu.strip()):
+            raise FxspaceError(f"file_units must be None or a unit such as 'in', got {fu!r}")
 
         object.__setattr__(self, "positions", pos)
         object.__setattr__(self, "names", names)
         object.__setattr__(self, "rate", rate)
-        object.__setattr__(self, "units", self.units.strip())
+        object.__setattr__(self, "units", canonical_units(self.units))
+        object.__setattr__(self, "file_units", None if fu is None else canonical_units(fu))
 
     # -- shape ---------------------------------------------------------------------------
     @property
@@ -114,7 +159,9 @@ class MarkerSequence:
     def __repr__(self) -> str:
         return (
             f"MarkerSequence(n_frames={self.n_frames}, n_markers={self.n_markers}, "
-            f"rate={self.rate:g}, units={self.units!r}, dtype={self.positions.dtype}, "
+            f"rate={self.rate:g}, units={self.units!r}, "
+            + (f"file_units={self.file_units!r}, " if self.file_units else "")
+            + f"dtype={self.positions.dtype}, "
             f"missing={int(self.missing_mask().sum())})"
         )
 
@@ -140,20 +187,25 @@ class MarkerSequence:
         if isinstance(names, str):
             names = [names]
         idx = self.index(names)
-        return MarkerSequence(self.positions[:, idx], tuple(names), self.rate, self.units)
+        return dataclasses.replace(self, positions=self.positions[:, idx], names=tuple(names))
 
     def slice(
         self, start: int | None = None, stop: int | None = None, step: int | None = None
     ) -> MarkerSequence:
         """Frames ``start:stop:step`` (Python slice rules); the rate becomes ``rate / step``."""
-        step_ = 1 if step is None else int(step)
+        step_ = 1 if step is None else check_int(step, "step")
         if step_ <= 0:
             raise FxspaceError(f"step must be a positive integer, got {step!r}")
+        for arg, v in (("start", start), ("stop", stop)):
+            if v is not None:
+                check_int(v, arg)
         pos = self.positions[slice(start, stop, step_)]
-        return MarkerSequence(pos, self.names, self.rate / step_, self.units)
+        return dataclasses.replace(self, positions=pos, rate=self.rate / step_)
 
     def to_units(self, units: str) -> MarkerSequence:
-        """The same sequence in ``units`` (one of ``"mm"``, ``"cm"``, ``"m"``)."""
+        """The same sequence in ``units`` (a ``UNIT_SCALES`` key: ``"mm"``, ``"cm"``,
+        ``"m"``, ``"in"``, ``"ft"``, or a spelling of one such as ``"inches"``)."""
+        units = canonical_units(units) if isinstance(units, str) else units
         if units not in UNIT_SCALES:
             raise FxspaceError(f"units must be one of {sorted(UNIT_SCALES)}, got {units!r}")
         if self.units not in UNIT_SCALES:
@@ -164,7 +216,7 @@ class MarkerSequence:
             return self
         factor = UNIT_SCALES[self.units] / UNIT_SCALES[units]
         pos = (self.positions * factor).astype(self.positions.dtype)
-        return MarkerSequence(pos, self.names, self.rate, units)
+        return dataclasses.replace(self, positions=pos, units=units)
 
     def drop_missing_frames(self) -> tuple[MarkerSequence, Int[np.ndarray, " kept"]]:
         """Frames where every marker is present, and their indices in this sequence.
@@ -173,7 +225,33 @@ class MarkerSequence:
         some were dropped: use the indices for timing).
         """
         kept = np.flatnonzero(~self.missing_mask().any(axis=1))
-        return MarkerSequence(self.positions[kept], self.names, self.rate, self.units), kept
+        return dataclasses.replace(self, positions=self.positions[kept]), kept
+
+
+def _flatten(seq: MarkerSequence):
+    return (seq.positions,), (seq.names, seq.rate, seq.units, seq.file_units)
+
+
+def _unflatten(aux, children) -> MarkerSequence:
+    # no validation: under jax transformations the leaf is a tracer or a placeholder
+    obj = object.__new__(MarkerSequence)
+    for k, v in zip(("names", "rate", "units", "file_units"), aux, strict=True):
+        object.__setattr__(obj, k, v)
+    object.__setattr__(obj, "positions", children[0])
+    return obj
+
+
+jax.tree_util.register_pytree_node(MarkerSequence, _flatten, _unflatten)
+
+
+def to_house_units(seq: MarkerSequence) -> MarkerSequence:
+    """``seq`` in millimetres when it is in inches or feet (``file_units`` records the
+    file's unit); metric and unknown units are kept (metric converts losslessly with
+    `MarkerSequence.to_units`)."""
+    if seq.units in ("in", "ft"):
+        mm = seq.to_units(HOUSE_UNITS)
+        return dataclasses.replace(mm, file_units=seq.file_units or seq.units)
+    return seq
 
 
 def _check_seq(seq: object) -> None:

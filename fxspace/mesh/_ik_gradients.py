@@ -17,10 +17,10 @@ the contribution of joint ``j`` to marker ``k``. The gradient has three forms he
   ``S_a = Σ_{j ∈ desc(a)} s_j`` and ``C_a`` alike (one joint × ancestor pass: a
   segment-sum over the hierarchy, as a product with the ``(J, J)`` descendant matrix),
   and ``∂E/∂θ_ad = 2 ω_ad · (C_a − o_a × S_a)``: ``O(K · J + J²)``.
-* **autodiff**: ``jax.grad`` of :func:`ik_objective`.
+* **autodiff**: ``jax.grad`` of `ik_objective`.
 
-All three share the forward pass :func:`fxspace.ik_forward`. The analytic per-marker
-Jacobian (:func:`ik_jacobian`) and :func:`ik_normal_equations` feed the
+All three share the forward pass `fxspace.ik_forward`. The analytic per-marker
+Jacobian (`ik_jacobian`) and `ik_normal_equations` feed the
 Levenberg–Marquardt solver.
 
 Example:
@@ -52,6 +52,8 @@ __all__ = [
     "value_and_gradient",
     "ik_jacobian",
     "ik_normal_equations",
+    "marker_normal_equations",
+    "lever_arms",
 ]
 
 Gradient = Literal["factored", "naive", "autodiff"]
@@ -121,7 +123,7 @@ def ik_gradient_factored(model: IKModel, pose: Pose, targets: Float[Array, "mark
 
 
 def ik_gradient_autodiff(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
-    """``∇E`` by ``jax.grad`` of :func:`ik_objective` (reverse mode through the forward pass)."""
+    """``∇E`` by ``jax.grad`` of `ik_objective` (reverse mode through the forward pass)."""
     return jax.grad(ik_objective, argnums=1)(model, pose, targets)
 
 
@@ -132,9 +134,9 @@ def value_and_gradient(
 
     **Arguments:** `gradient`: ``"factored"`` (eq. (13)), ``"naive"`` (eq. (9)) or
     ``"autodiff"`` (``jax.value_and_grad``); `model`, `pose`, `targets` as
-    :func:`ik_gradient_factored`.
+    `ik_gradient_factored`.
 
-    **Returns:** the objective and its gradient (a :class:`fxspace.Pose`).
+    **Returns:** the objective and its gradient (a `fxspace.Pose`).
     """
     if gradient == "autodiff":
         return jax.value_and_grad(ik_objective, argnums=1)(model, pose, targets)
@@ -155,12 +157,12 @@ def ik_jacobian(
     The translation block is the identity for every marker. ``O(K·J²)`` multiply-adds.
     """
     fw = ik_forward(model, pose)
-    p = _lever_arms(model, fw)
+    p = lever_arms(model, fw)
     jac = jnp.cross(fw.axes[None, :, :, :], p[:, :, None, :])  # (K, J, dof, xyz)
     return fw.markers, jnp.transpose(jac, (0, 3, 1, 2))
 
 
-def _lever_arms(model: IKModel, fw: IKForward) -> Float[Array, "markers joints 3"]:
+def lever_arms(model: IKModel, fw: IKForward) -> Float[Array, "markers joints 3"]:
     """``P_ka = Σ_{j ∈ desc(a)} (q_kj − W_kj o_a)`` (dense, through the descendant matrix)."""
     nj = fw.origins.shape[0]
     u = model.skin[: 3 * nj].reshape(nj, 3, -1)  # u_kjc as [j, c, k]
@@ -172,23 +174,42 @@ def _lever_arms(model: IKModel, fw: IKForward) -> Float[Array, "markers joints 3
 
 
 def ik_normal_equations(
-    model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]
+    model: IKModel,
+    pose: Pose,
+    targets: Float[Array, "markers 3"],
+    weights: Float[Array, " markers"] | None = None,
 ) -> tuple[Float[Array, "markers 3"], Float[Array, " n"], Float[Array, "n n"]]:
-    """Residuals ``δ``, ``Jᵀδ`` and ``JᵀJ`` (flat pose order: angles, then translation).
+    """Residuals ``δ``, ``JᵀWδ`` and ``JᵀWJ`` (flat pose order: angles, then translation).
 
-    Uses the structure ``J_k[:, ad] = −[P_ka]× ω_ad``: ``Σ_k [P_ka]×ᵀ[P_kb]× =
-    tr(G_ab) I − G_abᵀ`` with ``G_ab = Σ_k P_ka P_kbᵀ``, one ``(3J × K) · (K × 3J)``
+    `weights` (optional, ``(K,)``) weights each marker's squared distance (``W`` above;
+    default: all ones). See `marker_normal_equations`.
+    """
+    fw = ik_forward(model, pose)
+    r = fw.markers - targets
+    g, h = marker_normal_equations(fw, lever_arms(model, fw), r, weights)
+    return r, g, h
+
+
+def marker_normal_equations(
+    fw: IKForward,
+    p: Float[Array, "markers joints 3"],
+    r: Float[Array, "markers 3"],
+    weights: Float[Array, " markers"] | None = None,
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
+    """``JᵀWr`` and ``JᵀWJ`` of the marker residuals from a forward pass and the lever arms.
+
+    Uses the structure ``J_k[:, ad] = −[P_ka]× ω_ad``: ``Σ_k w_k [P_ka]×ᵀ[P_kb]× =
+    tr(G_ab) I − G_abᵀ`` with ``G_ab = Σ_k w_k P_ka P_kbᵀ``, one ``(3J × K) · (K × 3J)``
     product (a third of the multiply-adds of forming ``JᵀJ`` from the ``3K × 3J``
     Jacobian), then ``ω``-projections per joint pair.
     """
-    fw = ik_forward(model, pose)
-    p = _lever_arms(model, fw)  # (K, J, 3)
     nk, nj = p.shape[0], p.shape[1]
-    r = fw.markers - targets
     w = fw.axes  # (J, dof, xyz)
-    g_ang = jnp.einsum("jdc,jc->jd", w, jnp.cross(p, r[:, None, :]).sum(axis=0))
+    wr = r if weights is None else weights[:, None] * r
+    g_ang = jnp.einsum("jdc,jc->jd", w, jnp.cross(p, wr[:, None, :]).sum(axis=0))
     pf = p.reshape(nk, 3 * nj)
-    gm = (pf.T @ pf).reshape(nj, 3, nj, 3)  # G[a, c, b, f] = Σ_k P_ka,c P_kb,f
+    pw = pf if weights is None else weights[:, None] * pf
+    gm = (pw.T @ pf).reshape(nj, 3, nj, 3)  # G[a, c, b, f] = Σ_k w_k P_ka,c P_kb,f
     tr = jnp.einsum("acbc->ab", gm)
     eye = jnp.eye(3, dtype=p.dtype)
     m = tr[:, None, :, None] * eye[None, :, None, :] - jnp.transpose(gm, (0, 3, 2, 1))
@@ -196,14 +217,15 @@ def ik_normal_equations(
     # three-operand einsum)
     wm = jnp.einsum("adc,acbf->adbf", w, m)
     h_ang = jnp.einsum("adbf,bef->adbe", wm, w).reshape(3 * nj, 3 * nj)
-    s = p.sum(axis=0)  # (J, 3)
+    s = pw.reshape(nk, nj, 3).sum(axis=0)  # (J, 3)
     h_at = jnp.cross(w, s[:, None, :]).reshape(3 * nj, 3)
+    wsum = nk if weights is None else jnp.sum(weights)
     h = jnp.concatenate(
         [
             jnp.concatenate([h_ang, h_at], axis=1),
-            jnp.concatenate([h_at.T, nk * eye], axis=1),
+            jnp.concatenate([h_at.T, wsum * eye], axis=1),
         ],
         axis=0,
     )
-    g = jnp.concatenate([g_ang.reshape(-1), r.sum(axis=0)])
-    return r, g, h
+    g = jnp.concatenate([g_ang.reshape(-1), wr.sum(axis=0)])
+    return g, h

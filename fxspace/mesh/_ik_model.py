@@ -1,14 +1,14 @@
 """The IK model and its forward pass (Park, Kang & Kwon, eqs. (1)-(7)).
 
-Markers ``p_k(θ)`` lie on the skinned mesh (:mod:`fxspace.mesh._markers`); given targets
+Markers ``p_k(θ)`` lie on the skinned mesh (`fxspace.mesh._markers`); given targets
 ``t_k`` the pose ``θ`` (per-joint XYZ Euler angles + a world translation, see
-:class:`fxspace.Pose`) minimises the paper's eq. (1)/(7)
+`fxspace.Pose`) minimises the paper's eq. (1)/(7)
 
     E(θ) = Σ_k ‖p_k(θ) − t_k‖² = Σ_k ‖δ_k‖²,    p_k = Σ_j (W_kj o_j + L_j u_kj).
 
-:func:`ik_model` precomputes every pose-independent quantity once (host side);
-:func:`ik_forward` is the forward pass shared by the objective and the three gradient
-forms of :mod:`fxspace.mesh._ik_gradients`, so timing them compares the gradient
+`ik_model` precomputes every pose-independent quantity once (host side);
+`ik_forward` is the forward pass shared by the objective and the three gradient
+forms of `fxspace.mesh._ik_gradients`, so timing them compares the gradient
 arithmetic and nothing else. On XLA:CPU at J = 19, K = 120 every kernel launch costs
 about as much as its arithmetic, so the forward pass is written for few kernels.
 
@@ -23,7 +23,7 @@ E = fx.ik_objective(model, fx.rest_pose(mesh), targets)
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -32,6 +32,7 @@ from jaxtyping import Array, Bool, Float, Int
 from fxspace.errors import FxspaceError
 from fxspace.mesh._markers import MarkerSet, marker_influences
 from fxspace.mesh._skinning import Pose, ancestor_table, chain_bases
+from fxspace.results import RESULTS
 from fxspace.rotations import quat_normalize, quat_to_matrix
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -53,20 +54,20 @@ __all__ = [
 class IKModel(NamedTuple):
     """Everything the IK objective needs, as arrays (a pytree: pass it through ``jit``/``vmap``).
 
-    Build it with :func:`ik_model`; every field is pose-independent (precomputed once):
+    Build it with `ik_model`; every field is pose-independent (precomputed once):
 
     - ``local_rest[j]``: the ``4×4`` transform ``T_j · R_rest,j`` of joint ``j``,
       premultiplied by the fixed base transform above it for roots, so that the posed local
       transform is ``local_rest[j] · diag(R_x R_y R_z · S_j, 1)``;
     - ``hops[s]``: the ``(2, J)`` ancestor tables of step ``s`` of the ternary pointer
-      jumping in :func:`ik_forward` (the ``3^s``-th and ``2·3^s``-th ancestor, ``-1`` for
+      jumping in `ik_forward` (the ``3^s``-th and ``2·3^s``-th ancestor, ``-1`` for
       none);
     - ``scales[j] = (s_jx, s_jy, s_jz, 1/σ_j)``: the joint's rest scale ``S_j`` and the
       inverse of the global scale ``σ_j`` of its frame ``G_j S_j⁻¹`` (pose-independent for
       rotation + uniform scale; normalises the rotation axes);
     - ``ancestors``: the ``(J, D)`` ancestor table padded with ``J`` (the naive gradient);
     - ``marker_joints``, ``marker_skin``: the sparse skinning of the markers
-      (:func:`fxspace.marker_influences`, ``N`` joints per marker), ``marker_skin[k, n] =
+      (`fxspace.marker_influences`, ``N`` joints per marker), ``marker_skin[k, n] =
       [u_kn; W_kn]`` (local position and weight: ``q_kn = G_j [u_kn; W_kn]``; the forward
       pass and the naive gradient);
     - ``descendants[a, j] = 1`` when ``a`` is ``j`` or one of its ancestors;
@@ -99,33 +100,72 @@ class IKForward(NamedTuple):
 
 
 IK_STATUS: tuple[str, ...] = ("converged", "max_steps", "non_finite", "stalled")
-"""Meaning of :attr:`IKResult.status`: ``0`` converged; ``1`` hit ``max_steps``; ``2`` the
-targets, the initial pose or an iterate held NaN/inf (the returned pose is the last finite
-iterate, never a made-up answer); ``3`` no step lowered the objective any more before the
-tolerance was met."""
+"""Meaning of the compatibility field `IKResult.status` (an index into this tuple), kept
+for old callers; the one declaration of how a solve ended is ``IKResult.result`` (a
+`fxspace.RESULTS` member), and ``status`` is derived from it through `_STATUS_OF_RESULT`:
+``successful`` → 0 ``"converged"``; ``max_steps_reached`` → 1 ``"max_steps"``;
+``nonfinite_input`` / ``nonfinite_output`` → 2 ``"non_finite"`` (the returned pose is
+the initial pose, never a made-up answer); ``stalled`` → 3 ``"stalled"``."""
+
+_STATUS_OF_RESULT = {
+    "successful": 0,
+    "max_steps_reached": 1,
+    "nonfinite_input": 2,
+    "nonfinite_output": 2,
+    "stalled": 3,
+    "disconnected": 3,
+}
+
+
+def _status_table() -> np.ndarray:
+    table = np.ones(len(RESULTS._index_to_message), np.int32)
+    for name, code in _STATUS_OF_RESULT.items():
+        table[int(getattr(RESULTS, name)._value)] = code
+    return table
+
+
+_STATUS_TABLE = _status_table()
 
 
 class IKResult(NamedTuple):
-    """Result of :func:`fxspace.solve_ik`: the pose and diagnostics.
+    """Result of `fxspace.solve_ik` / `fxspace.track_ik`: the pose and diagnostics.
 
-    ``residual`` is the RMS marker distance ``sqrt(E / K)`` (the mesh's units),
-    ``objective`` is ``E`` (eq. (1); plus the regularisers when some are on),
-    ``converged`` says whether the tolerance was met within ``max_steps``, and
-    ``status`` says why the solver stopped (an index into :data:`IK_STATUS`:
-    ``IK_STATUS[int(res.status)]``). Non-finite targets give ``converged=False`` and
-    ``status=2``, never the rest pose flagged as converged.
+    - ``pose``: the solved `fxspace.Pose`;
+    - ``residual``: the RMS marker distance ``sqrt(E / K)`` over the markers with a
+      positional weight (the mesh's units);
+    - ``objective``: the value minimised, ``E`` (eq. (1)) plus every active constraint's
+      squared residuals;
+    - ``num_steps``: the solver's iterations;
+    - ``result``: how the solve ended, a `fxspace.RESULTS` member
+      (``res.result == fx.RESULTS.successful``); non-finite targets give
+      ``RESULTS.nonfinite_input`` and the initial pose, never a plausible answer;
+    - ``stats``: scalar diagnostics: ``"max_steps"`` (the solver's bound) and
+      ``"objective"``.
+
+    Compatibility: ``converged`` (``result == successful``) and ``status`` (an index into
+    `IK_STATUS`) are properties derived from ``result``.
     """
 
     pose: Pose
     residual: Float[Array, ""]
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
-    converged: Bool[Array, ""]
-    status: Int[Array, ""] | int = 0
+    result: Any
+    stats: dict
+
+    @property
+    def converged(self) -> Bool[Array, ...]:
+        """``result == RESULTS.successful`` (a boolean array, one per frame for tracking)."""
+        return self.result == RESULTS.successful
+
+    @property
+    def status(self) -> Int[Array, ...]:
+        """The old integer status (an index into `IK_STATUS`), derived from ``result``."""
+        return jnp.asarray(_STATUS_TABLE)[jnp.asarray(self.result._value)]
 
 
 def _quaternion_to_matrix_np(q: np.ndarray) -> np.ndarray:
-    """:func:`fxspace.quaternion_to_matrix` in float64 numpy (host-side precomputation)."""
+    """`fxspace.quaternion_to_matrix` in float64 numpy (host-side precomputation)."""
     return quat_to_matrix(quat_normalize(np.asarray(q, dtype=np.float64)), order="xyzw")
 
 
@@ -149,7 +189,7 @@ def _hop_tables(anc: np.ndarray) -> np.ndarray:
 
 
 def ik_model(mesh: SkinnedMesh, markers: MarkerSet, dtype=None) -> IKModel:
-    """Precompute the :class:`IKModel` of ``mesh`` with ``markers`` (host-side, once).
+    """Precompute the `IKModel` of ``mesh`` with ``markers`` (host-side, once).
 
     Refuses skeletons with non-uniform joint scales, or base transforms that are not
     similarities (the rotation axes of the analytic gradients assume rotation + uniform

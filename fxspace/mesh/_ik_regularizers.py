@@ -1,4 +1,8 @@
-"""Optional regularisers for mesh IK, beyond the paper's positional constraints.
+"""Optional regularisers for mesh IK (the older interface to `fxspace.mesh.IKConstraints`).
+
+`ik_regularization` keeps working: `fxspace.solve_ik` turns an `IKRegularization` into
+the equivalent constraint blocks (`constraints_from_regularization`, the same objective),
+so every solver, LM included, takes all three terms.
 
 Park, Kang & Kwon (§6, future work) note that positional constraints alone give unnatural
 poses with few markers and name normal constraints among the remedies. Three terms can be
@@ -12,12 +16,12 @@ the mesh's units):
   quadratic penalty outside ``[lo, hi]`` per Euler angle;
 - **normal constraint**: ``w_n L² Σ_k ‖n̂_k(θ) − n̂*_k‖²``, the unit normal of each
   marker's posed triangle against a target normal (the triangle corners are skinned points
-  too: a second :class:`IKModel` on the corners gives them, and the term's gradient is
+  too: a second `IKModel` on the corners gives them, and the term's gradient is
   taken by ``jax.grad``; the positional term keeps the chosen gradient form).
 
-The prior and the limits have closed-form gradients and Gauss–Newton Hessians (diagonal),
-so the Levenberg–Marquardt solver takes them too; the normal term needs a gradient-based
-solver (``method="bfgs"`` or ``"adam"``).
+The prior and the limits have closed-form gradients and Gauss–Newton Hessians (diagonal);
+the normal term's Jacobian is taken by forward-mode autodiff (Levenberg–Marquardt) or its
+gradient by ``jax.grad`` (BFGS, Adam).
 
 Example:
 
@@ -38,7 +42,14 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from fxspace.errors import FxspaceError
-from fxspace.mesh._ik_model import IKModel, ik_forward, ik_model
+from fxspace.mesh._ik_constraints import (
+    IKConstraints,
+    JointLimits,
+    JointPrior,
+    NormalConstraint,
+    marker_normals,
+)
+from fxspace.mesh._ik_model import IKModel, ik_model
 from fxspace.mesh._markers import MarkerSet
 from fxspace.mesh._skinning import Pose
 
@@ -50,12 +61,13 @@ __all__ = [
     "ik_regularization",
     "regularization_value_and_gradient",
     "marker_normals",
+    "constraints_from_regularization",
 ]
 
 
 class IKRegularization(NamedTuple):
     """Weights and data of the optional IK regularisers (a pytree of arrays; build it with
-    :func:`ik_regularization`)."""
+    `ik_regularization`)."""
 
     prior: Float[Array, ""]  # w_p
     prior_previous: Float[Array, ""]  # 1: towards the initial pose (previous frame), 0: rest
@@ -77,20 +89,20 @@ def ik_regularization(
     mesh: SkinnedMesh | None = None,
     markers: MarkerSet | None = None,
 ) -> IKRegularization:
-    """Build the regularisers' weights and data for :func:`fxspace.solve_ik`.
+    """Build the regularisers' weights and data for `fxspace.solve_ik`.
 
     **Arguments:**
 
-    - `model`: the :class:`IKModel` they will be used with.
+    - `model`: the `IKModel` they will be used with.
     - `prior`: weight ``w_p`` of the joint-angle prior (0 = off).
     - `prior_to`: ``"rest"`` (``θ̄ = 0``) or ``"previous"`` (``θ̄`` = the initial pose).
     - `limits`: weight ``w_l`` of the joint-limit penalty (0 = off).
     - `limit`: a symmetric bound in radians for every Euler angle, or ``(lower, upper)``
       arrays of shape ``(J, 3)``.
     - `normal`: weight ``w_n`` of the normal constraint (0 = off; then `mesh` and
-      `markers` are needed, and :func:`fxspace.solve_ik` needs ``target_normals``).
+      `markers` are needed, and `fxspace.solve_ik` needs ``target_normals``).
 
-    **Returns:** an :class:`IKRegularization`.
+    **Returns:** an `IKRegularization`.
     """
     nj = model.ancestors.shape[0]
     dt = model.local_rest.dtype
@@ -127,14 +139,6 @@ def ik_regularization(
     )
 
 
-def marker_normals(corners: IKModel, pose: Pose) -> Float[Array, "markers 3"]:
-    """Unit normals of the markers' posed triangles (corners from the corner model)."""
-    c = ik_forward(corners, pose).markers
-    c = c.reshape(3, -1, 3)
-    n = jnp.cross(c[1] - c[0], c[2] - c[0])
-    return n / jnp.maximum(jnp.linalg.norm(n, axis=-1, keepdims=True), 1e-30)
-
-
 def _normal_term(corners: IKModel, pose: Pose, target_normals: Array) -> Array:
     d = marker_normals(corners, pose) - target_normals
     return jnp.sum(d * d)
@@ -166,3 +170,19 @@ def regularization_value_and_gradient(
         grad = jax.tree_util.tree_map(lambda a, b: a + l2 * reg.normal * b, grad, gn)
     hdiag = l2 * (reg.prior + reg.limits * active)
     return val, grad, hdiag
+
+
+def constraints_from_regularization(reg: IKRegularization) -> IKConstraints:
+    """The same terms as `IKConstraints` (the objective is identical): the prior and the
+    limits as residual blocks, the normal term on every marker."""
+    nk = reg.corners.marker_joints.shape[0] // 3 if reg.corners is not None else 0
+    normal = None
+    if reg.corners is not None:
+        normal = NormalConstraint(reg.corners, jnp.arange(nk, dtype=jnp.int32), reg.normal)
+    return IKConstraints(
+        marker_weights=None,
+        normal=normal,
+        contact=None,
+        limits=JointLimits(reg.lower, reg.upper, reg.limits),
+        prior=JointPrior(reg.prior, reg.prior_previous),
+    )

@@ -8,7 +8,7 @@ random (uniform on the triangle) or chosen barycentric coordinates, as in the pa
 A marker's position is the barycentric blend of its triangle's posed vertices, and as
 LBS is linear, it is itself a skinned point: ``p_k = Σ_j (W_kj · o_j + L_j u_kj)`` with
 per-(marker, joint) weights ``W_kj = Σ_m b_m w_{i_m j}`` and bind-local offsets
-``u_kj = B_j⁻¹ Σ_m b_m w_{i_m j} v_{i_m}`` (:func:`marker_influences`) — exact, not an
+``u_kj = B_j⁻¹ Σ_m b_m w_{i_m j} v_{i_m}`` (`marker_influences`) — exact, not an
 approximation by the nearest vertex.
 """
 
@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from fxspace._validate import _is_tracer, as_float_array, check_indices
 from fxspace.errors import FxspaceError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -51,12 +52,24 @@ class MarkerInfluences(NamedTuple):
     offsets: np.ndarray  # (K, N, 3) u_kj = B_j⁻¹-mapped, weight-scaled positions
 
 
+def _check_faces(faces, n_verts: int):
+    """``faces`` as an ``(F, 3)`` int array of vertex indices in range (traced: shape only)."""
+    if not _is_tracer(faces):
+        if isinstance(faces, str | bytes) or faces is None:
+            raise FxspaceError(f"faces must be an (F, 3) integer array, got {faces!r}")
+        check_indices(np.ravel(faces), "faces", n_verts, min_len=1)
+    f = jnp.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise FxspaceError(f"faces must be an (F, 3) integer array, got shape {f.shape}")
+    return f
+
+
 def triangle_normals(
     vertices: Float[Array, "verts 3"], faces: Int[Array, "faces 3"]
 ) -> Float[Array, "faces 3"]:
     """Unnormalised triangle normals ``(b − a) × (c − a)``."""
-    v = jnp.asarray(vertices)
-    f = jnp.asarray(faces)
+    v = as_float_array(vertices, "vertices", shape=(None, 3), finite="allow")
+    f = _check_faces(faces, v.shape[0])
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     return jnp.cross(b - a, c - a)
 
@@ -71,7 +84,8 @@ def visible_triangles(
     Degenerate (zero-area) triangles are never visible.
     """
     n = triangle_normals(vertices, faces)
-    return jnp.einsum("fc,c->f", n, jnp.asarray(view_dir, dtype=n.dtype)) < 0
+    view_dir = as_float_array(view_dir, "view_dir", shape=(3,)).astype(n.dtype)
+    return jnp.einsum("fc,c->f", n, view_dir) < 0
 
 
 def place_markers(
@@ -97,7 +111,7 @@ def place_markers(
     - `barycentric`: optional ``(K, 3)`` barycentric coordinates (rows summing to 1).
     - `triangles`: optional ``(K,)`` triangle indices (distinct, visible), instead of random.
 
-    **Returns:** a :class:`MarkerSet`. Runs on the host (numpy), at set-up time.
+    **Returns:** a `MarkerSet`. Runs on the host (numpy), at set-up time.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)

@@ -11,7 +11,7 @@ a padded ancestor table (``(J, D)``, ``D`` = depth + 1): ``D`` batched 4×4 prod
 Python loop over joints, so every function here jit-compiles once per mesh shape and
 vmaps over poses.
 
-The IK pose (:class:`Pose`) is a set of XYZ Euler angles per joint, applied *after* the
+The IK pose (`Pose`) is a set of XYZ Euler angles per joint, applied *after* the
 joint's rest rotation (``R_j = R_rest,j · R_x(θ_x) R_y(θ_y) R_z(θ_z)``), plus a world
 translation of the whole skeleton; the zero pose is the rest pose.
 """
@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from fxspace._validate import _is_tracer, as_float_array, check_indices, checked
 from fxspace.errors import FxspaceError
 from fxspace.rotations import euler_to_matrix as _euler_to_matrix
 from fxspace.rotations import (
@@ -52,6 +53,10 @@ __all__ = [
     "rest_pose",
     "pose_vertices",
     "pose_from_local",
+    "SkinTables",
+    "skin_tables",
+    "animation_vertices",
+    "rest_vertices",
 ]
 
 
@@ -91,9 +96,14 @@ def ancestor_table(parents: np.ndarray) -> np.ndarray:
 
     ``parents[j]`` must be ``-1`` (root) or a joint index; cycles are refused.
     """
-    parents = np.asarray(parents, dtype=np.int64)
-    if parents.ndim != 1:
-        raise FxspaceError(f"parents must be 1-D, got shape {parents.shape}")
+    try:
+        p = np.asarray(parents) if not isinstance(parents, str | bytes) else None
+    except (TypeError, ValueError):
+        p = None
+    if p is None or p.ndim != 1 or p.size == 0 or p.dtype.kind not in "iu":
+        what = "a string" if p is None else f"{p.dtype} of shape {p.shape}"
+        raise FxspaceError(f"parents must be a non-empty 1-D array of joint indices, got {what}")
+    parents = p.astype(np.int64)
     n = parents.shape[0]
     if np.any((parents < -1) | (parents >= n)):
         raise FxspaceError("parents must hold -1 (root) or joint indices in [0, J)")
@@ -119,9 +129,9 @@ def global_transforms(
 ) -> Float[Array, "joints 4 4"]:
     """Global joint transforms ``G_j = base_{root(j)} · L_root ⋯ L_parent(j) · L_j``.
 
-    ``ancestors`` is :func:`ancestor_table` (padded with ``J``; only its parent column is
+    ``ancestors`` is `ancestor_table` (padded with ``J``; only its parent column is
     used); ``base`` holds, per joint, the fixed transform above its root (``base[root(j)]``
-    for every ``j`` — see :func:`chain_bases`). Pointer jumping: after step ``s`` each
+    for every ``j`` — see `chain_bases`). Pointer jumping: after step ``s`` each
     joint holds the product of the ``2^s`` links above it, so ``⌈log₂ D⌉`` batched products
     of ``J`` 4×4 matrices replace a pass per level (``D`` = depth + 1).
     """
@@ -143,6 +153,7 @@ def chain_bases(base_transforms: np.ndarray, ancestors: np.ndarray) -> np.ndarra
     return np.asarray(base_transforms, dtype=np.float64)[roots]
 
 
+@checked
 def skinning_matrices(
     global_: Float[Array, "joints 4 4"], inverse_bind: Float[Array, "joints 4 4"]
 ) -> Float[Array, "joints 4 4"]:
@@ -161,40 +172,67 @@ def linear_blend_skinning(
     Blends the matrices first (``Σ_i w_i A_{j_i}``, ``V·I`` 3×4 sums) then applies one
     affine map per vertex: O(V·I) work. Vmap over ``skin_mats`` for many poses.
     """
+    vertices = as_float_array(vertices, "vertices", shape=(None, 3), finite="allow")
+    skin_mats = as_float_array(skin_mats, "skin_mats", shape=(None, 4, 4), finite="allow")
+    skin_weights = as_float_array(skin_weights, "skin_weights", ndim=2, finite="allow")
+    if skin_weights.shape[0] != vertices.shape[0]:
+        raise FxspaceError(
+            f"skin_weights must be (verts={vertices.shape[0]}, influences), "
+            f"got {skin_weights.shape}"
+        )
+    if not _is_tracer(skin_joints):
+        j = check_indices(np.ravel(skin_joints), "skin_joints", skin_mats.shape[0])
+        skin_joints = j.reshape(np.shape(skin_joints)).astype(np.int32)
+    if tuple(np.shape(skin_joints)) != skin_weights.shape:
+        raise FxspaceError(
+            f"skin_joints must have the shape of skin_weights {skin_weights.shape}, "
+            f"got {np.shape(skin_joints)}"
+        )
     a = skin_mats[:, :3, :]  # (J, 3, 4)
     blended = jnp.einsum("vi,virc->vrc", skin_weights, a[skin_joints])
     return jnp.einsum("vrc,vc->vr", blended[:, :, :3], vertices) + blended[:, :, 3]
 
 
+class SkinTables(NamedTuple):
+    """The pose-independent tables that skinning needs beyond the mesh, computed once by
+    `skin_tables` and passed explicitly (nothing is cached on the mesh).
+
+    - ``ancestors``: `ancestor_table` of the skeleton, ``(J, D)`` padded with ``J``;
+    - ``base``: per joint, the fixed transform above its root (`chain_bases`).
+    """
+
+    ancestors: Int[Array, "joints depth"]
+    base: Float[Array, "joints 4 4"]
+
+
+def skin_tables(mesh: SkinnedMesh) -> SkinTables:
+    """The `SkinTables` of ``mesh`` (host side, numpy; cheap: one pass over the joints)."""
+    anc = ancestor_table(mesh.parents)
+    return SkinTables(anc, chain_bases(np.asarray(mesh.base_transforms), anc))
+
+
+def _lbs(mesh: SkinnedMesh, tables: SkinTables, local: Array) -> Array:
+    g = global_transforms(local, tables.ancestors, tables.base)
+    return linear_blend_skinning(
+        mesh.vertices, mesh.skin_joints, mesh.skin_weights, skinning_matrices(g, mesh.inverse_bind)
+    )
+
+
 @jax.jit
-def _skin_trs(vertices, skin_joints, skin_weights, ancestors, base, inverse_bind, t, q, s):
+def _skin_trs(mesh: SkinnedMesh, tables: SkinTables, t, q, s):
     def one(t1, q1, s1):
-        local = local_matrices(t1, quaternion_to_matrix(q1), s1)
-        g = global_transforms(local, ancestors, base)
-        return linear_blend_skinning(
-            vertices, skin_joints, skin_weights, skinning_matrices(g, inverse_bind)
-        )
+        return _lbs(mesh, tables, local_matrices(t1, quaternion_to_matrix(q1), s1))
 
     return jax.vmap(one)(t, q, s)
 
 
-def _mesh_arrays(mesh: SkinnedMesh) -> dict[str, np.ndarray]:
-    cache = mesh.__dict__.get("_fx_skin_cache")
-    if cache is None:
-        anc = ancestor_table(mesh.parents)
-        cache = {
-            "ancestors": anc,
-            "base": chain_bases(mesh.base_transforms, anc),
-        }
-        object.__setattr__(mesh, "_fx_skin_cache", cache)
-    return cache
-
-
-def skin_local_pose(mesh: SkinnedMesh, pose: LocalPose) -> Float[Array, "*b verts 3"]:
+def skin_local_pose(
+    mesh: SkinnedMesh, pose: LocalPose, tables: SkinTables | None = None
+) -> Float[Array, "*b verts 3"]:
     """Skinned vertices of ``mesh`` for local joint transforms ``pose`` (leading axes ``(*b, J)``).
 
     Jitted and vmapped over the leading axes: ``(J, ·)`` → ``(V, 3)``, ``(T, J, ·)`` →
-    ``(T, V, 3)``.
+    ``(T, V, 3)``. `tables` (`skin_tables`) may be passed to skip their computation.
     """
     t = jnp.asarray(pose.translations)
     q = jnp.asarray(pose.rotations)
@@ -206,70 +244,61 @@ def skin_local_pose(mesh: SkinnedMesh, pose: LocalPose) -> Float[Array, "*b vert
             "(translations (..., J, 3), rotations (..., J, 4), scales (..., J, 3))"
         )
     batch = t.shape[:-2]
-    arr = _mesh_arrays(mesh)
+    tables = skin_tables(mesh) if tables is None else tables
     out = _skin_trs(
-        jnp.asarray(mesh.vertices),
-        jnp.asarray(mesh.skin_joints),
-        jnp.asarray(mesh.skin_weights),
-        jnp.asarray(arr["ancestors"]),
-        jnp.asarray(arr["base"]),
-        jnp.asarray(mesh.inverse_bind),
-        t.reshape((-1, nj, 3)),
-        q.reshape((-1, nj, 4)),
-        s.reshape((-1, nj, 3)),
+        mesh, tables, t.reshape((-1, nj, 3)), q.reshape((-1, nj, 4)), s.reshape((-1, nj, 3))
     )
     return out.reshape(batch + out.shape[1:])
 
 
+def animation_vertices(
+    mesh: SkinnedMesh, animation: str | int, times: np.ndarray | float
+) -> np.ndarray:
+    """Posed (skinned) vertices of ``mesh``'s animation ``animation`` at ``times``.
+
+    The stable way to get dense vertex sequences from a glTF animation: samples the
+    animation (`SkinnedMesh.sample_animation`) and applies linear blend skinning
+    (`skin_local_pose`, jitted and vmapped over the times). Uses float64 when
+    ``jax_enable_x64`` is on, else float32.
+
+    **Returns:** ``(T, V, 3)`` float64 numpy (``(V, 3)`` for a scalar time).
+    """
+    pose = mesh.sample_animation(animation, times)
+    return np.asarray(skin_local_pose(mesh, pose), dtype=np.float64)
+
+
+def rest_vertices(mesh: SkinnedMesh) -> np.ndarray:
+    """Vertices skinned at the rest pose (equal to the bind pose for consistent files)."""
+    return np.asarray(skin_local_pose(mesh, mesh.rest_pose()), dtype=np.float64)
+
+
 def rest_pose(num_joints: int | SkinnedMesh, dtype=None) -> Pose:
-    """The zero :class:`Pose` (rest rotations, no translation)."""
+    """The zero `Pose` (rest rotations, no translation)."""
     nj = num_joints if isinstance(num_joints, int) else num_joints.num_joints
     dtype = dtype or jnp.result_type(float)
     return Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
 
 
 @jax.jit
-def _pose_vertices(
-    vertices,
-    skin_joints,
-    skin_weights,
-    ancestors,
-    base,
-    inverse_bind,
-    rest_t,
-    rest_r,
-    rest_s,
-    angles,
-    translation,
-):
-    local = local_matrices(rest_t, rest_r @ euler_to_matrix(angles), rest_s)
-    g = global_transforms(local, ancestors, base)
-    v = linear_blend_skinning(
-        vertices, skin_joints, skin_weights, skinning_matrices(g, inverse_bind)
+def _pose_vertices(mesh: SkinnedMesh, tables: SkinTables, angles, translation):
+    rest_r = quaternion_to_matrix(mesh.rest_rotations)
+    local = local_matrices(
+        mesh.rest_translations, rest_r @ euler_to_matrix(angles), mesh.rest_scales
     )
-    return v + translation[None, :]
+    return _lbs(mesh, tables, local) + translation[None, :]
 
 
-def pose_vertices(mesh: SkinnedMesh, pose: Pose) -> Float[Array, "verts 3"]:
-    """Skinned vertices of ``mesh`` at the IK :class:`Pose` ``pose`` (one pose; vmap for many)."""
-    arr = _mesh_arrays(mesh)
-    return _pose_vertices(
-        jnp.asarray(mesh.vertices),
-        jnp.asarray(mesh.skin_joints),
-        jnp.asarray(mesh.skin_weights),
-        jnp.asarray(arr["ancestors"]),
-        jnp.asarray(arr["base"]),
-        jnp.asarray(mesh.inverse_bind),
-        jnp.asarray(mesh.rest_translations),
-        quaternion_to_matrix(jnp.asarray(mesh.rest_rotations)),
-        jnp.asarray(mesh.rest_scales),
-        pose.angles,
-        pose.translation,
-    )
+def pose_vertices(
+    mesh: SkinnedMesh, pose: Pose, tables: SkinTables | None = None
+) -> Float[Array, "verts 3"]:
+    """Skinned vertices of ``mesh`` at the IK `Pose` ``pose`` (one pose; vmap for many);
+    `tables` (`skin_tables`) may be passed to skip their computation."""
+    tables = skin_tables(mesh) if tables is None else tables
+    return _pose_vertices(mesh, tables, pose.angles, pose.translation)
 
 
 def pose_from_local(mesh: SkinnedMesh, pose: LocalPose) -> Pose:
-    """The IK :class:`Pose` closest to local transforms ``pose`` (leading axes kept).
+    """The IK `Pose` closest to local transforms ``pose`` (leading axes kept).
 
     Angles: XYZ Euler angles of ``R_rest⁻¹ · R`` per joint. Translation: the world offset
     that puts the first joint carrying skin weight (the hip, usually) where ``pose`` puts
@@ -287,8 +316,8 @@ def pose_from_local(mesh: SkinnedMesh, pose: LocalPose) -> Pose:
     used = np.zeros(nj, dtype=bool)
     used[np.asarray(mesh.skin_joints)[np.asarray(mesh.skin_weights) > 0]] = True
     k = int(np.flatnonzero(used)[0]) if used.any() else 0
-    arr = _mesh_arrays(mesh)
-    anc, base = jnp.asarray(arr["ancestors"]), jnp.asarray(arr["base"])
+    tables = skin_tables(mesh)
+    anc, base = jnp.asarray(tables.ancestors), jnp.asarray(tables.base)
     rest_r = quaternion_to_matrix(jnp.asarray(mesh.rest_rotations))
     rest_t, rest_s = jnp.asarray(mesh.rest_translations), jnp.asarray(mesh.rest_scales)
 

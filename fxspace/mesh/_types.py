@@ -1,15 +1,21 @@
-"""Skinned-mesh data types: :class:`SkinnedMesh`, :class:`Animation`, :class:`LocalPose`.
+"""Skinned-mesh data types: `SkinnedMesh`, `Animation`, `LocalPose`.
 
-Read from glTF by :func:`fxspace.io.read_gltf`; posed by linear blend skinning in
-:mod:`fxspace.mesh`. They live here (not in the reader) so that skinning and IK import
-them without importing any reader.
+Read from glTF by `fxspace.io.read_gltf`; posed by linear blend skinning in
+`fxspace.mesh` (`fxspace.mesh.animation_vertices`, `fxspace.mesh.pose_vertices`). They
+live here (not in the reader) so that skinning and IK import them without importing any
+reader, and they hold data only: no method calls an algorithm module.
+
+`SkinnedMesh` is a registered pytree: its arrays are the leaves; the name, the joint
+names and nodes, the parent table (the skeleton's topology, static under ``jit``) and
+the animations are static auxiliary data.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
+import jax
 import numpy as np
 
 from fxspace.errors import FxspaceError
@@ -88,7 +94,7 @@ class SkinnedMesh:
         return tuple(self.animations)
 
     def rest_pose(self) -> LocalPose:
-        """The joints' rest (node) transforms as a :class:`LocalPose` of shape (J, ·)."""
+        """The joints' rest (node) transforms as a `LocalPose` of shape (J, ·)."""
         return LocalPose(self.rest_translations, self.rest_rotations, self.rest_scales)
 
     def _animation(self, name: str | int) -> Animation:
@@ -115,7 +121,7 @@ class SkinnedMesh:
         spherical linear interpolation (shortest arc), ``CUBICSPLINE`` the Hermite form
         of the glTF specification (Appendix C), ``STEP`` the previous key.
 
-        **Returns:** a :class:`LocalPose` with leading shape ``(T, J)`` (``(J,)`` for a scalar).
+        **Returns:** a `LocalPose` with leading shape ``(T, J)`` (``(J,)`` for a scalar).
         """
         anim = self._animation(name)
         t = np.asarray(times, dtype=np.float64)
@@ -136,24 +142,61 @@ class SkinnedMesh:
             pose = LocalPose(*(a[0] for a in pose))
         return pose
 
-    def animation_vertices(self, name: str | int, times: np.ndarray | float) -> np.ndarray:
-        """Posed (skinned) vertices of animation ``name`` at ``times``: ``(T, V, 3)`` float64.
 
-        The stable way to get dense vertex sequences from a glTF animation: samples
-        :meth:`sample_animation` and applies linear blend skinning
-        (:func:`fxspace.skin_local_pose`, jitted and vmapped over the times). Uses float64
-        when ``jax_enable_x64`` is on, else float32 (returned as float64).
-        """
-        from fxspace.mesh._skinning import skin_local_pose
+_ARRAY_FIELDS = (
+    "vertices",
+    "faces",
+    "rest_translations",
+    "rest_rotations",
+    "rest_scales",
+    "base_transforms",
+    "inverse_bind",
+    "skin_joints",
+    "skin_weights",
+)
 
-        pose = self.sample_animation(name, times)
-        return np.asarray(skin_local_pose(self, pose), dtype=np.float64)
 
-    def rest_vertices(self) -> np.ndarray:
-        """Vertices skinned at the rest pose (equal to the bind pose for consistent files)."""
-        from fxspace.mesh._skinning import skin_local_pose
+class _Static:
+    """Static pytree data compared by identity (the animations hold arrays, which have no
+    usable ``==``): a mesh's treedef equals another's only for the same animations."""
 
-        return np.asarray(skin_local_pose(self, self.rest_pose()), dtype=np.float64)
+    __slots__ = ("value",)
+
+    def __init__(self, value: Any):
+        self.value = value
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Static) and other.value is self.value
+
+    def __hash__(self) -> int:
+        return id(self.value)
+
+
+def _flatten_mesh(m: SkinnedMesh):
+    aux = (
+        m.name,
+        m.joint_names,
+        m.joint_nodes,
+        tuple(int(p) for p in np.asarray(m.parents)),
+        _Static(m.animations),
+    )
+    return tuple(getattr(m, f) for f in _ARRAY_FIELDS), aux
+
+
+def _unflatten_mesh(aux, children) -> SkinnedMesh:
+    name, joint_names, joint_nodes, parents, anims = aux
+    arrays = dict(zip(_ARRAY_FIELDS, children, strict=True))
+    return SkinnedMesh(
+        name=name,
+        joint_names=joint_names,
+        joint_nodes=joint_nodes,
+        parents=np.asarray(parents, dtype=np.int32),
+        animations=anims.value,
+        **arrays,
+    )
+
+
+jax.tree_util.register_pytree_node(SkinnedMesh, _flatten_mesh, _unflatten_mesh)
 
 
 # ----------------------------------------------------------------------------- sampling

@@ -1,10 +1,12 @@
 """Decoupled parametric motion synthesis (Ha & Han): forward kinematics, DTW registration,
 k-NN blending over sampled parameter spaces, incremental time-warping (eq. 1) with the two
 clocks aligned by eqs. 2–3, upper/lower-body splicing and the §3.2 Horn re-placement, all in
-one pure per-frame step (:func:`synthesize_step`).
+one pure per-frame step (`synthesize_step`); continuous, steerable locomotion on top
+(`locomotion_step`, `run_session`; `scripted_session(config, schedule, seconds)` and
+`session_parameters(config)` run a config's controller without a browser).
 
-Quaternions are ``(w, x, y, z)``; lengths are metres; see :class:`Motion`. The rotation
-helpers re-exported here live in :mod:`fxspace.rotations`.
+Quaternions are ``(w, x, y, z)``; lengths are metres; see `Motion`. The rotation helpers
+re-exported here live in `fxspace.rotations`.
 """
 
 from fxspace.motion._blend import ExampleSet as ExampleSet
@@ -26,14 +28,32 @@ from fxspace.motion._fk import forward_kinematics as forward_kinematics
 from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
 from fxspace.motion._horn import apply_rigid as apply_rigid
+from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
+from fxspace.motion._locomotion import LocomotionState as LocomotionState
+from fxspace.motion._locomotion import TurnTable as TurnTable
+from fxspace.motion._locomotion import heading_angle as heading_angle
+from fxspace.motion._locomotion import init_locomotion as init_locomotion
+from fxspace.motion._locomotion import locomotion as locomotion
+from fxspace.motion._locomotion import locomotion_step as locomotion_step
+from fxspace.motion._locomotion import turn_table as turn_table
+from fxspace.motion._locomotion import turn_to_lower_param as turn_to_lower_param
+from fxspace.motion._locomotion import world_positions as world_positions
 from fxspace.motion._metrics import foot_sliding as foot_sliding
 from fxspace.motion._metrics import ground_speed as ground_speed
+from fxspace.motion._register import RegistrationResult as RegistrationResult
 from fxspace.motion._register import alignment_curve as alignment_curve
 from fxspace.motion._register import drop_root as drop_root
 from fxspace.motion._register import gait_window as gait_window
 from fxspace.motion._register import pose_features as pose_features
 from fxspace.motion._register import register_dtw as register_dtw
+from fxspace.motion._register import register_examples as register_examples
 from fxspace.motion._register import smooth_warp as smooth_warp
+from fxspace.motion._session import control_defaults as control_defaults
+from fxspace.motion._session import controls_to_params as controls_to_params
+from fxspace.motion._session import run_session as run_session
+from fxspace.motion._session import session_controls as session_controls
+from fxspace.motion._session import session_turn_table as session_turn_table
+from fxspace.motion._session import smooth_controls as smooth_controls
 from fxspace.motion._setups import SETUPS as SETUPS
 from fxspace.motion._setups import Setup as Setup
 from fxspace.motion._setups import SetupData as SetupData
@@ -125,6 +145,8 @@ __all__ = [
     "gait_window",
     "pose_features",
     "register_dtw",
+    "RegistrationResult",
+    "register_examples",
     "smooth_warp",
     "Pose",
     "SynthesisSpaces",
@@ -147,4 +169,34 @@ __all__ = [
     "sync_clocks",
     "warp_slopes",
     "Motion",
+    "WRAP_BLEND_FRAMES",
+    "LocomotionState",
+    "TurnTable",
+    "heading_angle",
+    "init_locomotion",
+    "locomotion",
+    "locomotion_step",
+    "turn_table",
+    "turn_to_lower_param",
+    "world_positions",
+    "control_defaults",
+    "controls_to_params",
+    "run_session",
+    "session_controls",
+    "session_turn_table",
+    "smooth_controls",
+    "scripted_session",
+    "session_parameters",
 ]
+
+# Stable names (issue 22) that need the clip readers (fxspace.io, a layer above): the
+# config-level session lives with the pipeline that builds the set-up; these are aliases.
+_SESSION_ALIASES = ("scripted_session", "session_parameters")
+
+
+def __getattr__(name: str):
+    if name in _SESSION_ALIASES:
+        import fxspace.pipelines.parametric_synthesis as _ps
+
+        return getattr(_ps, name)
+    raise AttributeError(f"module 'fxspace.motion' has no attribute {name!r}")

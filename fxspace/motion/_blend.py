@@ -10,6 +10,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from fxspace._validate import check_int, check_key, check_scalar, checked
+from fxspace.errors import FxspaceError
 from fxspace.rotations import quat_nlerp, quat_normalize
 
 __all__ = [
@@ -27,7 +29,7 @@ class ExampleSet(NamedTuple):
     """``E`` registered example clips, padded to a common length ``T`` (last frame repeated).
 
     - ``rotations`` ``(E, T, J, 4)``: local joint quaternions.
-    - ``root`` ``(E, T, 3)``: root translation (start-aligned: see :func:`align_start`).
+    - ``root`` ``(E, T, 3)``: root translation (start-aligned: see `align_start`).
     - ``lengths`` ``(E,)`` int: valid frames per clip.
     - ``warps`` ``(E, N)``: time-warp functions ``C_i(u)`` sampled at the reference
       clip's frames ``u = 0..N-1`` (example frame, fractional, non-decreasing).
@@ -50,6 +52,7 @@ class KNNResult(NamedTuple):
     sample_weights: Float[Array, " k"]
 
 
+@checked
 def sample_blend_weights(
     key: Array, n_examples: int, n_samples: int, concentration: float = 0.5, max_active: int = 3
 ) -> Float[Array, "S E"]:
@@ -61,10 +64,13 @@ def sample_blend_weights(
     (Kovar & Gleicher 2004 sample blends of nearby examples; sparse blends keep the
     samples on the motion manifold). Rows sum to one.
     """
+    key = check_key(key, "key")
+    n_examples = check_int(n_examples, "n_examples", low=1)
+    n_samples = check_int(n_samples, "n_samples", low=1)
     if n_samples < n_examples:
-        raise ValueError(f"n_samples ({n_samples}) must be at least n_examples ({n_examples})")
-    if max_active < 1 or concentration <= 0:
-        raise ValueError("max_active must be >= 1 and concentration > 0")
+        raise FxspaceError(f"n_samples ({n_samples}) must be at least n_examples ({n_examples})")
+    max_active = check_int(max_active, "max_active", low=1)
+    concentration = check_scalar(concentration, "concentration", low=0.0, low_open=True)
     return _sample_weights(key, n_examples, n_samples, concentration, min(max_active, n_examples))
 
 
@@ -81,6 +87,7 @@ def _sample_weights(key, n_examples: int, n_samples: int, concentration, m: int)
     return jnp.concatenate([jnp.eye(n_examples, dtype=dense.dtype), dense], axis=0)
 
 
+@checked
 def knn_blend_weights(
     query: Float[Array, " p"],
     sample_params: Float[Array, "S p"],
@@ -93,9 +100,10 @@ def knn_blend_weights(
     With ``d_1 ≤ … ≤ d_k`` the distances from ``query`` to its ``k`` nearest samples, the
     sample weights are ``ŵ_i = 1/d_i − 1/d_k`` normalised to sum to one (the k-th gets 0);
     the example weights are ``Σ_i ŵ_i · sample_weights[i]``. A query that hits a sample
-    exactly (``d_1 = 0``) returns that sample's weights. O(S·p) per query; jittable,
-    ``vmap`` over queries.
+    exactly (``d_1 = 0``) returns that sample's weights. A query holding NaN/inf gets NaN
+    weights (never a plausible blend). O(S·p) per query; jittable, ``vmap`` over queries.
     """
+    check_int(k, "k", low=1, high=sample_params.shape[0])  # 1 <= k <= number of samples
     d2 = jnp.sum((sample_params - query[None, :]) ** 2, axis=-1)
     neg, idx = jax.lax.top_k(-d2, k)
     d = jnp.sqrt(jnp.maximum(-neg, 0.0))
@@ -107,9 +115,12 @@ def knn_blend_weights(
     exact = d[0] <= tiny
     w = jnp.where(exact, jnp.zeros_like(w).at[0].set(1.0), w)
     ew = jnp.einsum("k,ke->e", w, sample_weights[idx])
-    return KNNResult(ew, idx, d, w)
+    bad = ~jnp.all(jnp.isfinite(query))  # NaN in → NaN out, never a plausible blend
+    ew = jnp.where(bad, jnp.nan, ew)
+    return KNNResult(ew, idx, d, jnp.where(bad, jnp.nan, w))
 
 
+@checked
 def blend_quaternions(q: Float[Array, "E ... 4"], w: Float[Array, " E"]) -> Float[Array, "... 4"]:
     """Normalised weighted quaternion blend: each example's quaternion is flipped into the
     hemisphere of the highest-weighted example, summed with weights ``w``, normalised
@@ -136,6 +147,7 @@ def pose_at(
     return q, r
 
 
+@checked
 def warp_times(warps: Float[Array, "E N"], u: Float[Array, ""]) -> Float[Array, " E"]:
     """``C_i(u)`` for every example (linear interpolation of the sampled warps)."""
     n = warps.shape[1]
@@ -150,7 +162,7 @@ def blend_pose(
     ex: ExampleSet, w: Float[Array, " E"], u: Float[Array, ""]
 ) -> tuple[Float[Array, "J 4"], Float[Array, " 3"]]:
     """The blended pose at generic time ``u``: every example sampled at its registered time
-    ``C_i(u)``, joint quaternions blended by :func:`blend_quaternions`, root translations
+    ``C_i(u)``, joint quaternions blended by `blend_quaternions`, root translations
     averaged with ``w``."""
     q, r = pose_at(ex, warp_times(ex.warps, u))
     return blend_quaternions(q, w), jnp.einsum("e,ea->a", w, r)

@@ -1,13 +1,43 @@
-"""Forward kinematics of a :class:`~fxspace.io.Motion` (world joint positions, metres)."""
+"""Forward kinematics of a `Motion` (world joint positions, metres)."""
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import as_float_array
+from fxspace.errors import FxspaceError
 from fxspace.rotations import _xp, quat_to_matrix
 
 __all__ = ["forward_kinematics", "fk_arrays"]
+
+
+def _check_parents(parents) -> np.ndarray:
+    pa = np.asarray(parents) if isinstance(parents, list | tuple | np.ndarray) else None
+    if pa is None or pa.ndim != 1 or pa.size == 0 or pa.dtype.kind not in "iu":
+        raise FxspaceError(f"parents must be a non-empty tuple of joint indices, got {parents!r}")
+    if np.any(pa < -1) or np.any(pa >= np.arange(pa.size)):
+        raise FxspaceError("parents must list each joint's parent before it (-1 for a root)")
+    return pa
+
+
+def _check_fk_arrays(J: int, offsets, root_translation, rotations):
+    """Float arrays of matching shapes; NumPy stays NumPy, NaN kept (NaN out)."""
+    out = []
+    for name, x in (("offsets", offsets), ("root_translation", root_translation),
+                    ("rotations", rotations)):  # fmt: skip
+        xp = "jax" if isinstance(x, jax.Array) else "numpy"
+        out.append(as_float_array(x, name, finite="allow", xp=xp))
+    offsets, root, rot = out
+    lead = rot.shape[:-2]
+    if offsets.shape != (J, 3):
+        raise FxspaceError(f"offsets must have shape ({J}, 3) (joints, xyz), got {offsets.shape}")
+    if rot.ndim < 2 or rot.shape[-2:] != (J, 4):
+        raise FxspaceError(f"rotations must have shape (*frames, {J}, 4), got {rot.shape}")
+    if root.shape != lead + (3,):
+        raise FxspaceError(f"root_translation must have shape {lead + (3,)}, got {root.shape}")
+    return offsets, root, rot
 
 
 def fk_arrays(
@@ -23,9 +53,10 @@ def fk_arrays(
     first). The chains are composed by pointer jumping: ⌈log2(depth)⌉ steps of one gather
     and one batched 3×3 product each — O(T · J · log depth) work, a small graph to compile.
     """
+    parents_np = _check_parents(parents)
+    J = len(parents_np)
+    offsets, root_translation, rotations = _check_fk_arrays(J, offsets, root_translation, rotations)
     xp = _xp(offsets, root_translation, rotations)  # numpy in → numpy out (no compilation)
-    parents_np = np.asarray(parents)
-    J = len(parents)
     R = quat_to_matrix(rotations)  # (..., J, 3, 3)
     lead = R.shape[:-3]
     # local transforms (R_j, p_j): p_j = offsets[j], plus the root translation on the root
@@ -50,19 +81,33 @@ def fk_arrays(
 
 
 def forward_kinematics(motion) -> Float[Array, "frames joints 3"]:
-    """World joint positions ``(T, J, 3)`` in metres of a :class:`~fxspace.io.Motion`.
+    """World joint positions ``(T, J, 3)`` in metres of a `Motion`.
 
     Pure and jittable (``jax.jit(forward_kinematics)(mot)``: the skeleton is static);
     ``jax.vmap`` over clips stacked along a leading axis of the array fields works too.
-    Joints sit at bone starts, end sites at bone tips (see :class:`~fxspace.io.Motion`).
+    Joints sit at bone starts, end sites at bone tips (see `Motion`).
+
+    Quaternions are **normalised** first (an unnormalised one is a rotation scaled by its
+    norm, which would stretch the bones); a zero quaternion is no rotation at all: it
+    raises `FxspaceError` when the array is concrete and gives NaN positions under ``jit``.
     """
     parents = motion.parents
     if not isinstance(parents, tuple) or len(parents) == 0 or parents[0] != -1:
-        raise ValueError("motion.parents must be a non-empty tuple starting with the root (-1)")
+        raise FxspaceError("motion.parents must be a non-empty tuple starting with the root (-1)")
     if any(not (-1 <= p < j) for j, p in enumerate(parents)):
-        raise ValueError("motion.parents must list parents before children (parents[j] < j)")
+        raise FxspaceError("motion.parents must list parents before children (parents[j] < j)")
     if motion.rotations.shape[-2:] != (len(parents), 4):
-        raise ValueError(
+        raise FxspaceError(
             f"motion.rotations must have shape (T, {len(parents)}, 4), got {motion.rotations.shape}"
         )
-    return fk_arrays(parents, motion.offsets, motion.root_translation, motion.rotations)[0]
+    q = motion.rotations
+    xp = _xp(q)
+    norm = xp.sqrt(xp.sum(q * q, axis=-1, keepdims=True))
+    if not isinstance(q, jax.core.Tracer) and np.any(np.asarray(norm) == 0):
+        bad = np.argwhere(np.asarray(norm)[..., 0] == 0)[0]
+        raise FxspaceError(
+            f"motion.rotations holds a zero quaternion at (frame, joint) {tuple(bad.tolist())};"
+            " use (1, 0, 0, 0) for no rotation"
+        )
+    q = xp.where(norm > 0, q / xp.where(norm > 0, norm, 1.0), xp.nan)
+    return fk_arrays(parents, motion.offsets, motion.root_translation, q)[0]

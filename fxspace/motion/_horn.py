@@ -7,6 +7,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from fxspace._validate import _is_tracer, as_float_array
+from fxspace.errors import FxspaceError
 from fxspace.rotations import quat_to_matrix
 
 __all__ = ["absolute_orientation", "RigidTransform", "apply_rigid"]
@@ -37,19 +39,28 @@ def absolute_orientation(
 
     **Returns:** ``RigidTransform(R, t)`` (unpacks as ``R, t = absolute_orientation(...)``).
     """
-    src = jnp.asarray(src)
-    dst = jnp.asarray(dst)
+    src = as_float_array(src, "src", finite="allow")
+    dst = as_float_array(dst, "dst", finite="allow")
     if src.ndim != 2 or src.shape[-1] != 3 or src.shape != dst.shape:
-        raise ValueError(f"src and dst must both be (k, 3), got {src.shape} and {dst.shape}")
+        raise FxspaceError(f"src and dst must both be (k, 3), got {src.shape} and {dst.shape}")
     if src.shape[0] < 3:
-        raise ValueError(f"absolute_orientation needs at least 3 point pairs, got {src.shape[0]}")
-    w = jnp.ones(src.shape[0], src.dtype) if weights is None else jnp.asarray(weights, src.dtype)
-    if w.shape != src.shape[:1]:
-        raise ValueError(f"weights must have shape ({src.shape[0]},), got {w.shape}")
+        raise FxspaceError(f"absolute_orientation needs at least 3 point pairs, got {src.shape[0]}")
+    if weights is None:
+        w = jnp.ones(src.shape[0], src.dtype)
+    else:
+        w = as_float_array(weights, "weights", min_frames=0).astype(src.dtype)
+        if w.shape != src.shape[:1]:
+            raise FxspaceError(f"weights must have shape ({src.shape[0]},), got {w.shape}")
+        if not _is_tracer(w) and (bool(jnp.any(w < 0)) or not bool(jnp.sum(w) > 0)):
+            raise FxspaceError("weights must be >= 0 with a positive sum")
     w = w / jnp.sum(w)
     sbar = jnp.sum(w[:, None] * src, axis=0)
     dbar = jnp.sum(w[:, None] * dst, axis=0)
-    S = jnp.einsum("k,ka,kb->ab", w, src - sbar[None], dst - dbar[None])
+    # scaled before the products: float32 points at 1e19 or 1e-25 neither overflow nor
+    # underflow (the rotation does not depend on a common scale)
+    sc = jnp.maximum(jnp.max(jnp.abs(src - sbar[None])), jnp.max(jnp.abs(dst - dbar[None])))
+    sc = jnp.where(sc > 0, sc, 1.0)
+    S = jnp.einsum("k,ka,kb->ab", w, (src - sbar[None]) / sc, (dst - dbar[None]) / sc)
     sxx, sxy, sxz = S[0, 0], S[0, 1], S[0, 2]
     syx, syy, syz = S[1, 0], S[1, 1], S[1, 2]
     szx, szy, szz = S[2, 0], S[2, 1], S[2, 2]

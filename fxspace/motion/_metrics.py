@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import as_float_array, check_indices, check_scalar
+
 __all__ = ["foot_sliding", "ground_speed"]
 
 
@@ -18,7 +20,11 @@ def foot_sliding(
 
     Example: a foot standing still for the whole clip gives ``0.0``.
     """
-    X = np.asarray(X, np.float64)
+    X = as_float_array(X, "X", shape=(None, None, 3), finite="allow", xp="numpy")
+    X = X.astype(np.float64)
+    feet = check_indices(feet, "feet", X.shape[1], min_len=1)
+    rate = check_scalar(rate, "rate", low=0.0, low_open=True)
+    contact_height = check_scalar(contact_height, "contact_height", low=0.0)
     out = []
     for j in feet:
         p = X[:, j]
@@ -34,7 +40,9 @@ def foot_sliding(
 def ground_speed(root: Float[Array, "T 3"], rate: float) -> float:
     """Average ground speed (m/s): the horizontal path length of ``root`` over the clip's
     duration (``(T − 1) / rate`` seconds)."""
-    r = np.asarray(root, np.float64)
+    r = as_float_array(root, "root", shape=(None, 3), finite="allow", xp="numpy")
+    r = r.astype(np.float64)
+    rate = check_scalar(rate, "rate", low=0.0, low_open=True)
     if r.shape[0] < 2:
         return 0.0
     d = np.linalg.norm(np.diff(r[:, [0, 2]], axis=0), axis=1).sum()

@@ -6,20 +6,26 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import checked
+from fxspace.errors import FxspaceError
 from fxspace.motion._dtw import dtw, dtw_batch, warp_from_path
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._splice import heading_quat
+from fxspace.results import RESULTS, check_result, is_successful, result_from_flags
 from fxspace.rotations import quat_conj, quat_mul, quat_rotate
 
 __all__ = [
     "pose_features",
     "register_dtw",
+    "register_examples",
+    "RegistrationResult",
     "alignment_curve",
     "smooth_warp",
     "drop_root",
@@ -37,49 +43,116 @@ def pose_features(motion, joints: tuple[int, ...]) -> Float[Array, "T d"]:
     return quat_rotate(quat_conj(h)[:, None], rel).reshape(X.shape[0], -1)
 
 
-def smooth_warp(warp: Float[Array, " N"], window: int = 5) -> Float[Array, " N"]:
+@checked
+def smooth_warp(
+    warp: Float[Array, " N"], window: int = 5, max_ratio: float | None = 1.5, cyclic: bool = False
+) -> Float[Array, " N"]:
     """A DTW warp made smooth and strictly increasing: a centred moving average over
-    ``window`` frames (end points kept), plus a ramp of 1e-3 frames per frame, rescaled to the
-    original end points. Staircase warps otherwise have zero slopes (``dT/dC`` infinite in
-    eq. 1)."""
+    ``window`` frames (ends point-reflected, so their slopes are kept), plus a ramp of
+    1e-3 frames per frame, rescaled to the original end points. Staircase warps otherwise
+    have zero slopes (``dT/dC`` infinite in eq. 1). ``max_ratio`` (default 1.5; ``None``
+    turns it off) bounds every slope to ``[mean / max_ratio, mean · max_ratio]`` with
+    ``mean`` the end-to-end slope (a Sakoe–Chiba slope constraint), then rescales to the
+    end points. ``cyclic=True`` (whole gait cycles) smooths across the seam with the
+    increments of the other end, so the slope is continuous when a cycle wraps."""
     w = np.asarray(warp, np.float64)
+    if w.ndim != 1:
+        raise FxspaceError(f"warp must be a 1-D array of frames, got shape {w.shape}")
+    if window < 1 or (max_ratio is not None and max_ratio < 1):
+        raise FxspaceError(
+            f"window must be >= 1 and max_ratio >= 1 (or None); got {window}, {max_ratio}"
+        )
     n = w.size
     if n < 3:
         return w
-    k = max(1, min(window, n) // 2)
-    pad = np.concatenate([np.full(k, w[0]), w, np.full(k, w[-1])])
+    k = max(1, min(window, n - 1) // 2)
+    # point-reflected ends keep the end slopes (a constant pad would flatten them, and a
+    # flat warp makes eq. 1's dT/dC, hence the clock, jump at the start of a cycle)
+    if cyclic:  # a gait cycle: the increments continue across the seam (periodic)
+        pad = np.concatenate([w[0] - (w[-1] - w[-k - 1 : -1]), w, w[-1] + (w[1 : k + 1] - w[0])])
+    else:
+        pad = np.concatenate([2 * w[0] - w[k:0:-1], w, 2 * w[-1] - w[-2 : -k - 2 : -1]])
     s = np.convolve(pad, np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
     s = np.maximum.accumulate(s) + 1e-3 * np.arange(n)
     s = w[0] + (s - s[0]) * (w[-1] - w[0]) / max(s[-1] - s[0], 1e-12)
+    if max_ratio is not None and (w[-1] - w[0]) / (n - 1) > 0:  # (a denormal span: no constraint)
+        # slope constraint (Sakoe & Chiba): local tempo within max_ratio of the mean, so
+        # the ill-conditioned ends of a DTW path do not make eq. 1's clock race or stall
+        mean = (w[-1] - w[0]) / (n - 1)
+        d = np.clip(np.diff(s), mean / max_ratio, mean * max_ratio)
+        s = w[0] + np.concatenate([[0.0], np.cumsum(d)]) * (w[-1] - w[0]) / d.sum()
     return s
 
 
-def register_dtw(features: list, smooth: int = 5) -> Float[Array, "E N"]:
-    """Warps ``C_i`` of every example against the first one (the reference ``M_1``, as in the
-    paper): DTW of each clip's features ``(T_i, d)`` to ``features[0]``, the matched frames
-    averaged per reference frame (:func:`warp_from_path`), smoothed (:func:`smooth_warp`).
-    One compiled batched DTW for all examples. Returns ``(E, N)`` with ``N = len(features[0])``.
-    """
+class RegistrationResult(NamedTuple):
+    """Warps of every example against the reference (`register_examples`): ``warps``
+    ``(E, N)``; ``result`` a `RESULTS` member (``nonfinite_input`` when a feature holds
+    NaN/inf: then the warps are NaN, never a plausible registration); ``num_steps`` the
+    DTW anti-diagonals swept per example; ``stats`` ``{"max_steps", "path_length"}``."""
+
+    warps: Float[Array, "E N"]
+    result: Any
+    num_steps: Any
+    stats: dict
+
+    @property
+    def converged(self):
+        return is_successful(self.result)
+
+
+def register_examples(
+    features: list, smooth: int = 5, cyclic: bool = False, *, throw: bool = False
+) -> RegistrationResult:
+    """`register_dtw` with its result record (issue 18's vocabulary); ``throw=True``
+    raises `FxspaceError` when a feature holds NaN/inf."""
     lens = [int(np.shape(f)[0]) for f in features]
     T = max(lens)
     F = np.stack([np.concatenate([f, np.repeat(f[-1:], T - len(f), 0)]) for f in features])
-    warps = _register(jnp.asarray(F[0]), jnp.asarray(F), jnp.asarray(lens), lens[0])
-    return np.stack([smooth_warp(w, smooth) for w in np.asarray(warps)])
+    res = _register(jnp.asarray(F[0]), jnp.asarray(F), jnp.asarray(lens), lens[0])
+    bad = np.asarray(res.result._value) != RESULTS.successful._value
+    warps = np.stack([smooth_warp(w, smooth, cyclic=cyclic) if not b else np.full(len(w), np.nan)
+                      for w, b in zip(np.asarray(res.warps), bad, strict=True)])  # fmt: skip
+    result = result_from_flags(converged=True, nonfinite_input=bool(bad.any()))
+    out = RegistrationResult(warps, result, res.num_steps, res.stats)
+    return check_result(result, throw, "register_dtw", out)
+
+
+def register_dtw(
+    features: list, smooth: int = 5, cyclic: bool = False, *, throw: bool = False
+) -> Float[Array, "E N"]:
+    """Warps ``C_i`` of every example against the first one (the reference ``M_1``, as in the
+    paper): DTW of each clip's features ``(T_i, d)`` to ``features[0]``, the matched frames
+    averaged per reference frame (`warp_from_path`), smoothed (`smooth_warp`).
+    One compiled batched DTW for all examples. Returns ``(E, N)`` with ``N = len(features[0])``.
+    """
+    return register_examples(features, smooth, cyclic, throw=throw).warps
+
+
+class _Registered(NamedTuple):
+    warps: Any
+    result: Any
+    num_steps: Any
+    stats: dict
 
 
 @partial(jax.jit, static_argnums=3)
 def _register(ref, F, lens, n_ref: int):
     res = dtw_batch(ref, F, True, jnp.full(lens.shape, n_ref), lens)
-    return jax.vmap(lambda p: warp_from_path(p, n_ref))(res.path)
+    warps = jax.vmap(lambda p: warp_from_path(p, n_ref))(res.path)
+    return _Registered(warps, res.result, res.num_steps, res.stats)
 
 
 def alignment_curve(
-    lower_features: Float[Array, "N d"], upper_features: Float[Array, "M d"], smooth: int = 5
+    lower_features: Float[Array, "N d"],
+    upper_features: Float[Array, "M d"],
+    smooth: int = 5,
+    cyclic: bool = False,
 ) -> Float[Array, " N"]:
     """``λ``: lower reference frame ↦ upper reference frame, by DTW of the two reference clips'
-    (lower-body) features; smoothed and strictly increasing (:func:`smooth_warp`)."""
+    (lower-body) features; smoothed and strictly increasing (`smooth_warp`)."""
     path = dtw(jnp.asarray(lower_features), jnp.asarray(upper_features)).path
-    return smooth_warp(np.asarray(warp_from_path(path, int(np.shape(lower_features)[0]))), smooth)
+    w = np.asarray(warp_from_path(path, int(np.shape(lower_features)[0])))
+    return smooth_warp(w, smooth, cyclic=cyclic)
 
 
 def drop_root(motion):
@@ -106,12 +179,13 @@ def drop_root(motion):
     )
 
 
-def gait_window(motion, foot: str, n_cycles: int = 2, skip: int = 1):
+def gait_window(motion, foot: str, n_cycles: int = 2, skip: int = 1, shift: int = 0):
     """The frames of ``n_cycles`` full gait cycles, from one touch-down of ``foot`` to the
     ``n_cycles``-th next one, after skipping the first ``skip`` touch-downs (the start of a
     walk). Touch-downs are local minima of the foot's height that lie within 3 cm of the
-    clip's lowest foot height, at least 8 frames apart. Raises ``ValueError`` when the clip
-    holds too few cycles."""
+    clip's lowest foot height, at least 8 frames apart. ``shift`` moves both ends by that
+    many frames (e.g. to mid-stance, where the foot is still: a cycle that wraps there
+    has no visible seam). Raises ``ValueError`` when the clip holds too few cycles."""
     X = fk_arrays(
         motion.parents,
         np.asarray(motion.offsets),
@@ -133,4 +207,7 @@ def gait_window(motion, foot: str, n_cycles: int = 2, skip: int = 1):
         raise ValueError(
             f"gait_window: {len(starts)} touch-downs of {foot!r}, need {skip + n_cycles + 1}"
         )
-    return motion.frames(slice(sel[0], sel[-1] + 1))
+    a, b = sel[0] + shift, sel[-1] + shift
+    if a < 0 or b >= len(h):
+        raise ValueError(f"gait_window: shift {shift} moves the window outside the clip")
+    return motion.frames(slice(a, b + 1))

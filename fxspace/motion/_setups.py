@@ -10,7 +10,7 @@
 
 Clips are read by the caller (``load(take) -> Motion``; this module does no file I/O), so
 the pipelines and the studio share one construction. Walks are cut to whole gait cycles of
-the left foot (:func:`gait_window`), every clip is start-aligned, and each set is registered
+the left foot (`gait_window`), every clip is start-aligned, and each set is registered
 against its first example ``M_1`` (DTW of lower-body features for walks, of upper-body
 features for the hand clips, key times for the karate clips).
 """
@@ -121,10 +121,13 @@ def _fk(m):
 
 
 def _walk(m, foot: str, cycles: int):
+    """``cycles`` gait cycles cut at mid-stance of ``foot`` (0.2 s after its touch-down,
+    where the foot is flat and still, so a wrapping cycle shows no seam)."""
+    shift = int(round(0.2 * m.rate))
     try:
-        w = gait_window(m, foot, cycles, skip=1)
+        w = gait_window(m, foot, cycles, skip=1, shift=shift)
     except ValueError:
-        w = gait_window(m, foot, cycles, skip=0)
+        w = gait_window(m, foot, cycles, skip=0, shift=shift)
     return align_start(_np(w))
 
 
@@ -177,13 +180,13 @@ def prepare_setup(
     space: SetupSpace = SetupSpace(),
     key: jax.Array | None = None,
 ) -> Setup:
-    """Load, cut, register and sample the set-up ``name`` (one of :data:`SETUPS`).
+    """Load, cut, register and sample the set-up ``name`` (one of `SETUPS`).
 
-    **Arguments:** ``load(take)`` returns a :class:`Motion` (Bandai takes are
+    **Arguments:** ``load(take)`` returns a `Motion` (Bandai takes are
     ``dataset-…``, CMU ones ``SSS_TT``); ``data``/``space`` configure clips and sampling;
     ``key`` the sampling PRNG key (default ``PRNGKey(0)``).
 
-    **Returns:** a :class:`Setup` (spaces ready for :func:`synthesize_step`).
+    **Returns:** a `Setup` (spaces ready for `synthesize_step`).
     """
     if name not in SETUPS:
         raise ValueError(f"unknown set-up {name!r}; choose one of {list(SETUPS)}")
@@ -198,12 +201,12 @@ def prepare_setup(
         t_io = time.perf_counter() - t0
         t0 = time.perf_counter()
         fl = [np.asarray(pose_features(c, _idx(c, J["lower"]))) for c in lows]
-        warps_l = register_dtw(fl)
+        warps_l = register_dtw(fl, 9, cyclic=True)
         if name == "mood_walk":
             ups = [_walk(load(t), J["lfoot"], data.cycles) for t in upper_takes]
             fu = [np.asarray(pose_features(c, _idx(c, J["lower"]))) for c in ups]
-            warps_u = register_dtw(fu)
-            lam = alignment_curve(fl[0], fu[0])
+            warps_u = register_dtw(fu, 9, cyclic=True)
+            lam = alignment_curve(fl[0], fu[0], 9, cyclic=True)
             upper_joint, upper_time = -1, 0.0
         else:
             ups = [align_start(_np(load(t))) for t in upper_takes]

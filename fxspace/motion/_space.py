@@ -6,13 +6,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import as_float_array, check_int, check_scalar
+from fxspace.errors import FxspaceError
 from fxspace.motion._blend import ExampleSet
 
 __all__ = ["stack_examples", "find_key_times", "extract_window"]
 
 
 def stack_examples(rotations: list, roots: list, warps: Float[Array, "E N"]) -> ExampleSet:
-    """Pad clips of different lengths (repeating the last frame) into an :class:`ExampleSet`."""
+    """Pad clips of different lengths (repeating the last frame) into an `ExampleSet`."""
     if len(rotations) != len(roots) or len(rotations) != warps.shape[0]:
         raise ValueError(
             f"rotations ({len(rotations)}), roots ({len(roots)}) and warps "
@@ -40,9 +42,13 @@ def find_key_times(
     height): greedy, highest first, at least ``min_separation`` frames apart, at least
     ``margin`` frames from either end, and at least ``rel_height`` of the way from the
     signal's median to its maximum. Sorted by time."""
-    s = np.asarray(signal, dtype=np.float64)
+    s = as_float_array(signal, "signal", xp="numpy").astype(np.float64)
     if s.ndim != 1 or s.size < 3:
-        raise ValueError(f"signal must be a 1-D array of at least 3 frames, got shape {s.shape}")
+        raise FxspaceError(f"signal must be a 1-D array of at least 3 frames, got shape {s.shape}")
+    min_separation = check_int(min_separation, "min_separation", low=0)
+    max_keys = check_int(max_keys, "max_keys", low=0)
+    margin = check_int(margin, "margin", low=0)
+    rel_height = check_scalar(rel_height, "rel_height", low=0.0, high=1.0)
     lo, hi = np.median(s), s.max()
     thr = lo + rel_height * (hi - lo)
     peak = np.zeros(s.size, bool)

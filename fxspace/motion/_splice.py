@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from fxspace._validate import _is_tracer, as_float_array, check_index, check_scalar
+from fxspace.errors import FxspaceError
 from fxspace.rotations import (
     _xp,
     quat_conj,
@@ -19,9 +23,21 @@ from fxspace.rotations import (
 __all__ = ["heading_quat", "align_start", "upper_body_mask", "splice_pose"]
 
 
+def _check_quats(q, name: str, shape=None):
+    """``q`` as a float quaternion array (..., 4): NumPy stays NumPy (lists become NumPy),
+    jax stays jax; NaN kept (NaN out)."""
+    xp = "jax" if isinstance(q, jax.Array) else "numpy"
+    q = as_float_array(q, name, finite="allow", xp=xp)
+    if q.ndim < 1 or q.shape[-1] != 4 or (shape is not None and q.shape != shape):
+        want = "(..., 4)" if shape is None else str(shape)
+        raise FxspaceError(f"{name} must have shape {want} (quaternions), got {q.shape}")
+    return q
+
+
 def heading_quat(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Yaw-only (about +Y) part of a root orientation: the rotation taking +Z to the root's
     forward direction projected on the ground."""
+    q = _check_quats(q, "q")
     xp = _xp(q)
     f = quat_rotate(q, xp.broadcast_to(xp.asarray([0.0, 0.0, 1.0], q.dtype), q.shape[:-1] + (3,)))
     yaw = xp.arctan2(f[..., 0], f[..., 2])
@@ -47,13 +63,32 @@ def upper_body_mask(
     parents: tuple[int, ...], names: tuple[str, ...], spine_root: str = "lowerback"
 ) -> Bool[Array, " J"]:
     """Joints above the pelvis: ``spine_root`` and all its descendants."""
-    if spine_root not in names:
-        raise ValueError(f"spine_root {spine_root!r} is not a joint; joints are {list(names)}")
+    pa = np.asarray(parents) if isinstance(parents, list | tuple | np.ndarray) else None
+    if pa is None or pa.ndim != 1 or pa.size == 0 or pa.dtype.kind not in "iu":
+        raise FxspaceError(f"parents must be a non-empty sequence of joint indices, got {parents}")
+    if np.any(pa < -1) or np.any(pa >= np.arange(len(pa))):
+        raise FxspaceError("parents must list each joint's parent before it (-1 for a root)")
+    if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
+        raise FxspaceError(f"names must be a sequence of joint names (str), got {names!r}")
+    if len(names) != len(parents):
+        raise FxspaceError(f"names ({len(names)}) and parents ({len(parents)}) must match")
+    if not isinstance(spine_root, str) or spine_root not in names:
+        raise FxspaceError(f"spine_root {spine_root!r} is not a joint; joints are {list(names)}")
     s = names.index(spine_root)
     mask = [False] * len(parents)
     for j, p in enumerate(parents):
         mask[j] = j == s or (p >= 0 and mask[p])
     return jnp.asarray(mask)
+
+
+def _check_mask(mask, J: int):
+    if _is_tracer(mask):
+        return mask
+    m = np.asarray(mask) if not isinstance(mask, str | bytes) and mask is not None else None
+    if m is None or m.dtype.kind != "b" or m.shape != (J,):
+        what = "None" if m is None else f"{m.dtype} of shape {m.shape}"
+        raise FxspaceError(f"mask must be a boolean ({J},) joint mask (upper_body_mask): {what}")
+    return mask
 
 
 def splice_pose(
@@ -75,6 +110,17 @@ def splice_pose(
     ``q_spine_world = H_lower ⊗ H_upper⁻¹ ⊗ q_root_upper ⊗ q_spine_upper`` (blended with the
     plain local copy by ``posture_transfer`` ∈ [0, 1], nlerp).
     """
+    upper_q = _check_quats(upper_q, "upper_q")
+    lower_q = _check_quats(lower_q, "lower_q", shape=upper_q.shape)
+    if upper_q.ndim != 2:
+        raise FxspaceError(f"upper_q must be (J, 4), got shape {upper_q.shape}")
+    mask = jnp.asarray(_check_mask(mask, upper_q.shape[0]))
+    if not _is_tracer(spine_root):
+        spine_root = check_index(spine_root, "spine_root", upper_q.shape[0])
+    if np.ndim(posture_transfer) != 0:
+        raise FxspaceError(f"posture_transfer must be a scalar in [0, 1], got {posture_transfer!r}")
+    if not _is_tracer(posture_transfer):
+        posture_transfer = check_scalar(posture_transfer, "posture_transfer", low=0.0, high=1.0)
     out = jnp.where(mask[:, None], upper_q, lower_q)
     root_l, root_u = lower_q[0], upper_q[0]
     world_u = quat_mul(root_u, upper_q[spine_root])

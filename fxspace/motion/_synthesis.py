@@ -20,11 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import check_scalar
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._horn import absolute_orientation, apply_rigid
 from fxspace.motion._splice import heading_quat, splice_pose
-from fxspace.motion._timewarp import advance_clock, align_clocks, invert_curve
+from fxspace.motion._timewarp import advance_clock, align_clocks, interp_curve, invert_curve
 from fxspace.rotations import quat_conj, quat_rotate
 
 __all__ = [
@@ -44,7 +45,7 @@ __all__ = [
 
 @dataclasses.dataclass(frozen=True)
 class SynthesisSpaces:
-    """The two parametric spaces ``P_L`` and ``P_U`` (a JAX pytree; see :func:`build_spaces`).
+    """The two parametric spaces ``P_L`` and ``P_U`` (a JAX pytree; see `build_spaces`).
 
     Arrays: ``lower``/``upper`` example sets (warps against their first example), ``lam``
     ``(N_L,)`` the alignment curve, ``offsets`` the skeleton's rest offsets, the lower samples
@@ -177,7 +178,90 @@ def init_state(sp: SynthesisSpaces, lower_param: Float[Array, " d"]) -> SynthSta
     return SynthState(z, sp.lam[0] + z, lower_param, params, wL)
 
 
+def _blends(sp: SynthesisSpaces, state: SynthState, upper_param, lower_param, wL=None):
+    """Steps 1–3 of `synthesize_step`: the lower blend (``wL`` given: used as is), the
+    (re-placed) upper samples and the upper blend; NaN weights when a parameter is not
+    finite (never a plausible blend)."""
+    dtype = sp.lam.dtype
+    lower_param = jnp.asarray(lower_param, dtype)
+    upper_param = jnp.asarray(upper_param, dtype)
+    wL = _lower_weights(sp, lower_param) if wL is None else wL
+    if sp.upper_joint >= 0:
+        changed = jnp.any(lower_param != state.lower_param)
+        params = jax.lax.cond(changed, lambda: replace_samples(sp, wL), lambda: state.upper_params)
+        wU = knn_blend_weights(upper_param, params, sp.upper_weights, sp.knn_k).weights
+    else:
+        params = state.upper_params
+        wU = jnp.maximum(upper_param, 0.0)
+        wU = wU / jnp.maximum(jnp.sum(wU), 1e-12)
+    bad = ~(jnp.all(jnp.isfinite(upper_param)) & jnp.all(jnp.isfinite(lower_param)))
+    nan = jnp.asarray(jnp.nan, dtype)
+    return jnp.where(bad, nan, wL), jnp.where(bad, nan, wU), params, lower_param
+
+
+def _spliced(sp: SynthesisSpaces, wL, wU, t_lower, t_upper):
+    """Step 4: both blends at their clocks (every example at ``C_i(T)``), spliced."""
+    qL, rL = blend_pose(sp.lower, wL, t_lower)
+    qU, _ = blend_pose(sp.upper, wU, t_upper)
+    return splice_pose(qL, qU, jnp.asarray(sp.mask), sp.spine, sp.posture_transfer), rL
+
+
+def _advance(sp: SynthesisSpaces, state: SynthState, wL, wU, alpha, dt, wrap: bool):
+    """Step 5: eq. (1) for each set, then eqs. (2)–(3). ``wrap=False`` stops ``T_L`` at the
+    lower reference clip's end; ``wrap=True`` wraps it (and ``T_U`` by the span of ``λ``)
+    so the cycle repeats. Returns ``(t_lower, t_upper, wrapped)``."""
+    ms = sp.min_slope
+    end = sp.lam.shape[0] - 1.0
+    tl = state.t_lower + advance_clock(state.t_lower, sp.lower.warps, wL, dt, ms)  # eq. 1
+    tu = state.t_upper + advance_clock(state.t_upper, sp.upper.warps, wU, dt, ms)
+    if wrap:
+        return _align_periodic(sp.lam, tl, tu, alpha)
+    wrapped = jnp.zeros((), bool)
+    tl = jnp.minimum(tl, end)
+    tl, tu = align_clocks(tl, tu, sp.lam, alpha)  # eqs. 2–3
+    return tl, tu, wrapped
+
+
+def _align_periodic(lam, tl, tu, alpha):
+    """Eqs. (2)–(3) on the periodic extension of ``λ`` (``λ(T + P) = λ(T) + S`` with
+    ``P = N − 1`` and ``S = λ(N−1) − λ(0)``), then both clocks wrapped by the same number of
+    cycles: a clock past its cycle's end keeps its phase relation to the other."""
+    P = lam.shape[0] - 1.0
+    S = jnp.maximum(lam[-1] - lam[0], 1e-9)
+
+    def lam_ext(t):
+        k = jnp.floor(t / P)
+        return interp_curve(lam, t - k * P) + k * S
+
+    def inv_ext(y):
+        k = jnp.floor((y - lam[0]) / S)
+        return invert_curve(lam, y - k * S) + k * P
+
+    tu = alpha * lam_ext(tl) + (1.0 - alpha) * tu  # eq. (2)
+    tl = inv_ext(tu)  # eq. (3)
+    k = jnp.maximum(jnp.floor(tl / P), 0.0)
+    return tl - k * P, tu - k * S, k > 0
+
+
+def check_step_controls(alpha, dt) -> None:
+    """Refuse an ``alpha`` outside ``[0, 1]`` or a negative / non-finite ``dt`` (concrete
+    values only; traced ones are checked by the NaN pose)."""
+    check_scalar(alpha, "alpha", low=0.0, high=1.0)
+    check_scalar(dt, "dt", low=0.0)
+
+
 @jax.jit
+def _synthesize_step(spaces, state, upper_param, lower_param, alpha, dt):
+    dtype = spaces.lam.dtype
+    alpha = jnp.asarray(alpha, dtype)
+    wL, wU, params, lower_param = _blends(spaces, state, upper_param, lower_param)
+    q, rL = _spliced(spaces, wL, wU, state.t_lower, state.t_upper)
+    ok = jnp.isfinite(alpha) & jnp.isfinite(dt) & (alpha >= 0) & (alpha <= 1) & (dt >= 0)
+    q, rL = jnp.where(ok, q, jnp.nan), jnp.where(ok, rL, jnp.nan)
+    tl, tu, _ = _advance(spaces, state, wL, wU, alpha, dt, wrap=False)
+    return SynthState(tl, tu, lower_param, params, wL), Pose(q, rL)
+
+
 def synthesize_step(
     spaces: SynthesisSpaces,
     state: SynthState,
@@ -191,46 +275,27 @@ def synthesize_step(
 
     1. Lower blend ``w_L`` by k-NN interpolation of ``lower_param`` over the lower samples.
     2. If ``lower_param`` differs from the one of the last re-placement, the upper samples
-       are re-placed (§3.2, :func:`replace_samples`; ``lax.cond``, so only then).
+       are re-placed (§3.2, `replace_samples`; ``lax.cond``, so only then).
     3. Upper blend ``w_U``: k-NN of ``upper_param`` (root frame) over the re-placed samples —
        or, for a space without parameterisation (``upper_joint = -1``), ``upper_param`` is
        the weight vector itself (normalised).
     4. The pose at the current clocks: both blends (every example at ``C_i(T)``), spliced.
-    5. Clocks: eq. (1) for each set, then eqs. (2)–(3) with ``alpha``
-       (:func:`align_clocks`); ``T_L`` stops at the lower reference clip's end.
+    5. Clocks: eq. (1) for each set, then eqs. (2)–(3) with ``alpha`` (`align_clocks`);
+       ``T_L`` stops at the lower reference clip's end (`locomotion_step` wraps it instead).
+
+    **Arguments:** ``alpha`` in ``[0, 1]`` and ``dt >= 0`` (reference frames per output
+    frame); other values raise `FxspaceError` (when concrete; a traced bad value, or a NaN
+    parameter, gives a NaN pose — never a plausible finite one).
 
     **Returns:** ``(state, pose)`` with ``pose`` the frame at the *incoming* clocks.
 
     Example: ``state = init_state(sp, p_L)``; ``state, pose = synthesize_step(sp, state,
     p_U, p_L, 0.5, 1.0)``.
     """
-    dtype = spaces.lam.dtype
-    lower_param = jnp.asarray(lower_param, dtype)
-    alpha = jnp.asarray(alpha, dtype)
-    wL = _lower_weights(spaces, lower_param)
-    if spaces.upper_joint >= 0:
-        changed = jnp.any(lower_param != state.lower_param)
-        params = jax.lax.cond(
-            changed, lambda: replace_samples(spaces, wL), lambda: state.upper_params
-        )
-        wU = knn_blend_weights(
-            jnp.asarray(upper_param, dtype), params, spaces.upper_weights, spaces.knn_k
-        ).weights
-    else:
-        params = state.upper_params
-        wU = jnp.maximum(jnp.asarray(upper_param, dtype), 0.0)
-        wU = wU / jnp.maximum(jnp.sum(wU), 1e-12)
-    qL, rL = blend_pose(spaces.lower, wL, state.t_lower)
-    qU, _ = blend_pose(spaces.upper, wU, state.t_upper)
-    q = splice_pose(qL, qU, jnp.asarray(spaces.mask), spaces.spine, spaces.posture_transfer)
-    ms = spaces.min_slope
-    tl = state.t_lower + advance_clock(state.t_lower, spaces.lower.warps, wL, dt, ms)  # eq. 1
-    tu = state.t_upper + advance_clock(state.t_upper, spaces.upper.warps, wU, dt, ms)
-    tl, tu = align_clocks(jnp.minimum(tl, spaces.lam.shape[0] - 1.0), tu, spaces.lam, alpha)
-    return SynthState(tl, tu, lower_param, params, wL), Pose(q, rL)
+    check_step_controls(alpha, dt)
+    return _synthesize_step(spaces, state, upper_param, lower_param, alpha, dt)
 
 
-@jax.jit
 def synthesize(
     spaces: SynthesisSpaces,
     upper_params: Float[Array, "F p"],
@@ -238,17 +303,25 @@ def synthesize(
     alpha: float | Float[Array, " F"] = 0.5,
     dt: float = 1.0,
 ) -> tuple[SynthState, Pose, Float[Array, "F 2"]]:
-    """``F`` frames by ``lax.scan`` of :func:`synthesize_step` (parameters per frame).
+    """``F`` frames by ``lax.scan`` of `synthesize_step` (parameters per frame; the clocks
+    stop at the lower reference clip's end — `locomotion` walks on instead).
 
     **Returns:** ``(final_state, poses, clocks)`` — ``poses`` stacked ``(F, J, 4)`` /
     ``(F, 3)``, ``clocks`` ``(F, 2)`` the ``(T_L, T_U)`` of each output frame."""
+    if not isinstance(alpha, jax.core.Tracer) and np.ndim(alpha) == 0:
+        check_step_controls(alpha, dt)
+    return _synthesize(spaces, upper_params, lower_params, alpha, dt)
+
+
+@jax.jit
+def _synthesize(spaces, upper_params, lower_params, alpha, dt):
     F = upper_params.shape[0]
     alphas = jnp.broadcast_to(jnp.asarray(alpha, spaces.lam.dtype), (F,))
     state = init_state(spaces, lower_params[0])
 
     def body(s, inp):
         pu, pl, a = inp
-        s2, pose = synthesize_step(spaces, s, pu, pl, a, dt)
+        s2, pose = _synthesize_step(spaces, s, pu, pl, a, dt)
         return s2, (pose, jnp.stack([s.t_lower, s.t_upper]))
 
     final, (poses, clocks) = jax.lax.scan(body, state, (upper_params, lower_params, alphas))
@@ -280,7 +353,7 @@ def build_spaces(
 ) -> SynthesisSpaces:
     """Sample both parameter spaces (Kovar & Gleicher 2004: ``n_samples`` random sparse
     blends, the examples first) and evaluate their parameters in one vmapped call each: the
-    lower parameter (:func:`lower_param_of`) and the upper one in the root frame, spliced
+    lower parameter (`lower_param_of`) and the upper one in the root frame, spliced
     onto the first lower example (``ṗ_i``, §3.2). ``upper_joint = -1`` builds an upper space
     without parameterisation (weights set by the user). ``k_replace`` (§3.2's ``k``, 8–12 in
     the paper) must not exceed the number of upper samples."""

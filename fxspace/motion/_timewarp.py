@@ -7,16 +7,16 @@ Reference time ``T`` is measured in frames of a set's reference clip (the first 
 to upper reference frames:
 
 - eq. (1): ``ΔT = (Σ_i w_i · dT/dC_i) · Δt`` with ``dT/dC_i = 1 / C_i'(T)`` — the weighted
-  mean of the *inverse* warp slopes (:func:`advance_clock`);
+  mean of the *inverse* warp slopes (`advance_clock`);
 - eq. (2), generalised by the paper to ``0 ≤ α ≤ 1``: ``T_U ← α·λ(T_L) + (1−α)·T_U``
   (``α = ½`` is eq. (2) as printed);
 - eq. (3): ``T_L ← λ⁻¹(T_U)`` — the lower clock is reset from the upper one
-  (:func:`align_clocks`).
+  (`align_clocks`).
 
 Both clocks advance by non-negative increments before the alignment, so after it they never
 run backwards either (the paper's argument, §3.1). The older duration-averaging increment
-``Δt / Σ_i w_i C_i'(T)`` is kept as :func:`advance_clock_duration` and the older clock update
-as :func:`sync_clocks` (deprecated: not the paper's equations).
+``Δt / Σ_i w_i C_i'(T)`` is kept as `advance_clock_duration` and the older clock update
+as `sync_clocks` (deprecated: not the paper's equations).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import checked
 from fxspace.motion._blend import warp_times
 
 __all__ = [
@@ -42,6 +43,7 @@ __all__ = [
 ]
 
 
+@checked
 def keytime_warp(
     ref_keys: Float[Array, " K"], ex_keys: Float[Array, " K"], n_ref: int
 ) -> Float[Array, " n_ref"]:
@@ -59,11 +61,13 @@ def keytime_warp(
     return jnp.interp(u, jnp.asarray(ref_keys, u.dtype), jnp.asarray(ex_keys, u.dtype))
 
 
+@checked
 def interp_curve(curve: Float[Array, " N"], u: Float[Array, ""]) -> Float[Array, ""]:
     """Linear interpolation of a curve sampled at integer ``u`` (clamped)."""
     return warp_times(curve[None, :], u)[0]
 
 
+@checked
 def invert_curve(curve: Float[Array, " N"], y: Float[Array, ""]) -> Float[Array, ""]:
     """``λ⁻¹(y)`` for a non-decreasing curve ``λ`` sampled at ``u = 0..N-1`` and linear
     between samples: the ``u`` with ``λ(u) = y`` (``y`` clamped to ``[λ(0), λ(N-1)]``).
@@ -81,6 +85,7 @@ def invert_curve(curve: Float[Array, " N"], y: Float[Array, ""]) -> Float[Array,
     return i + jnp.clip(s, 0.0, 1.0)
 
 
+@checked
 def warp_slopes(warps: Float[Array, "E N"], u: Float[Array, ""]) -> Float[Array, " E"]:
     """``C_i'(u)``: slope of each sampled warp on the segment that contains ``u``."""
     n = warps.shape[1]
@@ -88,6 +93,7 @@ def warp_slopes(warps: Float[Array, "E N"], u: Float[Array, ""]) -> Float[Array,
     return warps[:, i0 + 1] - warps[:, i0]
 
 
+@checked
 def advance_clock(
     u: Float[Array, ""],
     warps: Float[Array, "E N"],
@@ -117,6 +123,7 @@ def advance_clock(
     return jnp.einsum("e,e->", w, inv) * dt
 
 
+@checked
 def advance_clock_duration(
     u: Float[Array, ""],
     warps: Float[Array, "E N"],
@@ -126,13 +133,14 @@ def advance_clock_duration(
 ) -> Float[Array, ""]:
     """The duration-averaging increment ``ΔT = Δt / max(Σ_i w_i C_i'(T), min_slope)`` (a
     harmonic mean of the inverse slopes): the blend plays the examples at one own-frame per
-    output frame on average. **Not** the paper's eq. (1) (see :func:`advance_clock`); kept
+    output frame on average. **Not** the paper's eq. (1) (see `advance_clock`); kept
     as a named option for comparison. Two slopes 0.5 and 2 with equal weights give
     ``0.8 Δt``."""
     rate = jnp.einsum("e,e->", w, jnp.maximum(warp_slopes(warps, u), min_slope))
     return dt / jnp.maximum(rate, min_slope)
 
 
+@checked
 def align_clocks(
     t_lower: Float[Array, ""],
     t_upper: Float[Array, ""],
@@ -147,7 +155,7 @@ def align_clocks(
     - ``t_lower``, ``t_upper``: the two reference times after their eq.-(1) increments.
     - ``lam``: ``(N,)`` the alignment curve ``λ`` sampled at lower reference frames
       ``0..N-1`` (upper reference frames, non-decreasing), linear between samples;
-      ``λ⁻¹`` inverts it (:func:`invert_curve`).
+      ``λ⁻¹`` inverts it (`invert_curve`).
     - ``alpha``: ``0 ≤ α ≤ 1``, the user's control (``α = ½`` is eq. (2) as printed;
       ``α = 1`` follows the lower body, ``α = 0`` the upper body).
 
@@ -176,7 +184,7 @@ def sync_clocks(
     v_max: float | Float[Array, ""],
 ) -> Clocks:
     """Deprecated: the earlier reconstruction of the clock synchronisation (use
-    :func:`align_clocks`, the paper's eqs. 2–3). Advances ``u`` by ``du`` and the upper
+    `align_clocks`, the paper's eqs. 2–3). Advances ``u`` by ``du`` and the upper
     clock ``v`` by the α-blend of the alignment curve's increment and its own increment
     ``dv_own``, then pulls ``v`` towards ``λ(u)`` with ``max()`` so it never decreases; the
     lower clock is never reset. Kept importable for old scripts."""

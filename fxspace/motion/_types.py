@@ -1,7 +1,7 @@
 """The ``Motion`` container: a skeleton (names, parents, rest offsets) plus per-frame root
 translation and per-joint local rotations as unit quaternions.
 
-Conventions (used by every reader, writer and :func:`fxspace.forward_kinematics`):
+Conventions (used by every reader, writer and `fxspace.forward_kinematics`):
 
 - Lengths are in **metres**; the world is Y-up (CMU ASF/AMC and BVH both are).
 - Joints are listed parents-first (``parents[j] < j``; the root has parent ``-1``).
@@ -13,7 +13,7 @@ Conventions (used by every reader, writer and :func:`fxspace.forward_kinematics`
   ``X[j] = X[parents[j]] + R_world[parents[j]] @ offsets[j]``; the root's position is
   ``root_translation + offsets[0]``.
 - ``channels[j]`` keeps a BVH joint's channel names in file order (e.g.
-  ``("Zrotation", "Yrotation", "Xrotation")``) so that :func:`write_bvh` writes the
+  ``("Zrotation", "Yrotation", "Xrotation")``) so that `write_bvh` writes the
   Euler angles back in exactly that order.
 """
 

@@ -5,6 +5,8 @@ levels, links between centres, routes refined level by level, playback.
 from fxspace.navigation._hierarchy import Hierarchy as Hierarchy
 from fxspace.navigation._hierarchy import Level as Level
 from fxspace.navigation._hierarchy import build_hierarchy as build_hierarchy
+from fxspace.navigation._hierarchy import hierarchy_from_arrays as hierarchy_from_arrays
+from fxspace.navigation._hierarchy import hierarchy_to_arrays as hierarchy_to_arrays
 from fxspace.navigation._hierarchy import level_sizes as level_sizes
 from fxspace.navigation._hierarchy import nearest_frames as nearest_frames
 from fxspace.navigation._hierarchy import split_centers as split_centers
@@ -17,6 +19,7 @@ from fxspace.navigation._playback import playback as playback
 from fxspace.navigation._playback import rigid_align as rigid_align
 from fxspace.navigation._routes import NavigationError as NavigationError
 from fxspace.navigation._routes import Route as Route
+from fxspace.navigation._routes import bridge_keys as bridge_keys
 from fxspace.navigation._routes import frame_path as frame_path
 from fxspace.navigation._routes import is_graph_walk as is_graph_walk
 from fxspace.navigation._routes import make_route as make_route
@@ -27,6 +30,8 @@ from fxspace.navigation._scale import SparseLevel as SparseLevel
 from fxspace.navigation._scale import sparse_hierarchy as sparse_hierarchy
 from fxspace.navigation._scale import sparse_links as sparse_links
 from fxspace.navigation._scale import sparse_route as sparse_route
+from fxspace.navigation._space import SWEEP_THRESHOLDS as SWEEP_THRESHOLDS
+from fxspace.navigation._space import THRESHOLD_CRITERIA as THRESHOLD_CRITERIA
 from fxspace.navigation._space import NavigationSpace as NavigationSpace
 from fxspace.navigation._space import navigation_space as navigation_space
 from fxspace.navigation._space import resolve_threshold as resolve_threshold
@@ -34,6 +39,8 @@ from fxspace.navigation._space import threshold_from_run as threshold_from_run
 
 __all__ = [
     "NavigationSpace",
+    "SWEEP_THRESHOLDS",
+    "THRESHOLD_CRITERIA",
     "navigation_space",
     "resolve_threshold",
     "threshold_from_run",
@@ -41,6 +48,8 @@ __all__ = [
     "Hierarchy",
     "Level",
     "build_hierarchy",
+    "hierarchy_from_arrays",
+    "hierarchy_to_arrays",
     "center_links",
     "default_link_radius",
     "level_sizes",
@@ -49,6 +58,7 @@ __all__ = [
     "split_centers",
     "NavigationError",
     "Route",
+    "bridge_keys",
     "frame_path",
     "is_graph_walk",
     "make_route",

@@ -27,7 +27,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace.cluster._fcm import FCMResult, _sq_dists, fuzzy_cmeans
+from fxspace._validate import as_float_array, check_int, check_scalar, checked
+from fxspace.cluster import (
+    FCMResult,
+    fuzzy_cmeans,
+    kmeanspp_extend,
+    kmeanspp_init,
+    squared_distances,
+)
 from fxspace.errors import FxspaceError
 from fxspace.navigation._links import (
     center_links,
@@ -45,6 +52,8 @@ __all__ = [
     "default_link_radius",
     "build_hierarchy",
     "link_graph_connected",
+    "hierarchy_to_arrays",
+    "hierarchy_from_arrays",
 ]
 
 
@@ -111,6 +120,7 @@ class Hierarchy(NamedTuple):
         return tuple(lv.n_clusters for lv in self.levels)
 
 
+@checked
 def level_sizes(n_frames: int, c0: int = 10) -> tuple[int, ...]:
     """c0, 2c0, 4c0, … while below ``n_frames``, then ``n_frames`` (the level showing every
     frame). The number of levels is ⌈log2(T / c0)⌉ + 1."""
@@ -145,7 +155,7 @@ def _split(
         # the split uses the samples each centre wins
         um = um * (jnp.argmax(memberships, axis=1)[:, None] == jnp.arange(um.shape[1])[None, :])
     mass = jnp.maximum(jnp.sum(um, axis=0), jnp.finfo(x.dtype).tiny)
-    d2 = _sq_dists(x, centers)
+    d2 = squared_distances(x, centers)
     contribution = jnp.sum(um * d2, axis=0)
     order = jnp.argsort(-contribution)[:n_new]
     # power iteration for the principal axis of each cluster's fuzzy covariance,
@@ -184,7 +194,12 @@ def split_centers(
     """Initial centres for a finer level: the ``n_clusters − c`` centres with the largest
     share of the objective are each replaced by two children at v ± 0.8 σ r (r: principal
     axis of the cluster's fuzzy covariance, by power iteration; σ²: variance along r)."""
+    x = as_float_array(x, "x", ndim=2)
+    centers = as_float_array(centers, "centers", shape=(None, x.shape[1]))
     c = centers.shape[0]
+    memberships = as_float_array(memberships, "memberships", shape=(x.shape[0], c))
+    n_clusters = check_int(n_clusters, "n_clusters")
+    m = check_scalar(m, "m", low=1.0, low_open=True)
     if not c <= n_clusters <= 2 * c:
         raise FxspaceError(
             f"n_clusters must lie in [{c}, {2 * c}] to split {c} centres, got {n_clusters}"
@@ -198,14 +213,33 @@ def split_centers(
 
 @jax.jit
 def _nearest(x, centers):
-    return jnp.argmin(_sq_dists(centers, x), axis=1).astype(jnp.int32)
+    return jnp.argmin(squared_distances(centers, x), axis=1).astype(jnp.int32)
 
 
 def nearest_frames(embedding: Float[Array, "T d"], centers: Float[Array, "c d"]) -> np.ndarray:
     """(c,) index of the frame nearest each centre (how each centre is shown)."""
-    return np.asarray(_nearest(jnp.asarray(embedding), jnp.asarray(centers)))
+    embedding = as_float_array(embedding, "embedding", ndim=2)
+    centers = as_float_array(centers, "centers", shape=(None, embedding.shape[1]))
+    return np.asarray(_nearest(embedding, centers))
 
 
+def _level_starts(x, c, prev, k_cold, k_ext, *, warm_start, restarts, split,
+                  first_level_seeds, m) -> list:  # fmt: skip
+    """The FCM starts of one level: the frames themselves (c = T), k-means++ seeds (first
+    level or cold), else the split of the coarser centres + k-means++-extend draws."""
+    if c == x.shape[0]:
+        return [x]
+    if prev is None or not warm_start:
+        n_seeds = max(1 + restarts, first_level_seeds if prev is None else 1)
+        return [kmeanspp_init(x, c, k) for k in jax.random.split(k_cold, n_seeds)]
+    n_new = c - prev.centers.shape[0]
+    starts = [split_centers(x, prev.centers, prev.memberships, c, m)] if split else []
+    return starts + [
+        kmeanspp_extend(x, prev.centers, n_new, k) for k in jax.random.split(k_ext, restarts)
+    ]
+
+
+@checked
 def build_hierarchy(
     embedding: Float[Array, "T d"],
     geodesics=None,
@@ -230,13 +264,13 @@ def build_hierarchy(
 
     - `embedding`: (T, 2) MDS coordinates (any (T, d) works for the clustering).
     - `geodesics`: the frame graph's ``Geodesics`` (distances, next_hop); when given,
-      every level gets its links (see :func:`center_links`).
-    - `c0`: centres at the coarsest level; sizes from :func:`level_sizes`.
-    - `m`, `tol`, `max_steps`, `criterion`: FCM settings (see :func:`fuzzy_cmeans`).
+      every level gets its links (see `center_links`).
+    - `c0`: centres at the coarsest level; sizes from `level_sizes`.
+    - `m`, `tol`, `max_steps`, `criterion`: FCM settings (see `fuzzy_cmeans`).
     - `key`: PRNG key for the k-means++ draws.
     - `warm_start`: start level l+1 from level l: its centres split
-      (:func:`split_centers`) and, with ``restarts`` ≥ 1, also ``restarts`` runs that keep
-      the coarse centres and draw the new ones k-means++-style (:func:`kmeanspp_extend`);
+      (`split_centers`) and, with ``restarts`` ≥ 1, also ``restarts`` runs that keep
+      the coarse centres and draw the new ones k-means++-style (`kmeanspp_extend`);
       the lowest objective of all starts wins. Without it,
       every level is seeded from scratch (k-means++, 1 + ``restarts`` seeds).
     - `split`: include the split start (False: only the ``restarts`` k-means++-extend starts,
@@ -248,11 +282,9 @@ def build_hierarchy(
     - `rho_scale`: ρ = rho_scale × median nearest-centre spacing of the level.
     - `max_link_centres`: skip links for levels with more centres (None: all levels).
 
-    **Returns:** a :class:`Hierarchy`. At the finest level c = T: k-means++ seeding draws
+    **Returns:** a `Hierarchy`. At the finest level c = T: k-means++ seeding draws
     every frame, the global optimum (J = 0), so its start is the frames themselves.
     """
-    from fxspace.cluster._fcm import kmeanspp_extend, kmeanspp_init
-
     x = jnp.asarray(embedding)
     if x.ndim != 2:
         raise FxspaceError(f"embedding must be (T, d), got shape {x.shape}")
@@ -269,25 +301,14 @@ def build_hierarchy(
     if key is None:
         key = jax.random.PRNGKey(0)
     fcm_kw = dict(tol=tol, max_steps=max_steps, criterion=criterion)
+    opts = dict(warm_start=warm_start, restarts=restarts, split=split,
+                first_level_seeds=first_level_seeds, m=m)  # fmt: skip
     levels: list[Level] = []
     prev: FCMResult | None = None
     for li, c in enumerate(level_sizes(T, c0)):
         key, k_cold, k_ext = jax.random.split(key, 3)
         t0 = time.perf_counter()
-        if c == T:
-            inits = [x]
-        elif prev is None or not warm_start:
-            n_seeds = max(1 + restarts, first_level_seeds if prev is None else 1)
-            ks = jax.random.split(k_cold, n_seeds)
-            inits = [kmeanspp_init(x, c, k) for k in ks]
-        else:
-            n_new = c - prev.centers.shape[0]
-            starts = [split_centers(x, prev.centers, prev.memberships, c, m)] if split else []
-            starts += [
-                kmeanspp_extend(x, prev.centers, n_new, k)
-                for k in jax.random.split(k_ext, restarts)
-            ]
-            inits = starts
+        inits = _level_starts(x, c, prev, k_cold, k_ext, **opts)
         # the starts run one after another: on CPU a vmapped while-loop costs more than the
         # sum of the single runs (every lane pays for the slowest)
         runs = [
@@ -339,3 +360,54 @@ def build_hierarchy(
         )
         prev = res
     return Hierarchy(tuple(levels), np.asarray(x))
+
+
+_LEVEL_SCALARS = (
+    "n_clusters", "objective", "num_steps", "converged", "num_steps_cold", "objective_cold",
+    "radius", "time_s", "num_steps_split", "total_steps",
+)  # fmt: skip
+
+
+def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
+    """A flat ``{name: array}`` of a `Hierarchy` (for `fxspace.runs.cached_arrays` or an
+    ``.npz``; no pickles): ``embedding``, ``n_levels`` and, per level ``i``,
+    ``l{i}_centers``, ``l{i}_memberships`` (float32), ``l{i}_center_frames``,
+    ``l{i}_links``/``l{i}_bridges`` (absent when not computed), ``l{i}_init`` and the
+    scalars. `hierarchy_from_arrays` inverts it."""
+    out: dict[str, np.ndarray] = {
+        "embedding": np.asarray(h.embedding), "n_levels": np.asarray(len(h.levels)),
+    }  # fmt: skip
+    for i, lv in enumerate(h.levels):
+        p = f"l{i}_"
+        out[p + "centers"] = np.asarray(lv.centers)
+        out[p + "memberships"] = np.asarray(lv.memberships, np.float32)
+        out[p + "center_frames"] = np.asarray(lv.center_frames)
+        out[p + "init"] = np.asarray(lv.init)
+        if lv.links is not None:
+            out[p + "links"] = np.asarray(lv.links, bool)
+            out[p + "bridges"] = np.asarray(lv.bridges, bool)
+        for f in _LEVEL_SCALARS:
+            out[p + f] = np.asarray(getattr(lv, f))
+    return out
+
+
+def hierarchy_from_arrays(a: dict[str, np.ndarray]) -> Hierarchy:
+    """The `Hierarchy` stored by `hierarchy_to_arrays`."""
+    try:
+        n = int(a["n_levels"])
+        levels = []
+        for i in range(n):
+            p = f"l{i}_"
+            sc = {f: a[p + f].item() for f in _LEVEL_SCALARS}
+            levels.append(Level(
+                centers=np.asarray(a[p + "centers"]),
+                memberships=np.asarray(a[p + "memberships"]),
+                center_frames=np.asarray(a[p + "center_frames"]),
+                links=np.asarray(a[p + "links"]) if p + "links" in a else None,
+                bridges=np.asarray(a[p + "bridges"]) if p + "bridges" in a else None,
+                init=str(a[p + "init"]),
+                **sc,
+            ))  # fmt: skip
+        return Hierarchy(tuple(levels), np.asarray(a["embedding"]))
+    except KeyError as e:
+        raise FxspaceError(f"not a stored hierarchy: {e} missing") from None

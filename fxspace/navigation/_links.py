@@ -17,16 +17,20 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from fxspace.cluster._fcm import _sq_dists
+from fxspace._validate import checked
+from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
 
 __all__ = ["center_links", "default_link_radius", "link_graph_connected"]
 
 
+@checked
 def default_link_radius(points: Float[Array, "c 2"], scale: float = 0.5) -> float:
     """ρ = ``scale`` × median nearest-neighbour distance between the centres' positions
     (the level's spacing)."""
     p = np.asarray(points, dtype=np.float64)
+    if scale < 0:
+        raise FxspaceError(f"scale must be >= 0, got {scale}")
     if len(p) < 2:
         return 0.0
     d2 = np.sum((p[:, None, :] - p[None, :, :]) ** 2, axis=-1) if len(p) <= 512 else None

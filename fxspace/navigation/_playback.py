@@ -15,6 +15,7 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from fxspace._validate import as_float_array, check_choice, check_scalar
 from fxspace.errors import FxspaceError
 
 __all__ = ["Playback", "playback", "rigid_align"]
@@ -34,8 +35,14 @@ class Playback(NamedTuple):
 def rigid_align(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Rotate and translate every frame of ``positions`` (T, M, 3) onto ``reference``
     (M, 3) in the least-squares sense (Kabsch/Horn, with reflection guard)."""
-    P = np.asarray(positions, dtype=np.float64)
-    R0 = np.asarray(reference, dtype=np.float64)
+    P = as_float_array(positions, "positions", shape=(None, None, 3), finite="nan", xp="numpy")
+    P = P.astype(np.float64)
+    R0 = as_float_array(reference, "reference", shape=(P.shape[1], 3), xp="numpy")
+    R0 = R0.astype(np.float64)
+    missing = ~np.isfinite(P).all(axis=(1, 2))  # a frame with a NaN marker stays NaN
+    if missing.any():
+        filled = rigid_align(np.where(missing[:, None, None], R0[None], P), R0)
+        return np.where(missing[:, None, None], np.nan, filled)
     pc = P.mean(axis=1, keepdims=True)
     rc = R0.mean(axis=0)
     H = np.einsum("tmi,mj->tij", P - pc, R0 - rc)
@@ -70,21 +77,30 @@ def playback(
     - `by`: ``"arclength"`` (constant speed along the 2-D path) or ``"frame"``.
     - `align`: rigidly align every frame to the first path frame.
     """
-    f = np.asarray(frames, dtype=np.int64)
-    if f.ndim != 1 or len(f) < 1:
+    fa = np.asarray(frames)
+    if fa.ndim != 1 or len(fa) < 1:
         raise FxspaceError("frames must be a non-empty 1-D sequence of frame indices")
-    if not fps > 0:
-        raise FxspaceError(f"fps must be > 0, got {fps}")
-    emb = np.asarray(embedding, dtype=np.float64)
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[2] != 3 or len(pos) != len(emb):
+    if fa.dtype.kind not in "iu":
+        if fa.dtype.kind != "f" or not np.all(np.isfinite(fa)) or np.any(fa != np.round(fa)):
+            raise FxspaceError(f"frames must be integer frame indices, got {fa.dtype} values")
+    f = fa.astype(np.int64)
+    fps = check_scalar(fps, "fps", low=0.0, low_open=True)
+    rate = check_scalar(rate, "rate", low=0.0, low_open=True)
+    emb = np.asarray(as_float_array(embedding, "embedding", ndim=2, xp="numpy"), np.float64)
+    pos = np.asarray(as_float_array(positions, "positions", ndim=3, xp="numpy"), np.float64)
+    if pos.shape[2] != 3 or len(pos) != len(emb):
         raise FxspaceError(
             f"positions must be (T, M, 3) with T = {len(emb)} frames, got {pos.shape}"
         )
-    if by not in ("arclength", "frame"):
-        raise FxspaceError(f"by must be 'arclength' or 'frame', got {by!r}")
+    if f.min() < 0 or f.max() >= len(emb):
+        raise FxspaceError(
+            f"frames must lie in [0, {len(emb) - 1}] (the embedding's frames); got "
+            f"{int(f.min())} … {int(f.max())}"
+        )
+    check_choice(by, "by", ("arclength", "frame"))
     if duration is None:
-        duration = len(f) / float(rate)
+        duration = len(f) / rate
+    duration = check_scalar(duration, "duration", low=0.0, low_open=True)
     xy = emb[f]
     P = pos[f]
     if align:

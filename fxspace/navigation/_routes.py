@@ -1,12 +1,12 @@
 """Key-frame navigation through the hierarchy (seed paper §4–5).
 
 The animator picks key centres at a level (e.g. 7-3-9-1 at the first level); consecutive
-picks must be linked (see :func:`fxspace.center_links`). The frame path runs along the
+picks must be linked (see `fxspace.center_links`). The frame path runs along the
 geodesic (frame-graph) shortest paths between the picked centres' frames. At the next
 level the centres near that path are the candidates to re-pick from; at the finest
 level (every frame a centre) the route's frames are the animation.
 
-All functions are pure: a :class:`Route` in, a new :class:`Route` out.
+All functions are pure: a `Route` in, a new `Route` out.
 """
 
 from __future__ import annotations
@@ -17,8 +17,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fxspace._validate import as_float_array, check_indices
 from fxspace.errors import FxspaceError
-from fxspace.expression._geodesic import shortest_path
+from fxspace.expression import shortest_path
 from fxspace.navigation._hierarchy import Hierarchy, Level
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "refine_route",
     "navigate",
     "is_graph_walk",
+    "bridge_keys",
 ]
 
 
@@ -91,7 +93,7 @@ def make_route(
 ) -> Route:
     """Pick key centres at ``level``; consecutive centres must be linked.
 
-    Raises :class:`NavigationError` naming the first unlinked pair and the centres that
+    Raises `NavigationError` naming the first unlinked pair and the centres that
     *are* linked to its first member.
     """
     lv = _level(h, level)
@@ -176,6 +178,42 @@ def _repair(lv: Level, geodesics, seq: list[int]) -> list[int]:
     return out
 
 
+def bridge_keys(
+    h: Hierarchy, geodesics, level: int, keys: Sequence[int]
+) -> tuple[list[int], list[str]]:
+    """Make a key sequence valid at ``level``: a key repeating its predecessor is dropped;
+    a pair that is not linked is joined by the shortest chain of links between them
+    (Dijkstra over the level's links, weighted by geodesic distance — the route then runs
+    along geodesics through the bridging centres). Used after inserting, replacing or
+    deleting a key.
+
+    **Returns:** ``(keys, notes)``: every consecutive pair of ``keys`` is linked; one note
+    per change (e.g. ``"3 → 7 not linked: bridged via 5"``). Raises `NavigationError` for
+    an unknown centre or when two keys lie in parts the links cannot join.
+    """
+    lv = _level(h, level)
+    ks = [int(k) for k in keys]
+    for k in ks:
+        if not 0 <= k < lv.n_clusters:
+            raise NavigationError(
+                f"centre {k} does not exist at level {level} (it has {lv.n_clusters} centres)"
+            )
+    if not ks:
+        return [], []
+    out, notes = [ks[0]], []
+    for b in ks[1:]:
+        a = out[-1]
+        if a == b:
+            notes.append(f"dropped key {b}: it repeated the key before it")
+        elif lv.links[a, b]:
+            out.append(b)
+        else:
+            chain = _link_path(lv, geodesics, a, b)
+            out.extend(chain[1:])
+            notes.append(f"{a} → {b} not linked: bridged via {', '.join(map(str, chain[1:-1]))}")
+    return out, notes
+
+
 def refine_route(
     h: Hierarchy,
     geodesics,
@@ -187,7 +225,7 @@ def refine_route(
 
     With ``picks`` (centres of the finer level) the animator's choice is validated and
     used. Without, the refinement is automatic: each key frame maps to the finer level's
-    nearest centre, the candidates near the current path (:func:`path_candidates`) are
+    nearest centre, the candidates near the current path (`path_candidates`) are
     inserted in path order, and any consecutive pair that is not linked is joined by the
     shortest chain of links.
     """
@@ -258,8 +296,10 @@ def navigate(
 
 def is_graph_walk(frames: Sequence[int], graph) -> bool:
     """Whether consecutive ``frames`` are distinct neighbours in ``graph`` (finite weight)."""
-    f = np.asarray(frames)
+    W = as_float_array(graph, "graph", ndim=2, finite="allow", xp="numpy")
+    if W.shape[0] != W.shape[1]:
+        raise FxspaceError(f"graph must be a square (n, n) weight matrix, got shape {W.shape}")
+    f = check_indices(frames, "frames", W.shape[0])
     if len(f) < 2:
         return True
-    W = np.asarray(graph)
     return bool(np.all(f[1:] != f[:-1]) and np.all(np.isfinite(W[f[:-1], f[1:]])))

@@ -1,11 +1,11 @@
 """Hierarchy, links and routes at scale: no ``T × T`` matrix (seed paper §4 past 10⁴ frames).
 
-The dense navigation (:func:`fxspace.build_hierarchy`, :func:`fxspace.make_route`) walks a
+The dense navigation (`fxspace.build_hierarchy`, `fxspace.make_route`) walks a
 ``T × T`` next-hop matrix. Here the same steps run on the sparse
-:class:`~fxspace.expression.NeighbourGraph`:
+`fxspace.expression.NeighbourGraph`:
 
 - **levels**: fuzzy c-means with sparse memberships
-  (:func:`fxspace.cluster.sparse_fuzzy_cmeans`) at c0·2^l centres; each centre is shown
+  (`fxspace.cluster.sparse_fuzzy_cmeans`) at c0·2^l centres; each centre is shown
   as its nearest frame;
 - **links**: centres i—j are linked when the shortest graph path between their frames
   passes no frame within 2-D distance ρ of any other centre (the seed's rule), tested
@@ -13,7 +13,7 @@ The dense navigation (:func:`fxspace.build_hierarchy`, :func:`fxspace.make_route
   predecessors) per centre; components left apart are bridged by their geodesically
   nearest centres, as in the dense hierarchy;
 - **routes**: key frames joined by shortest graph paths
-  (:func:`fxspace.sparse_shortest_path`).
+  (`fxspace.sparse_shortest_path`).
 
 Memory O(T·(K + B)) for a batch of B centres' Dijkstra rows.
 """
@@ -27,9 +27,9 @@ import jax
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace.cluster._fcm_sparse import SparseFCMResult, sparse_fuzzy_cmeans
+from fxspace.cluster import SparseFCMResult, sparse_fuzzy_cmeans
 from fxspace.errors import FxspaceError
-from fxspace.expression._sparse import NeighbourGraph, sparse_shortest_path, to_scipy
+from fxspace.expression import NeighbourGraph, sparse_shortest_path, to_scipy
 
 __all__ = ["SparseLevel", "sparse_levels", "sparse_links", "sparse_hierarchy", "sparse_route"]
 
@@ -39,7 +39,7 @@ class SparseLevel(NamedTuple):
 
     - `n_clusters`: c; `centers`: ``(c, 2)``; `center_frames`: ``(c,)`` nearest frames.
     - `links`, `bridges`: ``(c, c)`` symmetric bool (bridges ⊂ links).
-    - `fcm`: the :class:`~fxspace.cluster.SparseFCMResult` of the level.
+    - `fcm`: the `fxspace.cluster.SparseFCMResult` of the level.
     """
 
     n_clusters: int
@@ -145,7 +145,7 @@ def sparse_hierarchy(
     `levels` levels of c0·2^l centres; `key` seeding; `nearest` memberships kept per
     frame; `links` compute the links (else empty).
 
-    **Returns:** a list of :class:`SparseLevel`, coarse to fine.
+    **Returns:** a list of `SparseLevel`, coarse to fine.
 
     **Example:**
 

@@ -14,8 +14,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from fxspace._validate import check_choice, check_int, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.expression import (
+    CRITERIA,
     ExpressionSpace,
     choose_threshold,
     connecting_threshold,
@@ -35,13 +37,15 @@ __all__ = [
     "THRESHOLD_CRITERIA",
 ]
 
-THRESHOLD_CRITERIA = ("max_r", "bounded_degree", "elbow")
+THRESHOLD_CRITERIA = CRITERIA
+SWEEP_THRESHOLDS = 16
+"""Thresholds of the sweep a criterion runs (connecting ε to the largest distance)."""
 
 
 class NavigationSpace(NamedTuple):
     """An expression space, its hierarchy, the connecting ε, the ε used and where it came
     from (``threshold_source``: ``"value"``, ``"factor 1.25 × connecting"``,
-    ``"criterion max_r (sweep of 24)"`` or ``"from:RUN_DIR (bounded_degree)"``)."""
+    ``"criterion max_r (sweep of 16)"`` or ``"from:RUN_DIR (bounded_degree)"``)."""
 
     space: ExpressionSpace
     hierarchy: Hierarchy | None
@@ -67,24 +71,26 @@ def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
 
 
 def _threshold_value(
-    pairwise, threshold: float | str | None, threshold_factor: float, t_conn: float
-) -> tuple[float, str]:
+    pairwise, threshold: float | str | None, threshold_factor: float, t_conn: float,
+    num_thresholds: int = SWEEP_THRESHOLDS,
+) -> tuple[float, str]:  # fmt: skip
     if isinstance(threshold, str):
         if threshold.startswith("from:"):
             eps, crit = threshold_from_run(threshold.removeprefix("from:"))
             return eps, f"{threshold} ({crit})"
         if threshold in THRESHOLD_CRITERIA:
-            grid = threshold_grid(pairwise, 24, 0.6, 0.9)
-            sw = threshold_sweep(pairwise, grid)
-            return float(choose_threshold(sw, threshold)["threshold"]), (
-                f"criterion {threshold} (sweep of {len(grid)})"
+            grid = threshold_grid(pairwise, num_thresholds)
+            ch = choose_threshold(threshold_sweep(pairwise, grid), threshold)
+            return ch["threshold"], (
+                f"criterion {threshold} (sweep of {len(grid)} from the connecting ε to the "
+                f"largest distance; r = {ch['score']:.4f})"
             )
         raise FxspaceError(
             f"threshold must be a number, 'from:RUN_DIR' (a threshold_sweep run) or a "
             f"criterion {THRESHOLD_CRITERIA}; got {threshold!r}"
         )
     if threshold:
-        return float(threshold), "value"
+        return check_scalar(threshold, "threshold", low=0.0, low_open=True), "value"
     return threshold_factor * t_conn, f"factor {threshold_factor:g} × connecting"
 
 
@@ -94,15 +100,21 @@ def resolve_threshold(
     threshold_factor: float = 1.25,
     *,
     with_source: bool = False,
+    num_thresholds: int = SWEEP_THRESHOLDS,
 ) -> tuple[float, float] | tuple[float, float, str]:
     """``(ε, connecting ε)`` (and the source with ``with_source``): ``threshold`` when a
     number; ``"from:RUN_DIR"`` → the ε a finished threshold-sweep run chose; a criterion
-    name (``"max_r"`` — the seed paper's, ``"bounded_degree"``, ``"elbow"``) → a sweep of
-    24 thresholds here and :func:`fxspace.choose_threshold`; ``None``/0 →
+    name (``"max_r"`` — the paper's, ``"bounded_degree"``, ``"elbow"``) → a sweep of
+    `num_thresholds` thresholds from the connecting ε to the largest distance
+    (`fxspace.threshold_grid`) here and `fxspace.choose_threshold`; ``None``/0 →
     ``threshold_factor`` × the smallest threshold that connects the graph. Raises
     ``FxspaceError`` when ε leaves the graph disconnected."""
+    if not isinstance(threshold, str) and threshold is not None:
+        threshold = check_scalar(threshold, "threshold", low=0.0)
+    threshold_factor = check_scalar(threshold_factor, "threshold_factor", low=1.0)
+    num_thresholds = check_int(num_thresholds, "num_thresholds", low=2)
     t_conn = float(connecting_threshold(pairwise))
-    eps, source = _threshold_value(pairwise, threshold, threshold_factor, t_conn)
+    eps, source = _threshold_value(pairwise, threshold, threshold_factor, t_conn, num_thresholds)
     if eps < t_conn:
         raise FxspaceError(
             f"threshold = {eps:.4g} leaves the graph disconnected; the smallest connecting "
@@ -111,6 +123,7 @@ def resolve_threshold(
     return (eps, t_conn, source) if with_source else (eps, t_conn)
 
 
+@checked
 def navigation_space(
     positions: Float[Array, "n markers 3"],
     threshold: float | str | None = None,
@@ -129,13 +142,12 @@ def navigation_space(
     - `threshold`: ε; ``None`` or 0 → `threshold_factor` × the connecting threshold;
       ``"from:runs/threshold_sweep"`` → the ε that sweep run chose; ``"max_r"``,
       ``"bounded_degree"`` or ``"elbow"`` → a sweep here, chosen by that criterion
-      (see :func:`resolve_threshold`). The result's ``threshold_source`` records which.
+      (see `resolve_threshold`). The result's ``threshold_source`` records which.
     - `dtype`: ``"float32"`` or ``"float64"`` for the chain.
     - `key`: PRNG key of the FCM seeding.
-    - `hierarchy`: keyword arguments of :func:`fxspace.build_hierarchy`.
+    - `hierarchy`: keyword arguments of `fxspace.build_hierarchy`.
     """
-    if dtype not in ("float32", "float64"):
-        raise FxspaceError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    check_choice(dtype, "dtype", ("float32", "float64"))
     X = jnp.asarray(positions, jnp.float32 if dtype == "float32" else jnp.float64)
     P = pairwise_distances(distance_features(X))
     eps, t_conn, source = resolve_threshold(P, threshold, threshold_factor, with_source=True)

@@ -1,24 +1,36 @@
 """Experiment pipelines, each driven by one config file.
 
-A config's ``experiment = "NAME"`` selects the module ``fxspace.pipelines.NAME``,
-which defines a frozen dataclass ``Config`` and ``run(cfg, run_dir, seed) -> dict``
-(the metrics). :func:`run_config` resolves the config, expands a ``[sweep]`` table,
-writes ``config.toml`` and ``meta.json`` first and ``metrics.json`` last (atomically),
-and skips runs whose ``metrics.json`` already exists for the same content key (resolved
-config + data digests + code digest), so an interrupted sweep resumes; ``status.json``
-marks a run ``running``, ``complete``, ``failed`` or ``interrupted``.
+A config's ``experiment = "NAME"`` selects the pipeline ``NAME``: a module
+``fxspace.pipelines.NAME`` (or one added with `register`) that satisfies the `Pipeline`
+protocol — a frozen dataclass ``Config`` with ``validate(self) -> None``, a module-level
+``STAGES`` (its costly cached stages, in order), ``run(cfg, run_dir, seed) -> dict`` (the
+metrics) and optionally ``data_files(cfg)``. A module is checked against the protocol when
+it is loaded or registered (`check_pipeline`), so a malformed one fails with an error
+naming what it lacks, before anything runs.
+
+`run_config` resolves the config, expands a ``[sweep]`` table, validates every run
+(``cfg.validate()``), writes ``config.toml`` and ``meta.json`` first and ``metrics.json``
+last (atomically), and skips runs whose ``metrics.json`` already exists for the same
+content key (resolved config + data digests + code digest), so an interrupted sweep
+resumes; ``status.json`` marks a run ``running``, ``complete``, ``failed`` or
+``interrupted``. Every file a run writes is listed in the run folder's manifest
+(`fxspace.runs.record`): a rerun of another config deletes only those files, never a
+user's.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 import json
 import re
 import time
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import Any, Protocol, runtime_checkable
 
+from fxspace._compile_cache import compile_timer
 from fxspace.config import (
     ConfigError,
     config_from_dict,
@@ -28,29 +40,135 @@ from fxspace.config import (
     load_toml,
 )
 from fxspace.runs import (
+    MANIFEST,
+    active_run,
+    clean_run,
     read_status,
     reset_cache,
     run_key,
+    update_meta,
     write_json_atomic,
     write_meta,
     write_status,
     write_text_atomic,
 )
 
-__all__ = ["run_config", "run_dict", "load_pipeline", "available"]
+__all__ = [
+    "Pipeline",
+    "PipelineConfig",
+    "PipelineError",
+    "check_pipeline",
+    "register",
+    "run_config",
+    "run_dict",
+    "load_pipeline",
+    "available",
+]
 
 _NAME = re.compile(r"^[a-z_][a-z0-9_]*$")
+_REGISTERED: dict[str, ModuleType] = {}
+# the files fxspace writes at the top of every run folder
+_RUN_FILES = ("config.toml", "meta.json", "metrics.json", "status.json")
+
+
+class PipelineError(ConfigError):
+    """A pipeline module does not satisfy the `Pipeline` protocol (names what it lacks)."""
+
+
+@runtime_checkable
+class PipelineConfig(Protocol):
+    """A pipeline's ``Config``: a frozen dataclass whose ``validate`` raises
+    `fxspace.config.ConfigError` naming the key for every config check."""
+
+    def validate(self) -> None: ...
+
+
+class Pipeline(Protocol):
+    """What ``experiment = "NAME"`` runs: a module with these attributes.
+
+    - ``Config``: a frozen dataclass (tables of the config file) with ``validate()``.
+    - ``STAGES``: ``tuple[str, ...]``, its costly stages in order, each cached with
+      `fxspace.runs.cached_arrays` (or `fxspace.runs.cached`) so an interrupted run resumes.
+    - ``run(cfg, run_dir, seed) -> dict``: the run body, returning the metrics.
+    - ``data_files(cfg)`` (optional): the files the run reads (part of its content key).
+    """
+
+    Config: type[PipelineConfig]
+    STAGES: tuple[str, ...]
+
+    def run(self, cfg: Any, run_dir: Path, seed: int) -> dict[str, Any]: ...
+
+
+def check_pipeline(mod: Any, name: str | None = None) -> Any:
+    """``mod`` if it satisfies the `Pipeline` protocol, else a `PipelineError` naming
+    every missing or malformed part (``Config``, ``Config.validate``, ``STAGES``, ``run``,
+    ``data_files``)."""
+    label = name or getattr(mod, "__name__", repr(mod))
+    problems = []
+    cfg = getattr(mod, "Config", None)
+    if not (isinstance(cfg, type) and dataclasses.is_dataclass(cfg)):
+        problems.append("a dataclass `Config`")
+    else:
+        if not cfg.__dataclass_params__.frozen:  # type: ignore[attr-defined]
+            problems.append("`Config` frozen (@dataclasses.dataclass(frozen=True))")
+        if not callable(getattr(cfg, "validate", None)):
+            problems.append("a method `Config.validate(self) -> None`")
+    stages = getattr(mod, "STAGES", None)
+    if not (
+        isinstance(stages, tuple)
+        and all(isinstance(s, str) and _NAME.match(s) for s in stages)
+        and len(set(stages)) == len(stages)
+    ):
+        problems.append("`STAGES`, a tuple of distinct stage names (e.g. ('geodesics',))")
+    run = getattr(mod, "run", None)
+    if not callable(run) or not _takes(run, 3):
+        problems.append("a function `run(cfg, run_dir, seed) -> dict`")
+    data_files = getattr(mod, "data_files", None)
+    if data_files is not None and (not callable(data_files) or not _takes(data_files, 1)):
+        problems.append("`data_files(cfg)` callable with the config (or no `data_files`)")
+    if problems:
+        raise PipelineError(
+            f"pipeline {label} does not satisfy the Pipeline protocol: it needs "
+            + "; ".join(problems)
+        )
+    return mod
+
+
+def _takes(fn: Any, n: int) -> bool:
+    try:
+        inspect.signature(fn).bind(*range(n))
+    except TypeError:
+        return False
+    except ValueError:  # no signature (a builtin): accept
+        return True
+    return True
+
+
+def register(mod: Any, name: str | None = None) -> str:
+    """Add a pipeline module (checked against the `Pipeline` protocol) under ``name``
+    (default: the module's last dotted name); configs then select it with
+    ``experiment = "name"``. Returns the name."""
+    name = name or getattr(mod, "__name__", "").rpartition(".")[2]
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise PipelineError(f"pipeline name must be a lower-case identifier, got {name!r}")
+    _REGISTERED[name] = check_pipeline(mod, name)
+    return name
 
 
 def available() -> list[str]:
+    """The pipeline names: the modules of ``fxspace.pipelines`` and registered ones."""
     here = Path(__file__).parent
-    return sorted(p.stem for p in here.glob("*.py") if not p.stem.startswith("_"))
+    builtin = {p.stem for p in here.glob("*.py") if not p.stem.startswith("_")}
+    return sorted(builtin | set(_REGISTERED))
 
 
 def load_pipeline(name: str) -> Any:
+    """The pipeline module ``name``, checked against the `Pipeline` protocol."""
     if not isinstance(name, str) or not _NAME.match(name) or name not in available():
         raise ConfigError(f"experiment = {name!r} is not known; choose one of {available()}")
-    return importlib.import_module(f"{__name__}.{name}")
+    if name in _REGISTERED:
+        return _REGISTERED[name]
+    return check_pipeline(importlib.import_module(f"{__name__}.{name}"), name)
 
 
 def _resolve_paths(cfg_raw: dict[str, Any], base_dir: Path | None) -> dict[str, Any]:
@@ -69,7 +187,7 @@ def _resolve_paths(cfg_raw: dict[str, Any], base_dir: Path | None) -> dict[str, 
 
 def _data_files(mod: Any, cfg: Any) -> list[Path]:
     """The data files a run reads (for its content key): the pipeline's ``data_files(cfg)``,
-    else the files of every :class:`~fxspace.datasets.FaceData` table in the config."""
+    else the files of every `fxspace.datasets.FaceData` table in the config."""
     fn = getattr(mod, "data_files", None)
     if callable(fn):
         return list(fn(cfg))
@@ -90,21 +208,28 @@ def _changed_keys(old: str, new: str) -> list[str]:
     return sorted({ln.split("=")[0].strip() for ln in diff if "=" in ln})
 
 
+def _check_seed(seed: Any) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+        raise ConfigError(f"seed must be an integer in [0, 2**32), got {seed!r}")
+    return seed
+
+
 def _plan(raw: dict[str, Any], out: Path, base_dir: Path | None) -> list[tuple]:
     """Resolve and validate every run of the config (all of a ``[sweep]``) up front."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"a config must be a table (dict), got {type(raw).__name__}")
     if "experiment" not in raw:
         raise ConfigError(f"config has no 'experiment' key; set it to one of {available()}")
     mod = load_pipeline(raw["experiment"])
     plan = []
     for label, cfg_raw in expand_sweep(raw):
-        seed = cfg_raw.get("seed", 0)
-        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
-            raise ConfigError(f"seed must be an integer in [0, 2**32), got {seed!r}")
+        seed = _check_seed(cfg_raw.get("seed", 0))
         cfg_raw = _resolve_paths(cfg_raw, base_dir)
         body = {k: v for k, v in cfg_raw.items() if k not in ("experiment", "seed", "name")}
         where = f" (sweep run {label})" if label else ""
         try:
             cfg = config_from_dict(mod.Config, body)
+            cfg.validate()  # the Pipeline protocol: every config check, before any run
         except ConfigError as e:
             raise ConfigError(f"{e}{where}") from None
         resolved = {"experiment": raw["experiment"], "seed": seed, **config_to_dict(cfg)}
@@ -112,22 +237,32 @@ def _plan(raw: dict[str, Any], out: Path, base_dir: Path | None) -> list[tuple]:
     return [(mod, *p) for p in plan]
 
 
-def run_dict(
-    raw: dict[str, Any], out: str | Path, force: bool = False, base_dir: str | Path | None = None
-) -> list[Path]:
-    """Run the experiment(s) described by the config dict ``raw`` under ``out``.
+def _is_run_folder(d: Path) -> bool:
+    return (d / MANIFEST).is_file() or (d / "status.json").is_file()
 
-    Every run of a ``[sweep]`` is resolved and validated before the first starts. A run
-    whose ``metrics.json`` exists for the same config, data and code (its content key) is
-    skipped; a folder holding a finished run of a *different* config is an error unless
-    ``force``; ``force`` also clears the run's cache. ``base_dir`` is the folder relative
-    ``data.paths`` resolve against (the config file's folder for :func:`run_config`).
-    """
-    out = Path(out)
-    plan = _plan(raw, out, None if base_dir is None else Path(base_dir))
+
+def _refuse_overwrite(plan: list[tuple], out: Path, force: bool) -> None:
+    """A finished run of another config, or files fxspace did not write under the names
+    it writes, are never overwritten without ``force``."""
+    if force:
+        return
+    dirs = [p[1] for p in plan]
+    if dirs != [out] and (out / "metrics.json").is_file() and _is_run_folder(out):
+        raise ConfigError(
+            f"{out} holds a finished run of another experiment; pass --force to replace "
+            "it, or choose another --out"
+        )
     for _, run_dir, _, _, text in plan:
         cfg_p = run_dir / "config.toml"
-        if not force and (run_dir / "metrics.json").is_file() and cfg_p.is_file():
+        if not _is_run_folder(run_dir):
+            theirs = [n for n in _RUN_FILES if (run_dir / n).exists()]
+            if theirs:
+                raise ConfigError(
+                    f"{run_dir} holds {', '.join(theirs)} that fxspace did not write; "
+                    "choose another --out (or pass --force to overwrite them)"
+                )
+            continue
+        if (run_dir / "metrics.json").is_file() and cfg_p.is_file():
             old = cfg_p.read_text()
             if old != text:
                 raise ConfigError(
@@ -135,41 +270,83 @@ def run_dict(
                     f"{', '.join(_changed_keys(old, text)) or 'formatting'}); pass --force "
                     "to overwrite it, or choose another --out"
                 )
-    done = []
-    for mod, run_dir, cfg, seed, text in plan:
-        metrics_p = run_dir / "metrics.json"
-        key = run_key(text, _data_files(mod, cfg))
-        st = read_status(run_dir)
-        if not force and metrics_p.is_file() and st.get("status") == "complete":
-            if st.get("key") == key:
-                print(
-                    f"[fxspace] {run_dir}: already complete (metrics.json present); --force reruns"
-                )
-                done.append(run_dir)
-                continue
-            print(f"[fxspace] {run_dir}: data or code changed since the finished run; rerunning")
-        run_dir.mkdir(parents=True, exist_ok=True)
-        if metrics_p.exists():
-            metrics_p.unlink()
+
+
+def _clean_tree(out: Path) -> None:
+    """``--force``: delete the files fxspace wrote in ``out`` and its sub-folders (an old
+    run or sweep), so no old figure or array sits beside the new results."""
+    if not out.is_dir():
+        return
+    for d in [out, *sorted(p for p in out.iterdir() if p.is_dir())]:
+        if (d / MANIFEST).is_file():
+            clean_run(d)
+
+
+def _run_one(
+    mod: Any, run_dir: Path, cfg: Any, seed: int, text: str, experiment: str, force: bool
+) -> Path:
+    metrics_p = run_dir / "metrics.json"
+    key = run_key(text, _data_files(mod, cfg))
+    st = read_status(run_dir)
+    if not force and metrics_p.is_file() and st.get("status") == "complete":
+        if st.get("key") == key:
+            print(f"[fxspace] {run_dir}: already complete (metrics.json present); --force reruns")
+            return run_dir
+        print(f"[fxspace] {run_dir}: data or code changed since the finished run; rerunning")
+    kp = run_dir / "cache" / "KEY"
+    old_key = st.get("key") or (kp.read_text().strip() if kp.is_file() else None)
+    if old_key is not None and old_key != key:
+        clean_run(run_dir)  # another config's (or code's) files: stale beside the new ones
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if metrics_p.exists():
+        metrics_p.unlink()
+    with active_run(run_dir):
         reset_cache(run_dir, key, force=force)
         write_status(run_dir, "running", key=key)
         write_text_atomic(run_dir / "config.toml", text)
-        write_meta(run_dir, seed, {"experiment": raw["experiment"], "run_key": key})
+        write_meta(run_dir, seed, {"experiment": experiment, "run_key": key})
         t0 = time.perf_counter()
+        timer = compile_timer()  # meta.json "timing": compile vs compute, even if it fails
         try:
-            metrics = dict(mod.run(cfg, run_dir, seed))
+            with timer:
+                metrics = dict(mod.run(cfg, run_dir, seed))
         except KeyboardInterrupt:
             write_status(run_dir, "interrupted", key=key, note="rerun the same command to resume")
             raise
         except BaseException as e:
             write_status(run_dir, "failed", key=key, error=f"{type(e).__name__}: {e}")
             raise
+        finally:
+            update_meta(run_dir, {"timing": timer.summary()})
         metrics.setdefault("wall_time_s", time.perf_counter() - t0)
         write_json_atomic(metrics_p, metrics)
         write_status(run_dir, "complete", key=key)
-        print(f"[fxspace] wrote {run_dir}")
-        done.append(run_dir)
-    return done
+    print(f"[fxspace] wrote {run_dir}")
+    return run_dir
+
+
+def run_dict(
+    raw: dict[str, Any], out: str | Path, force: bool = False, base_dir: str | Path | None = None
+) -> list[Path]:
+    """Run the experiment(s) described by the config dict ``raw`` under ``out``.
+
+    Every run of a ``[sweep]`` is resolved and validated (``cfg.validate()``) before the
+    first starts. A run whose ``metrics.json`` exists for the same config, data and code
+    (its content key) is skipped; a folder holding a finished run of a *different* config
+    is an error unless ``force``. ``force`` reruns everything and first deletes the files
+    fxspace wrote in ``out`` (its manifest: an old experiment's figures, arrays, cache);
+    files fxspace did not write are never deleted. ``base_dir`` is the folder relative
+    ``data.paths`` resolve against (the config file's folder for `run_config`).
+    """
+    out = Path(out)
+    plan = _plan(raw, out, None if base_dir is None else Path(base_dir))
+    _refuse_overwrite(plan, out, force)
+    if force:
+        _clean_tree(out)
+    return [
+        _run_one(mod, run_dir, cfg, seed, text, raw["experiment"], force)
+        for mod, run_dir, cfg, seed, text in plan
+    ]
 
 
 def run_config(path: str | Path, out: str | Path | None = None, force: bool = False) -> list[Path]:

@@ -39,7 +39,12 @@ from fxspace._progress import progress, stage
 from fxspace.config import ConfigError
 from fxspace.data import data_path
 from fxspace.mesh import (
+    BFGS,
+    LevenbergMarquardt,
     Pose,
+    ancestor_table,
+    animation_vertices,
+    chain_mesh,
     ik_gradient_factored,
     ik_gradient_naive,
     ik_model,
@@ -48,13 +53,19 @@ from fxspace.mesh import (
     place_markers,
     pose_vertices,
     solve_ik,
+    subdivide_mesh,
     track_ik,
     triangle_normals,
     visible_triangles,
 )
-from fxspace.runs import save_figure_atomic, save_npz_atomic, write_text_atomic
+from fxspace.runs import cached, save_figure_atomic, save_npz_atomic, write_text_atomic
 
-__all__ = ["Config", "run", "median_time", "random_view"]
+__all__ = ["Config", "STAGES", "run", "median_time", "random_view"]
+
+STAGES: tuple[str, ...] = ("per_mesh", "regularizers")
+"""The costly stages, in order: ``per_mesh`` (every solver and start along the frames, per
+mesh and marker count; cached per mesh as ``cache/per_mesh_<mesh>.json``) and
+``regularizers`` (few markers with and without the constraints)."""
 
 PAPER = {"accelerated_ms": 32.5, "naive_ms": 90.6, "speedup_mean": 3.14, "speedup_human": 2.78}
 SOLVERS = (
@@ -67,11 +78,20 @@ SOLVERS = (
 @dataclasses.dataclass(frozen=True)
 class Config:
     """``meshes``: ``"File:animation"`` (file stem under ``mesh/``; empty animation = the
-    first). ``view_dir``: the camera's viewing direction for marker placement; empty =
+    first); ``"File+N:animation"`` is that mesh subdivided to ``N`` vertices
+    (`fxspace.mesh.subdivide_mesh`, e.g. CesiumMan at the paper's 13.8k), ``"chainN:wave"``
+    a procedural chain of ``N`` joints (`fxspace.mesh.chain_mesh`).
+    ``view_dir``: the camera's viewing direction for marker placement; empty =
     a random viewpoint (seeded) with enough visible triangles. ``reg_*``: the regulariser
     weights of the comparison (``fxspace.mesh.ik_regularization``)."""
 
-    meshes: tuple[str, ...] = ("CesiumMan:Anim_0", "Fox:Walk", "RiggedSimple:")
+    meshes: tuple[str, ...] = (
+        "CesiumMan:Anim_0",
+        "Fox:Walk",
+        "RiggedSimple:",
+        "CesiumMan+13800:Anim_0",
+        "chain48:wave",
+    )
     marker_counts: tuple[int, ...] = (1, 5, 10, 50, 120)
     num_frames: int = 300
     view_dir: tuple[float, ...] = ()
@@ -95,6 +115,8 @@ class Config:
     def validate(self) -> None:
         if not self.meshes:
             raise ConfigError("meshes must name at least one mesh, e.g. 'CesiumMan:Anim_0'")
+        for spec in self.meshes:
+            _parse_spec(spec)
         if not self.marker_counts or min(self.marker_counts) < 1:
             raise ConfigError("marker_counts must be positive integers")
         if self.view_dir and (len(self.view_dir) != 3 or not any(self.view_dir)):
@@ -110,6 +132,21 @@ class Config:
                 raise ConfigError(f"{name} must be >= 0")
         if self.reg_prior_to not in ("rest", "previous"):
             raise ConfigError("reg_prior_to must be 'rest' or 'previous'")
+
+
+def _parse_spec(spec: str) -> tuple[str, int, str]:
+    """``(kind, n, animation)`` of a mesh spec: kind ``"chain"`` (n joints) or a file stem
+    (n = vertices to subdivide to, 0 = as read)."""
+    stem, _, anim = str(spec).partition(":")
+    if stem.startswith("chain"):
+        n = stem[5:] or "48"
+        if not n.isdigit() or int(n) < 2:
+            raise ConfigError(f"meshes: {spec!r}: a chain is 'chainN' with N >= 2 joints")
+        return "chain", int(n), anim
+    base, plus, n = stem.partition("+")
+    if not base or (plus and (not n.isdigit() or int(n) < 1)):
+        raise ConfigError(f"meshes: {spec!r} is not 'File:anim', 'File+N:anim' or 'chainN:anim'")
+    return base, int(n) if plus else 0, anim
 
 
 def median_time(fn, repeats: int) -> tuple[float, float]:
@@ -139,9 +176,9 @@ def random_view(vertices, faces, need: int, rng: np.random.Generator) -> np.ndar
 
 def _solver_opts(cfg: Config, name: str) -> dict:
     if name == "lm":
-        return dict(method="lm", rtol=cfg.lm_rtol, max_steps=cfg.lm_steps)
+        return dict(solver=LevenbergMarquardt(rtol=cfg.lm_rtol, max_steps=cfg.lm_steps))
     grad = name.split("_", 1)[1]
-    return dict(method="bfgs", gradient=grad, rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps)
+    return dict(solver=BFGS(rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps, gradient=grad))
 
 
 def _per_frame(model, targets, rest, start: str, **kw):
@@ -206,11 +243,16 @@ def _gradient_us(model, pose, targets, repeats: int, loop: int = 100) -> dict:
 def _load(spec: str, num_frames: int, dtype):
     from fxspace.io import read_gltf
 
-    stem, _, anim = spec.partition(":")
-    mesh = read_gltf(data_path("mesh", f"{stem}.glb"))
+    kind, n, anim = _parse_spec(spec)
+    if kind == "chain":
+        mesh, stem = chain_mesh(n), f"chain{n}"
+    else:
+        mesh, stem = read_gltf(data_path("mesh", f"{kind}.glb")), kind
+        if n:
+            mesh, stem = subdivide_mesh(mesh, num_vertices=n), f"{kind}+{n}"
     anim = anim or mesh.animation_names[0]
     times = np.linspace(*mesh.animation_range(anim), num_frames)
-    truth = jnp.asarray(mesh.animation_vertices(anim, times), dtype)  # (T, V, 3)
+    truth = jnp.asarray(animation_vertices(mesh, anim, times), dtype)  # (T, V, 3)
     return stem, mesh, anim, truth
 
 
@@ -243,6 +285,7 @@ def _run_mesh(cfg: Config, spec: str, run_dir: Path, seed: int, label: str = "")
         "mesh": stem,
         "animation": anim,
         "joints": mesh.num_joints,
+        "depth": int(ancestor_table(mesh.parents).shape[1]),
         "vertices": mesh.num_vertices,
         "triangles": int(mesh.faces.shape[0]),
         "visible_triangles": n_vis,
@@ -407,7 +450,7 @@ def _run_regularizers(cfg: Config, run_dir: Path, seed: int) -> dict:
         nrm = nrm / jnp.linalg.norm(nrm, axis=-1, keepdims=True)
         for name, w in variants.items():
             reg = ik_regularization(model, mesh=mesh, markers=ms, **w) if w else None
-            kw = dict(method="bfgs", rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps)
+            kw = dict(solver=BFGS(rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps))
             if reg is not None and reg.corners is not None:
                 kw["target_normals"] = nrm.astype(dtype)
             tr = track_ik(model, targets, regularization=reg, **kw)
@@ -453,12 +496,68 @@ def _table(results: dict, starts) -> str:
     )
 
 
+def _models(results: dict, starts, run_dir: Path) -> dict:
+    """Figs. 9 and 10 over the models: the naive / factored ratio per gradient evaluation
+    and per solved frame at each model's largest marker count (``models_speedup.png``),
+    BFGS time per frame vs markers per model (``models_time_vs_markers.png``), and the
+    models table."""
+    from fxspace.plot import plot_model_speedups, plot_vs_markers
+
+    names, ratios, lines = list(results), {}, []
+    lines.append(
+        "\n| model | joints | depth | vertices | markers | naive/factored per evaluation "
+        "(in loop) | " + " | ".join(f"naive/factored per solved frame ({s})" for s in starts) + " |"
+    )
+    lines.append("|---|---|---|---|---|---|" + "---|" * len(starts))
+    ratios["per evaluation"] = []
+    for st in starts:
+        ratios[f"per solved frame ({st})"] = []
+    for name, r in results.items():
+        k = max(r["per_markers"], key=int)
+        row = r["per_markers"][k]
+        ratios["per evaluation"].append(row["ratio_naive_factored_gradient_loop"])
+        for st in starts:
+            ratios[f"per solved frame ({st})"].append(row[f"ratio_naive_factored_{st}"])
+        lines.append(
+            f"| {name} | {r['joints']} | {r.get('depth', '')} | {r['vertices']} | {k} | "
+            f"{row['ratio_naive_factored_gradient_loop']:.2f}x | "
+            + " | ".join(f"{row[f'ratio_naive_factored_{st}']:.2f}x" for st in starts)
+            + " |"
+        )
+    save_figure_atomic(
+        plot_model_speedups(names, ratios, title="Fig. 9: factored gradient speed-up per model"),
+        run_dir / "models_speedup.png",
+    )
+    series = {}
+    for name, r in results.items():
+        ks = sorted(r["per_markers"], key=int)
+        for g in ("naive", "factored"):
+            series[f"{name} {g}"] = [
+                r["per_markers"][k][f"bfgs_{g}_{starts[0]}_ms_mean"] for k in ks
+            ]
+    counts = sorted({int(k) for r in results.values() for k in r["per_markers"]})
+    if all(len(v) == len(counts) for v in series.values()):
+        save_figure_atomic(
+            plot_vs_markers(
+                counts,
+                series,
+                "mean time per frame [ms]",
+                title=f"Fig. 10: BFGS time per frame vs markers ({starts[0]})",
+                logy=True,
+            ),
+            run_dir / "models_time_vs_markers.png",
+        )
+    return {"ratios": {"models": names, **ratios}, "table": "\n".join(lines) + "\n"}
+
+
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
     run_dir = Path(run_dir)
     with jax.enable_x64(cfg.dtype == "float64"):
         results = {}
         for i, spec in enumerate(cfg.meshes):
-            r = _run_mesh(cfg, spec, run_dir, seed, label=f"mesh {i + 1}/{len(cfg.meshes)} ")
+            label = f"mesh {i + 1}/{len(cfg.meshes)} "
+            key = "per_mesh_" + "".join(c if c.isalnum() else "_" for c in spec)
+            r = cached(run_dir, key, partial(_run_mesh, cfg, spec, run_dir, seed, label))
             results[r["mesh"]] = r
             rows = r["per_markers"]
             kmax = max(rows, key=int)
@@ -475,10 +574,14 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
                     "markers "
                     + ", ".join(f"{k}: {v[f'lm_{st}_vertex_error']:.3g}" for k, v in rows.items())
                 )
-        reg = _run_regularizers(cfg, run_dir, seed) if cfg.reg_marker_counts else None
-    write_text_atomic(run_dir / "table.md", _table(results, cfg.starts))
+        reg = None
+        if cfg.reg_marker_counts:
+            reg = cached(run_dir, "regularizers", partial(_run_regularizers, cfg, run_dir, seed))
+    models = _models(results, cfg.starts, run_dir)
+    write_text_atomic(run_dir / "table.md", _table(results, cfg.starts) + models["table"])
     return {
         "meshes": results,
+        "models": models["ratios"],
         "regularizers": reg,
         "paper": PAPER,
         "dtype": cfg.dtype,

@@ -1,22 +1,27 @@
-"""Hierarchical navigation of the expression space (issue 3, Kim & Jung §4–5).
+"""Hierarchical navigation of the expression space (Kim & Jung §2–4).
 
-Loads facial frames (AnimFace takes or the synthetic face), builds the expression space
-at ε taken from a finished threshold-sweep run (``threshold = "from:runs/threshold_sweep"``),
-a criterion swept here (``"max_r"``, the seed paper's, ``"bounded_degree"``, ``"elbow"``),
-an explicit value, or ``threshold_factor`` × the smallest connecting threshold (recorded
-as ``threshold_source``),
-builds the fuzzy c-means levels (warm-started, and cold for comparison), their links,
-runs a scripted navigation (key centres at the first level refined automatically to the
-finest) and writes the level figures, the grid of all levels, the animation, the
-routes and the hierarchy.
+Loads facial frames (AnimFace takes or the synthetic face), chooses ε by the paper's rule
+on *these* frames (``threshold = "max_r"``: a threshold sweep from the connecting ε to the
+largest distance, highest Pearson r; or ``"bounded_degree"``/``"elbow"``, a number in mm,
+``"from:RUN_DIR"`` — a finished threshold-sweep run — or 0 for ``threshold_factor`` × the
+connecting ε; recorded as ``threshold_source``), builds the expression space, the fuzzy
+c-means levels (warm-started, and cold for comparison) and their links, runs a scripted
+navigation (key centres at the first level refined automatically to the finest) and
+writes the level figures, the grid of all levels, the animation, the routes and the
+hierarchy.
+
+Stages (`STAGES`, cached in ``run_dir/cache``; an interrupted run resumes, and the
+navigator app reads them instead of recomputing): ``sweep`` (only when ε comes from a
+criterion), ``space`` (geodesics, next hops, 2-D MDS) and ``hierarchy`` (every level).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, NamedTuple
 
 import jax
 import numpy as np
@@ -25,51 +30,81 @@ from fxspace._progress import progress, stage
 from fxspace.config import ConfigError
 from fxspace.datasets import FaceData, load_face
 from fxspace.errors import FxspaceError
-from fxspace.expression import pearson_score
-from fxspace.navigation import navigation_space
-from fxspace.navigation._hierarchy import Hierarchy, build_hierarchy
-from fxspace.navigation._links import link_graph_connected
-from fxspace.navigation._playback import playback
-from fxspace.navigation._routes import is_graph_walk, navigate
-from fxspace.navigation._space import THRESHOLD_CRITERIA
-from fxspace.runs import save_figure_atomic, save_npz_atomic, write_json_atomic
+from fxspace.expression import (
+    Geodesics,
+    SweepResult,
+    choose_threshold,
+    connecting_threshold,
+    epsilon_graph,
+    expression_space,
+    threshold_grid,
+)
+from fxspace.navigation import (
+    SWEEP_THRESHOLDS,
+    THRESHOLD_CRITERIA,
+    Hierarchy,
+    build_hierarchy,
+    hierarchy_from_arrays,
+    hierarchy_to_arrays,
+    is_graph_walk,
+    link_graph_connected,
+    navigate,
+    playback,
+    threshold_from_run,
+)
+from fxspace.pipelines.threshold_sweep import state_distances, sweep_stage
+from fxspace.runs import cached_arrays, save_figure_atomic, save_npz_atomic, write_json_atomic
 
-__all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "run", "auto_key_centres"]
+__all__ = [
+    "Config",
+    "GraphConfig",
+    "HierarchyConfig",
+    "NavConfig",
+    "NavSpace",
+    "STAGES",
+    "run",
+    "load_space",
+    "auto_key_centres",
+    "build_levels",
+]
+
+STAGES = ("sweep", "space", "hierarchy")
 
 
 @dataclasses.dataclass(frozen=True)
 class GraphConfig:
-    """ε: ``threshold`` (same units as the features, mm); ``"from:RUN_DIR"`` — the ε a
-    finished threshold-sweep run chose (one flow from the sweep to navigation); a criterion
-    name (``"max_r"``, the seed paper's, ``"bounded_degree"``, ``"elbow"``) — a sweep here;
-    or, when 0, ``threshold_factor`` × the smallest threshold that connects the graph.
-    The metrics record which (``threshold_source``)."""
+    """ε: a criterion (``"max_r"`` — the paper's, default; ``"bounded_degree"``,
+    ``"elbow"``) swept here over ``num_thresholds`` thresholds from the connecting ε to
+    the largest distance, on the navigated frames; a number (mm: the Frobenius distance
+    between marker-distance matrices); ``"from:RUN_DIR"`` — the ε a finished
+    threshold-sweep run chose; or 0 for ``threshold_factor`` × the smallest threshold that
+    connects the graph. The metrics record which (``threshold_source``)."""
 
-    threshold: float | str = 0.0
+    threshold: float | str = "max_r"
     threshold_factor: float = 1.25
+    num_thresholds: int = SWEEP_THRESHOLDS
     dtype: Literal["float32", "float64"] = "float32"
 
     def validate(self) -> None:
         if isinstance(self.threshold, str):
-            if not (
-                self.threshold.startswith("from:") or self.threshold in THRESHOLD_CRITERIA
-            ):
+            if not (self.threshold.startswith("from:") or self.threshold in THRESHOLD_CRITERIA):
                 raise ConfigError(
                     f"graph.threshold must be a number, 'from:RUN_DIR' or one of "
                     f"{THRESHOLD_CRITERIA}; got {self.threshold!r}"
                 )
-            return
-        if self.threshold < 0:
+        elif not self.threshold >= 0:
             raise ConfigError("graph.threshold must be >= 0 (0: use graph.threshold_factor)")
-        if self.threshold == 0 and self.threshold_factor < 1.0:
+        if not self.threshold_factor >= 1.0:
             raise ConfigError(
                 "graph.threshold_factor must be >= 1 (below 1 the graph is disconnected)"
             )
+        if self.num_thresholds < 2:
+            raise ConfigError("graph.num_thresholds must be >= 2")
 
 
 @dataclasses.dataclass(frozen=True)
 class HierarchyConfig:
-    """FCM levels c0·2^l (see :func:`fxspace.build_hierarchy`)."""
+    """FCM levels c0·2^l (see `fxspace.build_hierarchy`)."""
 
     c0: int = 10
     m: float = 2.0
@@ -81,12 +116,14 @@ class HierarchyConfig:
     max_link_centres: int = 0  # 0: links at every level
 
     def validate(self) -> None:
-        if self.c0 < 1 or self.max_steps < 1 or not self.m > 1 or self.tol <= 0:
+        if self.c0 < 1 or self.max_steps < 1 or not self.m > 1 or not self.tol > 0:
             raise ConfigError("hierarchy: need c0 >= 1, max_steps >= 1, m > 1, tol > 0")
-        if self.rho_scale <= 0:
+        if not self.rho_scale > 0:
             raise ConfigError("hierarchy.rho_scale must be > 0")
         if self.restarts < 0:
             raise ConfigError("hierarchy.restarts must be >= 0")
+        if self.max_link_centres < 0:
+            raise ConfigError("hierarchy.max_link_centres must be >= 0 (0: every level)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,8 +143,14 @@ class NavConfig:
     def validate(self) -> None:
         if self.num_keys < 2 and not self.key_centres:
             raise ConfigError("navigation.num_keys must be >= 2")
-        if self.fps <= 0:
+        if not self.fps > 0:
             raise ConfigError("navigation.fps must be > 0")
+        if not self.duration >= 0:
+            raise ConfigError("navigation.duration must be >= 0 (0: the capture's rate)")
+        if self.animation_frames < 2:
+            raise ConfigError("navigation.animation_frames must be >= 2")
+        if any(k < 0 for k in self.key_centres):
+            raise ConfigError("navigation.key_centres must be centre numbers >= 0")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +159,109 @@ class Config:
     graph: GraphConfig = GraphConfig()
     hierarchy: HierarchyConfig = HierarchyConfig()
     navigation: NavConfig = NavConfig()
+
+    def validate(self) -> None:
+        for part in (self.graph, self.hierarchy, self.navigation):
+            part.validate()
+
+
+class NavSpace(NamedTuple):
+    """What navigation (and the navigator app) needs, from the cached stages."""
+
+    embedding: np.ndarray
+    geodesics: Geodesics
+    hierarchy: Hierarchy
+    threshold: float
+    threshold_source: str
+    connecting_threshold: float
+    r: float
+    sweep: SweepResult | None
+    choice: dict | None
+
+
+def _stage(run_dir: Path | None, name: str, compute: Callable[[], dict]) -> dict:
+    if run_dir is None:
+        return {k: np.asarray(v) for k, v in compute().items()}
+    return cached_arrays(run_dir, name, compute)
+
+
+def _threshold(cfg: GraphConfig, P: Callable, run_dir: Path | None):
+    """``(ε, source, sweep, choice)`` as the config says (the sweep: a cached stage)."""
+    t = cfg.threshold
+    if isinstance(t, str) and t.startswith("from:"):
+        try:
+            eps, crit = threshold_from_run(t.removeprefix("from:"))
+        except FxspaceError as e:
+            raise ConfigError(f"graph.threshold: {e}") from e
+        return eps, f"{t} ({crit})", None, None
+    if isinstance(t, str):
+        stage(f"threshold sweep over these frames ({cfg.num_thresholds} ε, criterion {t})")
+        grid = threshold_grid(P(), cfg.num_thresholds)
+        sw = sweep_stage(run_dir, P(), grid)
+        ch = choose_threshold(sw, t)
+        src = (
+            f"criterion {t}: sweep of {len(grid)} ε from the connecting threshold to the "
+            f"largest distance over these frames (r = {ch['score']:.4f})"
+        )
+        return ch["threshold"], src, sw, ch
+    if t:
+        return float(t), "value", None, None
+    return cfg.threshold_factor * float(connecting_threshold(P())), (
+        f"factor {cfg.threshold_factor:g} × connecting"
+    ), None, None  # fmt: skip
+
+
+def _space(P: Callable, eps: float) -> dict[str, Any]:
+    t_conn = float(connecting_threshold(P()))
+    if eps < t_conn:
+        raise ConfigError(
+            f"graph.threshold = {eps:.4g} leaves the graph disconnected; the smallest "
+            f"connecting threshold is {t_conn:.4g}: raise it"
+        )
+    es = jax.block_until_ready(expression_space(None, eps, 2, pairwise=P()))
+    return {
+        "distances": es.geodesics.distances, "next_hop": es.geodesics.next_hop,
+        "embedding": es.embedding, "score": es.score, "threshold": eps,
+        "connecting_threshold": t_conn,
+    }  # fmt: skip
+
+
+def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bool = False):
+    """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer)."""
+    hc = cfg.hierarchy
+    return build_hierarchy(
+        Y, geo, c0=hc.c0, m=hc.m, key=jax.random.PRNGKey(seed), tol=hc.tol,
+        max_steps=hc.max_steps, warm_start=True, restarts=restarts,
+        compare_cold=compare_cold, rho_scale=hc.rho_scale,
+        max_link_centres=hc.max_link_centres or None,
+    )  # fmt: skip
+
+
+def load_space(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpace:
+    """The stages ``sweep`` → ``space`` → ``hierarchy`` of ``positions``: each read from
+    ``run_dir/cache`` when there, else computed (with progress) and stored; without a
+    ``run_dir``, computed. The navigator app opens a finished run through this in
+    seconds."""
+    memo: dict[str, Any] = {}
+
+    def P():
+        if "P" not in memo:
+            memo["P"] = state_distances(positions, cfg.graph.dtype)
+        return memo["P"]
+
+    eps, source, sw, ch = _threshold(cfg.graph, P, run_dir)
+    stage(f"ε = {eps:.4g} ({source.split(':')[0]}): geodesics and 2-D embedding")
+    sp = _stage(run_dir, "space", lambda: _space(P, eps))
+    geo = Geodesics(sp["distances"], sp["next_hop"])
+    Y = np.asarray(sp["embedding"])
+    hc = cfg.hierarchy
+    stage("fuzzy c-means levels and their links")
+    ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
+        build_levels(cfg, Y, geo, seed, hc.restarts, hc.compare_cold)))  # fmt: skip
+    return NavSpace(
+        Y, geo, hierarchy_from_arrays(ha), float(sp["threshold"]), source,
+        float(sp["connecting_threshold"]), float(sp["score"]), sw, ch,
+    )  # fmt: skip
 
 
 def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[int]:
@@ -134,178 +280,130 @@ def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[in
     return seq
 
 
-def build_space(cfg: Config, face):
-    """ε-graph, geodesics and 2-D MDS of the frames as the config says (library wiring).
-
-    Returns ``(P, W, geodesics, mds, connecting_threshold, ε, source)``; raises
-    ``ConfigError`` when the configured ε leaves the graph disconnected.
-    """
-    try:
-        ns = navigation_space(
-            face.positions,
-            cfg.graph.threshold or None,
-            threshold_factor=cfg.graph.threshold_factor,
-            dtype=cfg.graph.dtype,
-            hierarchy=None,
-        )
-    except FxspaceError as e:
-        raise ConfigError(f"graph: {e}") from e
-    es = ns.space
-    return (
-        es.pairwise, es.graph, es.geodesics, es.mds, ns.connecting_threshold, ns.threshold,
-        ns.threshold_source,
-    )  # fmt: skip
-
-
-def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bool = False):
-    """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer)."""
-    hc = cfg.hierarchy
-    return build_hierarchy(
-        Y,
-        geo,
-        c0=hc.c0,
-        m=hc.m,
-        key=jax.random.PRNGKey(seed),
-        tol=hc.tol,
-        max_steps=hc.max_steps,
-        warm_start=True,
-        restarts=restarts,
-        compare_cold=compare_cold,
-        rho_scale=hc.rho_scale,
-        max_link_centres=hc.max_link_centres or None,
-    )
-
-
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    from fxspace.plot import plot_level, plot_levels_grid, write_navigation_animation
+    """Run the navigation in ``graph.dtype`` (float64 turns on x64 for the run only)."""
+    with jax.enable_x64(cfg.graph.dtype == "float64"):
+        return _run(cfg, Path(run_dir), seed)
 
+
+def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     stage(f"loading frames ({cfg.data.source})")
     face = load_face(cfg.data, seed)
     timings["load_s"] = time.perf_counter() - t0
-
     t0 = time.perf_counter()
-    stage(
-        f"{len(face.positions)} frames × {face.positions.shape[1]} markers: "
-        "graph, geodesics and 2-D embedding"
-    )
-    P, W, geo, mds, t_conn, eps, eps_source = build_space(cfg, face)
-    r = float(pearson_score(geo.distances, mds.embedding))
-    timings["expression_space_s"] = time.perf_counter() - t0
-    Y = np.asarray(mds.embedding)
-
-    hc = cfg.hierarchy
-    t0 = time.perf_counter()
-    stage(f"ε = {eps:.4g} ({eps_source}): fuzzy c-means levels and their links")
-    h = build_levels(cfg, Y, geo, seed, restarts=hc.restarts, compare_cold=hc.compare_cold)
-    timings["hierarchy_s"] = time.perf_counter() - t0
+    ns = load_space(cfg, face.positions, run_dir, seed)
+    timings["space_and_hierarchy_s"] = time.perf_counter() - t0
+    h, geo, Y = ns.hierarchy, ns.geodesics, ns.embedding
 
     nc = cfg.navigation
     keys = list(nc.key_centres) or auto_key_centres(h, geo, nc.num_keys)
     t0 = time.perf_counter()
     stage(f"{len(h.levels)} levels {list(h.sizes)}: route through key centres {keys}")
-    routes = navigate(h, geo, keys)
+    try:
+        routes = navigate(h, geo, keys)
+    except FxspaceError as e:
+        raise ConfigError(f"navigation.key_centres: {e}") from e
     timings["navigation_s"] = time.perf_counter() - t0
-    final = routes[-1]
-    Wn = np.asarray(W)
     play = playback(
-        final.frames,
-        Y,
-        face.positions,
-        fps=nc.fps,
-        rate=face.rate,
-        duration=nc.duration or None,
-        by=nc.by,
-    )
-
+        routes[-1].frames, Y, face.positions, fps=nc.fps, rate=face.rate,
+        duration=nc.duration or None, by=nc.by,
+    )  # fmt: skip
     t0 = time.perf_counter()
+    crit = ns.choice["criterion"] if ns.choice else ns.threshold_source.split(" (")[0]
+    note = f"{ns.threshold:.4g} mm chosen by {crit}, r = {ns.r:.4f}"
+    anim = _write_outputs(cfg, run_dir, face, h, routes, play, keys, note)
+    timings["figures_s"] = time.perf_counter() - t0
+    W = np.asarray(epsilon_graph(state_distances(face.positions, cfg.graph.dtype), ns.threshold))
+    return _metrics(cfg, face, ns, routes, play, keys, W, anim, timings)
+
+
+def _write_outputs(
+    cfg: Config, run_dir: Path, face, h, routes, play, keys, eps_note: str = ""
+) -> str | None:
+    from fxspace.plot import plot_level, plot_levels_grid, write_navigation_animation
+
+    nc = cfg.navigation
     stage("figures" + (" and animation" if nc.animation != "none" else ""))
     if nc.level_figures:
         for li in progress(range(len(h.levels)), desc="level figures"):
             rt = next((rr for rr in routes if rr.level == li), None)
             save_figure_atomic(plot_level(h, li, rt), run_dir / f"level_{li:02d}.png")
-    save_figure_atomic(plot_levels_grid(h, routes), run_dir / "levels_grid.png")
-    timings["figures_s"] = time.perf_counter() - t0
-    anim_path = None
+    title = f"ε = {eps_note}" if eps_note else None
+    save_figure_atomic(plot_levels_grid(h, routes, title=title), run_dir / "levels_grid.png")
+    anim = None
     if nc.animation != "none":
-        t0 = time.perf_counter()
-        anim_path = write_navigation_animation(
-            run_dir / f"navigation.{nc.animation}",
-            play,
-            Y,
-            route=routes[0],
-            names=face.marker_names,
-            max_frames=nc.animation_frames,
+        anim = write_navigation_animation(
+            run_dir / f"navigation.{nc.animation}", play, h.embedding, route=routes[0],
+            names=face.marker_names, max_frames=nc.animation_frames,
             title=f"key centres {'-'.join(map(str, keys))} (level 0)",
-        )
-        timings["animation_s"] = time.perf_counter() - t0
-
+        ).name  # fmt: skip
+    final = routes[-1]
     save_npz_atomic(
-        run_dir / "hierarchy.npz",
-        embedding=Y,
-        sizes=np.asarray(h.sizes),
-        final_frames=final.frames,
-        playback_xy=play.xy,
-        playback_frame=play.frame,
+        run_dir / "hierarchy.npz", embedding=h.embedding, sizes=np.asarray(h.sizes),
+        final_frames=final.frames, playback_xy=play.xy, playback_frame=play.frame,
         **{f"centers_{i}": lv.centers for i, lv in enumerate(h.levels)},
         **{f"center_frames_{i}": lv.center_frames for i, lv in enumerate(h.levels)},
-    )
-    write_json_atomic(
-        run_dir / "routes.json",
-        [
-            {
-                "level": rt.level,
-                "centres": list(rt.centres),
-                "key_frames": rt.key_frames,
-                "frames": rt.frames,
-                "takes": face.take[rt.frames],
-                "take_frames": face.frame[rt.frames],
-            }
-            for rt in routes
-        ],
-    )
+    )  # fmt: skip
+    write_json_atomic(run_dir / "routes.json", [
+        {"level": rt.level, "centres": list(rt.centres), "key_frames": rt.key_frames,
+         "frames": rt.frames, "takes": face.take[rt.frames],
+         "take_frames": face.frame[rt.frames]}
+        for rt in routes
+    ])  # fmt: skip
+    return anim
 
-    levels = []
-    for lv in h.levels:
-        levels.append(
-            {
-                "centres": lv.n_clusters,
-                "init": lv.init,
-                "iterations_warm": lv.num_steps,
-                "iterations_split_start": lv.num_steps_split,
-                "iterations_all_starts": lv.total_steps,
-                "iterations_cold": lv.num_steps_cold,
-                "objective_warm": lv.objective,
-                "objective_cold": lv.objective_cold,
-                "converged": lv.converged,
-                "distinct_centre_frames": int(len(np.unique(lv.center_frames))),
-                "links": int(lv.links.sum() // 2) if lv.links is not None else None,
-                "bridges": int(lv.bridges.sum() // 2) if lv.bridges is not None else None,
-                "link_graph_connected": (
-                    link_graph_connected(lv) if lv.links is not None else None
-                ),
-                "radius": lv.radius,
-                "fcm_time_s": lv.time_s,
-            }
-        )
+
+def _level_metrics(lv) -> dict:
+    return {
+        "centres": lv.n_clusters,
+        "init": lv.init,
+        "iterations_warm": lv.num_steps,
+        "iterations_split_start": lv.num_steps_split,
+        "iterations_all_starts": lv.total_steps,
+        "iterations_cold": lv.num_steps_cold,
+        "objective_warm": lv.objective,
+        "objective_cold": lv.objective_cold,
+        "converged": lv.converged,
+        "distinct_centre_frames": int(len(np.unique(lv.center_frames))),
+        "links": int(lv.links.sum() // 2) if lv.links is not None else None,
+        "bridges": int(lv.bridges.sum() // 2) if lv.bridges is not None else None,
+        "link_graph_connected": link_graph_connected(lv) if lv.links is not None else None,
+        "radius": lv.radius,
+        "fcm_time_s": lv.time_s,
+    }
+
+
+def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timings) -> dict:
+    h = ns.hierarchy
+    levels = [_level_metrics(lv) for lv in h.levels]
     # the warm start's own cost: the split start alone, on the levels where it ran
     split = [lv for lv in levels if lv["iterations_split_start"] >= 0]
     warm = sum(lv["iterations_split_start"] for lv in split)
-    cold = sum(lv["iterations_cold"] for lv in split) if hc.compare_cold else None
+    cold = sum(lv["iterations_cold"] for lv in split) if cfg.hierarchy.compare_cold else None
+    final = routes[-1]
+    sweep = None
+    if ns.sweep is not None:
+        sweep = [
+            {"threshold": float(t), "r": float(r) if np.isfinite(r) else None}
+            for t, r in zip(ns.sweep.thresholds, ns.sweep.scores, strict=True)
+        ]
     return {
-        "frames": int(len(Y)),
+        "frames": int(len(ns.embedding)),
         "markers": int(face.positions.shape[1]),
         "takes": list(face.take_names),
         "missing": {
             "policy": cfg.data.missing,
             "max_gap": cfg.data.max_gap,
             **(face.missing or {}),
-        },
-        "threshold": eps,
-        "threshold_source": eps_source,
-        "connecting_threshold": t_conn,
-        "r": r,
+        },  # fmt: skip
+        "threshold": ns.threshold,
+        "threshold_source": ns.threshold_source,
+        "criterion": ns.choice["criterion"] if ns.choice else None,
+        "sweep": sweep,
+        "connecting_threshold": ns.connecting_threshold,
+        "r": ns.r,
         "num_levels": len(h.levels),
         "centres_per_level": list(h.sizes),
         "levels": levels,
@@ -316,9 +414,9 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         "key_centres": keys,
         "route_centres_per_level": [len(rt.centres) for rt in routes],
         "path_length_frames": int(len(final.frames)),
-        "path_is_graph_walk": is_graph_walk(final.frames, Wn),
+        "path_is_graph_walk": is_graph_walk(final.frames, W),
         "playback_frames": int(len(play.times)),
         "playback_duration_s": float(play.times[-1]),
-        "animation": anim_path.name if anim_path is not None else None,
+        "animation": anim,
         "timings": timings,
     }

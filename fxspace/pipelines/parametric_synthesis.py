@@ -1,15 +1,15 @@
 """Decoupled upper/lower-body parametric motion synthesis (Ha & Han), the three set-ups of
-the paper's Table 1 on real captures (see :mod:`fxspace.motion._setups`):
+the paper's Table 1 on real captures (see `fxspace.motion._setups`):
 
 - ``mood_walk`` (Bandai Namco): joy/sad upper body set by weight, direction walks below;
 - ``block_walk`` (Bandai Namco): left-hand position above, direction walks below;
 - ``block_kick`` (CMU subject 135): left-hand blocks above, right-foot kicks below,
   3-key-time alignment.
 
-Per set-up this wiring builds the spaces (:func:`fxspace.motion.prepare_setup`), measures
+Per set-up this wiring builds the spaces (`fxspace.motion.prepare_setup`), measures
 target-reaching errors with and without the §3.2 re-placement and against re-sampling from
-scratch, synthesises clips with :func:`fxspace.motion.synthesize` (fixed parameters, and a
-lower parameter steered during the clip), times one :func:`fxspace.motion.synthesize_step`
+scratch, synthesises clips with `fxspace.motion.synthesize` (fixed parameters, and a
+lower parameter steered during the clip), times one `fxspace.motion.synthesize_step`
 with and without re-placement, reports foot sliding, and for the mood walk sweeps the joy
 weight (speed figure). Writes ``<setup>.bvh``, ``<setup>_steer.bvh``, figures and metrics.
 """
@@ -17,6 +17,7 @@ weight (speed figure). Writes ``<setup>.bvh``, ``<setup>_steer.bvh``, figures an
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -26,12 +27,22 @@ import numpy as np
 
 from fxspace import motion as M
 from fxspace._progress import progress
-from fxspace.config import ConfigError
+from fxspace.config import ConfigError, config_from_dict, load_toml
 from fxspace.data import data_path
 from fxspace.io import Motion, read_amc, read_bvh, write_bvh
-from fxspace.runs import save_figure_atomic, write_json_atomic
+from fxspace.runs import cached, cached_arrays, save_figure_atomic, write_json_atomic
 
-__all__ = ["Config", "run", "load_take"]
+STAGES: tuple[str, ...] = ("setup", "targets", "timewarp", "session")
+
+__all__ = [
+    "Config",
+    "STAGES",
+    "run",
+    "load_take",
+    "load_setup",
+    "scripted_session",
+    "session_parameters",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +52,8 @@ class SynthConfig:
     n_queries: int = 20
     joy_weights: tuple[float, ...] = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0)
     timing_repeats: int = 20
+    session_s: float = 60.0  # the scripted continuous session (walks); 0 skips it
+    session_every_s: float = 2.0  # controls changed this often
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +63,7 @@ class Config:
     data: M.SetupData = M.SetupData()
     space: M.SetupSpace = M.SetupSpace()
     synth: SynthConfig = SynthConfig()
+    x64: bool = False  # run in float64 (jax.enable_x64 for the run only)
 
     def validate(self) -> None:
         for s in self.setups:
@@ -65,6 +79,10 @@ class Config:
             raise ConfigError("space.knn_k must be at least 2 (k-NN interpolation)")
         if self.synth.n_queries < 2:
             raise ConfigError("synth.n_queries must be at least 2")
+        if not self.synth.session_s >= 0 or not self.synth.session_every_s > 0:
+            raise ConfigError("synth.session_s must be >= 0 and synth.session_every_s > 0")
+        if self.space.n_samples < 1 or self.data.cycles < 1 or self.data.max_reps < 1:
+            raise ConfigError("space.n_samples, data.cycles and data.max_reps must be >= 1")
 
 
 def load_take(take: str, stride: int = 4) -> Motion:
@@ -79,6 +97,70 @@ def load_take(take: str, stride: int = 4) -> Motion:
         data_path("body", "cmu", subj, f"{take}.amc.gz"),
     )
     return m.frames(slice(None, None, stride))
+
+
+_SETUPS: dict = {}
+
+
+def load_setup(config: str | Path, setup: str | None = None) -> M.Setup:
+    """The built set-up of a ``parametric_synthesis`` config file (or a run folder holding
+    ``config.toml``), the same spaces `run` builds; ``setup`` picks one of its ``setups``
+    (default the first). Kept in memory per file and modification time."""
+    p = Path(config)
+    cfg_p = p / "config.toml" if p.is_dir() else p
+    if not cfg_p.is_file():
+        raise ConfigError(f"{config}: not a config file nor a run folder with config.toml")
+    raw = load_toml(cfg_p)
+    if raw.get("experiment") != "parametric_synthesis":
+        raise ConfigError(
+            f"{cfg_p}: experiment must be 'parametric_synthesis', got {raw.get('experiment')!r}"
+        )
+    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name", "sweep")}
+    cfg = config_from_dict(Config, body)
+    name = setup or cfg.setups[0]
+    if name not in cfg.setups:
+        raise ConfigError(f"setup {name!r} is not among the config's setups {list(cfg.setups)}")
+    seed = int(raw.get("seed", 0))
+    ck = (str(cfg_p.resolve()), cfg_p.stat().st_mtime_ns, name)
+    if ck not in _SETUPS:
+        key = jax.random.fold_in(
+            jax.random.fold_in(jax.random.PRNGKey(seed), cfg.setups.index(name)), 0
+        )
+        _SETUPS[ck] = M.prepare_setup(
+            name, lambda t: load_take(t, cfg.stride), cfg.data, cfg.space, key
+        )
+    return _SETUPS[ck]
+
+
+def scripted_session(
+    config: str | Path,
+    schedule,
+    seconds: float,
+    *,
+    setup: str | None = None,
+    smoothing_s: float = 0.3,
+) -> tuple[np.ndarray, float, list[str]]:
+    """Run the live controller of a ``parametric_synthesis`` config without a browser
+    (continuous locomotion, `fxspace.motion.run_session`).
+
+    **Arguments:** ``config`` a TOML path (or run folder); ``schedule`` a list of
+    ``(time_s, {parameter: value})`` with the names of `session_parameters`; ``seconds``
+    the session's length.
+
+    **Returns:** ``(positions, fps, names)``: world joint positions ``(frames, joints, 3)``
+    in metres, y up; the frame rate; the joint names.
+    """
+    X, fps, names, _ = M.run_session(load_setup(config, setup), schedule, seconds, smoothing_s)
+    return X, fps, names
+
+
+def session_parameters(
+    config: str | Path, *, setup: str | None = None
+) -> dict[str, tuple[float, float]]:
+    """The controllable parameters of a config's set-up, ``{name: (low, high)}``: ``alpha``,
+    ``turn`` (°/s, walks), ``joy`` (mood walk), ``hand_x/y/z`` (root frame) or
+    ``foot_x/y/z`` (see `fxspace.motion.session_controls`)."""
+    return M.session_controls(load_setup(config, setup))
 
 
 def _timeit(f, *args, repeats: int = 5) -> float:
@@ -106,29 +188,133 @@ def _clip(sp, up, lp, alpha, n_ref: int):
 _synth = jax.jit(M.synthesize)
 
 
-def _run_setup(name: str, cfg: Config, run_dir: Path, key) -> dict:
-    from fxspace import plot as P
+_TABLE1 = {  # Ha & Han, Table 1: example counts (upper, lower)
+    "mood_walk": (2, 10),
+    "block_walk": (12, 12),
+    "block_kick": (12, 11),
+}
+_TABLE1_WHY = {
+    "mood_walk": "Bandai Namco: joy/sad walks (upper); 2 straight + 4 turn-left + 4 turn-right "
+    "walks (lower), as in the paper's 10 direction walks",
+    "block_walk": "Bandai Namco: 12 raise-left-hand takes (upper), 4 straight + 4 turn-left + "
+    "4 turn-right walks (lower)",
+    "block_kick": "CMU subject 135: left-hand blocks cut from takes 05/10/09 (up to data.max_reps "
+    "each) and right-foot kicks from takes 04/07/11; the takes hold fewer clean right kicks "
+    "than the paper's 11 (each detected kick apex is used once)",
+}
 
-    sy = cfg.synth
-    setup = M.prepare_setup(
-        name, lambda t: load_take(t, cfg.stride), cfg.data, cfg.space, jax.random.fold_in(key, 0)
+
+# --------------------------------------------------------------------- stage: setup
+_SP_ARRAYS = (
+    "lam",
+    "offsets",
+    "lower_weights",
+    "lower_params",
+    "upper_weights",
+    "upper_params",
+    "lower_w0",
+    "lower_time",
+    "upper_time",
+    "posture_transfer",
+)
+_SP_META = (
+    "parents",
+    "mask",
+    "spine",
+    "lower_joint",
+    "lower_dims",
+    "upper_joint",
+    "k_replace",
+    "knn_k",
+    "min_slope",
+)
+
+
+def _setup_to_arrays(st: M.Setup) -> dict:
+    sp, sk = st.spaces, st.skeleton
+    arr = {f"lower_{k}": v for k, v in sp.lower._asdict().items()}
+    arr |= {f"upper_{k}": v for k, v in sp.upper._asdict().items()}
+    arr |= {k: getattr(sp, k) for k in _SP_ARRAYS}
+    arr |= {"skel_offsets": sk.offsets, "skel_root": sk.root_translation, "skel_rot": sk.rotations}
+    meta = {k: getattr(sp, k) for k in _SP_META}
+    meta |= dict(
+        name=st.name,
+        names=sk.names,
+        skel_parents=sk.parents,
+        channels=sk.channels,
+        rate=sk.rate,
+        scale=st.scale,
+        feet=st.feet,
+        lower_names=st.lower_names,
+        upper_names=st.upper_names,
+        info=st.info,
     )
-    sp, skel = setup.spaces, setup.skeleton
-    parametric = sp.upper_joint >= 0
-    n_ref = int(sp.lam.shape[0])
+    arr["meta"] = np.asarray(json.dumps(meta))
+    return arr
+
+
+def _setup_from_arrays(a: dict) -> M.Setup:
+    meta = json.loads(str(a["meta"]))
+    ex = {
+        s: M.ExampleSet(**{k: jnp.asarray(a[f"{s}_{k}"]) for k in M.ExampleSet._fields})
+        for s in ("lower", "upper")
+    }
+    tup = {k: tuple(v) if isinstance(v, list) else v for k, v in meta.items() if k in _SP_META}
+    sp = M.SynthesisSpaces(**ex, **{k: jnp.asarray(a[k]) for k in _SP_ARRAYS}, **tup)
+    skel = Motion(
+        tuple(meta["names"]),
+        tuple(meta["skel_parents"]),
+        np.asarray(a["skel_offsets"]),
+        np.asarray(a["skel_root"]),
+        np.asarray(a["skel_rot"]),
+        float(meta["rate"]),
+        tuple(tuple(c) for c in meta["channels"]),
+    )
+    return M.Setup(
+        meta["name"],
+        sp,
+        skel,
+        float(meta["scale"]),
+        tuple(meta["feet"]),
+        meta["lower_names"],
+        meta["upper_names"],
+        meta["info"],
+    )
+
+
+def _stage_setup(name: str, cfg: Config, run_dir: Path, key) -> M.Setup:
+    def compute() -> dict:
+        st = M.prepare_setup(
+            name,
+            lambda t: load_take(t, cfg.stride),
+            cfg.data,
+            cfg.space,
+            jax.random.fold_in(key, 0),
+        )
+        return _setup_to_arrays(st)
+
+    return _setup_from_arrays(cached_arrays(run_dir, f"{name}_setup", compute))
+
+
+# --------------------------------------------------------------------- stage: targets
+def _queries(st: M.Setup, cfg: Config, key):
+    sp = st.spaces
     EL, EU = sp.lower.warps.shape[0], sp.upper.warps.shape[0]
-    # queries: parameters of fresh random blends (inside the spaces)
     kq1, kq2 = jax.random.split(jax.random.fold_in(key, 1))
-    nq = sy.n_queries
+    nq = cfg.synth.n_queries
     wq_l = M.sample_blend_weights(kq1, EL, EL + nq, cfg.space.concentration)[EL:]
     wq_u = M.sample_blend_weights(kq2, EU, EU + nq, cfg.space.concentration)[EU:]
-    lower_of = jax.jit(jax.vmap(lambda w: M.lower_param_of(sp, w)))
+    qL = jax.jit(jax.vmap(lambda w: M.lower_param_of(sp, w)))(wq_l)
+    return qL, wq_u
+
+
+def _stage_targets(st: M.Setup, cfg: Config, qL, wq_u) -> dict:
+    """Target errors of k-NN interpolation; upper ones with vs without the §3.2
+    re-placement (stale samples) and against exact re-sampling (Fig. 2's problem)."""
+    sp = st.spaces
     knnL = jax.jit(
         lambda p: M.knn_blend_weights(p, sp.lower_params, sp.lower_weights, sp.knn_k).weights
     )
-    qL = lower_of(wq_l)
-    err_l = []
-    rows = []
     exact_f = jax.jit(lambda w: M.exact_upper_params(sp, w))
     replace_f = jax.jit(lambda w: M.replace_samples(sp, w))
 
@@ -137,10 +323,11 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key) -> dict:
         wU = M.knn_blend_weights(pU, params, sp.upper_weights, sp.knn_k).weights
         return jnp.linalg.norm(M.upper_param_of(sp, wL, wU) - pU)
 
-    for i in progress(range(nq), f"{name}: targets", total=nq):
+    err_l, rows = [], []
+    for i in progress(range(len(qL)), f"{st.name}: targets", total=len(qL)):
         wL = knnL(qL[i])
         err_l.append(float(np.linalg.norm(np.asarray(M.lower_param_of(sp, wL) - qL[i]))))
-        if parametric:
+        if sp.upper_joint >= 0:
             exact, repl = exact_f(wL), replace_f(wL)
             pU = M.upper_param_of(sp, wL, wq_u[i])  # a reachable hand target
             rows.append(
@@ -153,11 +340,11 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key) -> dict:
                     float(jnp.linalg.norm(sp.upper_params - exact, axis=1).mean()),
                 ]
             )
-    m: dict = {**setup.info, "n_samples": int(sp.lower_weights.shape[0])}
-    m["preprocessing_s"] = setup.info["registration_s"] + setup.info["sampling_s"]
-    m["lower_target_error_mean_m"] = float(np.mean(err_l))
-    m["lower_target_error_max_m"] = float(np.max(err_l))
-    if parametric:
+    m = {
+        "lower_target_error_mean_m": float(np.mean(err_l)),
+        "lower_target_error_max_m": float(np.max(err_l)),
+    }
+    if rows:
         r = np.asarray(rows)
         m.update(
             k_replace=sp.k_replace,
@@ -168,59 +355,190 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key) -> dict:
             replacement_error_max_m=float(r[:, 4].max()),
             stale_sample_error_mean_m=float(r[:, 5].mean()),
         )
+    return m
 
-    # synthesis: fixed parameters, then a lower parameter steered through the clip
+
+# --------------------------------------------------------------------- stage: timewarp
+def _examples_X(st: M.Setup, ex) -> list[np.ndarray]:
+    sk = st.skeleton
+    return [
+        np.asarray(
+            M.fk_arrays(
+                sk.parents,
+                np.asarray(sk.offsets),
+                np.asarray(ex.root[i, : int(ex.lengths[i])]),
+                np.asarray(ex.rotations[i, : int(ex.lengths[i])]),
+            )[0]
+        )
+        for i in range(ex.warps.shape[0])
+    ]
+
+
+def _jitter(X: np.ndarray, rate: float) -> float:
+    """Mean joint acceleration magnitude (m/s²): ``|X[t+1] − 2X[t] + X[t−1]|·rate²``."""
+    return float(np.linalg.norm(np.diff(X, 2, axis=0), axis=-1).mean() * rate**2)
+
+
+def _stage_timewarp(st: M.Setup) -> tuple[dict, dict]:
+    """Ha & Han Fig. 3: 50/50 blends of each set's reference example with each other one,
+    played over the reference clip with the registration (``C_i``, eq. 1's warps) and
+    without any time-warping (frame ``T`` of every example blended with frame ``T``); foot
+    sliding in contact and joint jitter of both, the examples' own as the floor. For the
+    mood walk the joy/sad walks (different tempi) are blended as well. Returns
+    ``(metrics, toe-height curves of the first set)``."""
+    sp, sk = st.spaces, st.skeleton
+    sets = [("lower", sp.lower)] + ([("upper", sp.upper)] if sp.upper_joint < 0 else [])
+    toe = st.feet[0]
+    out: dict = {"warped_slide": [], "plain_slide": [], "warped_jitter": [], "plain_jitter": []}
+    curves: dict = {"warped": {}, "plain": {}}
+    for set_name, ex in sets:
+        N = int(ex.warps.shape[1])
+        T = jnp.arange(N, dtype=sp.lam.dtype)
+        plain = ex._replace(warps=jnp.minimum(T[None], (ex.lengths[:, None] - 1).astype(T.dtype)))
+
+        @jax.jit
+        def traj(ex, w, T=T):
+            q, r = jax.vmap(lambda t: M.blend_pose(ex, w, t))(T)
+            return M.fk_arrays(sk.parents, sp.offsets, r, q)[0]
+
+        E = int(ex.warps.shape[0])
+        for i in range(1, min(E, 7)):
+            w = jnp.zeros(E, sp.lam.dtype).at[0].set(0.5).at[i].set(0.5)
+            for kind, e in (("warped", ex), ("plain", plain)):
+                X = np.asarray(traj(e, w))
+                out[f"{kind}_slide"].append(M.foot_sliding(X, st.feet, sk.rate))
+                out[f"{kind}_jitter"].append(_jitter(X, sk.rate))
+                if i <= 3 and set_name == sets[-1][0]:
+                    curves[kind][f"{set_name} M1+M{i + 1}"] = X[:, toe, 1]
+    Xe = _examples_X(st, sp.lower) + (_examples_X(st, sp.upper) if len(sets) > 1 else [])
+    curves["examples"] = {f"example {i + 1}": x[:, toe, 1] for i, x in enumerate(Xe[-2:])}
+    m = {f"fig3_{k}_mean": float(np.nanmean(v)) for k, v in out.items()}
+    m["fig3_foot_slide_examples_mean"] = float(
+        np.nanmean([M.foot_sliding(X, st.feet, sk.rate) for X in Xe])
+    )
+    m["fig3_jitter_examples_mean"] = float(np.mean([_jitter(X, sk.rate) for X in Xe]))
+    m["fig3_units"] = "foot slide m/s while in contact; jitter m/s^2 (mean joint acceleration)"
+    m["fig3_blends"] = "50/50: reference + each other example of " + " and ".join(
+        n for n, _ in sets
+    )
+    return m, curves
+
+
+# --------------------------------------------------------------------- stage: session
+def _schedule(controls: dict, seconds: float, every: float, seed: int) -> list:
+    rng = np.random.default_rng(seed)
+    n = int(np.ceil(seconds / every))
+    return [
+        (every * k, {c: float(rng.uniform(lo, hi)) for c, (lo, hi) in controls.items()})
+        for k in range(n)
+    ]
+
+
+def _stage_session(st: M.Setup, cfg: Config, seed: int, run_dir: Path) -> dict:
+    """The done-when check of issue 22 as numbers: a scripted continuous session with every
+    control (turning included) changed every ``session_every_s``."""
+    sy = cfg.synth
+    table = M.session_turn_table(st)
+    controls = M.session_controls(st, table)
+    sched = _schedule(controls, sy.session_s, sy.session_every_s, seed)
+    if st.spaces.upper_joint >= 0:  # hand raises: α = 1 keeps the walk's own tempo
+        sched = [(t, {**c, "alpha": 1.0}) for t, c in sched]
+    X, fps, _, poses = M.run_session(st, sched, sy.session_s, table=table)
+    write_bvh(
+        run_dir / f"{st.name}_session.bvh",
+        dataclasses.replace(
+            st.skeleton,
+            root_translation=np.asarray(poses.root),
+            rotations=np.asarray(poses.rotations),
+        ),
+        scale=st.scale,
+    )
+    sp = st.spaces
+    Xe = _examples_X(st, sp.lower) + _examples_X(st, sp.upper)
+    ex_step = max(float(np.linalg.norm(np.diff(x, axis=0), axis=-1).max()) for x in Xe)
+    rs = np.linalg.norm(np.diff(X[:, 0], axis=0), axis=1)
+    js = np.linalg.norm(np.diff(X, axis=0), axis=-1)
+    slide = M.foot_sliding(X, st.feet, fps)
+    floor = float(
+        np.nanmean([M.foot_sliding(x, st.feet, fps) for x in Xe[: sp.lower.warps.shape[0]]])
+    )
+    return {
+        "session_s": sy.session_s,
+        "session_controls": {k: list(v) for k, v in controls.items()},
+        "session_root_step_max_over_median": float(rs.max() / np.median(rs)),
+        "session_joint_step_max_m": float(js.max()),
+        "examples_joint_step_max_m": ex_step,
+        "session_foot_slide_m_per_s": slide,
+        "examples_foot_slide_m_per_s": floor,
+        "session_foot_slide_ratio": slide / floor,
+        "session_distance_m": float(np.linalg.norm(np.diff(X[:, 0, [0, 2]], axis=0), axis=1).sum()),
+    }
+
+
+# --------------------------------------------------------------------- clips, timing, figures
+def _write(run_dir: Path, fname: str, st: M.Setup, q, r) -> None:
+    mot = dataclasses.replace(st.skeleton, root_translation=r, rotations=q)
+    write_bvh(run_dir / fname, mot, scale=st.scale)
+
+
+def _clips_and_timing(st: M.Setup, cfg: Config, run_dir: Path, qL, wq_u) -> tuple[dict, dict]:
+    """Synthesised clips (fixed parameters per α, a lower parameter steered through the
+    clip), foot sliding, and the per-step cost with and without re-placement."""
+    sp, sk, sy = st.spaces, st.skeleton, cfg.synth
+    n_ref = int(sp.lam.shape[0])
+    knnL = jax.jit(
+        lambda p: M.knn_blend_weights(p, sp.lower_params, sp.lower_weights, sp.knn_k).weights
+    )
+    parametric = sp.upper_joint >= 0
     up0 = M.upper_param_of(sp, knnL(qL[0]), wq_u[0]) if parametric else jnp.asarray([0.5, 0.5])
     clocks, outs = {}, {}
     for a in sy.alphas + (sy.alpha,):
         q, r, c = _clip(sp, up0, qL[0], a, n_ref)
         clocks[a], outs[a] = (c[:, 0], c[:, 1]), (q, r)
-    m["clocks_monotone_all_alphas"] = bool(
-        all(np.all(np.diff(u) >= -1e-9) and np.all(np.diff(v) >= -1e-9) for u, v in clocks.values())
-    )
+    m: dict = {
+        "clocks_monotone_all_alphas": bool(
+            all(
+                np.all(np.diff(u) >= -1e-9) and np.all(np.diff(v) >= -1e-9)
+                for u, v in clocks.values()
+            )
+        )
+    }
     q, r = outs[sy.alpha]
-    write_bvh(
-        run_dir / f"{name}.bvh",
-        dataclasses.replace(skel, root_translation=r, rotations=q),
-        scale=setup.scale,
-    )
-    X = np.asarray(M.fk_arrays(skel.parents, np.asarray(skel.offsets), r, q)[0])
+    _write(run_dir, f"{st.name}.bvh", st, q, r)
+    X = np.asarray(M.fk_arrays(sk.parents, np.asarray(sk.offsets), r, q)[0])
     s = np.linspace(0.0, 1.0, 3 * n_ref)[:, None]
     steer = (1 - s) * np.asarray(qL[0]) + s * np.asarray(qL[1])
     qs, rs, _ = _clip(sp, up0, jnp.asarray(steer), sy.alpha, n_ref)
-    write_bvh(
-        run_dir / f"{name}_steer.bvh",
-        dataclasses.replace(skel, root_translation=rs, rotations=qs),
-        scale=setup.scale,
-    )
+    _write(run_dir, f"{st.name}_steer.bvh", st, qs, rs)
     m["frames_synthesised"] = int(q.shape[0])
-    m["foot_sliding_m_per_s"] = M.foot_sliding(X, setup.feet, skel.rate)
-    ex_slide = []
-    for i in range(EL):
-        n_i = int(sp.lower.lengths[i])
-        Xi = M.fk_arrays(
-            skel.parents,
-            np.asarray(skel.offsets),
-            np.asarray(sp.lower.root[i, :n_i]),
-            np.asarray(sp.lower.rotations[i, :n_i]),
-        )[0]
-        ex_slide.append(M.foot_sliding(Xi, setup.feet, skel.rate))
-    m["foot_sliding_examples_m_per_s"] = float(np.nanmean(ex_slide))
-    m["ground_speed_m_per_s"] = M.ground_speed(r, skel.rate)
-
-    # one step, with and without re-placement (the lower parameter alternates / stays)
+    m["foot_sliding_m_per_s"] = M.foot_sliding(X, st.feet, sk.rate)
+    m["foot_sliding_examples_m_per_s"] = float(
+        np.nanmean([M.foot_sliding(x, st.feet, sk.rate) for x in _examples_X(st, sp.lower)])
+    )
+    m["ground_speed_m_per_s"] = M.ground_speed(r, sk.rate)
     step = jax.jit(M.synthesize_step)
-    st = M.init_state(sp, qL[0])
-    st = st._replace(t_lower=jnp.asarray(5.0, st.t_lower.dtype), t_upper=sp.lam[5])
-    m["step_ms"] = 1e3 * _timeit(step, sp, st, up0, qL[0], sy.alpha, 1.0, repeats=sy.timing_repeats)
+    s0 = M.init_state(sp, qL[0])
+    s0 = s0._replace(t_lower=jnp.asarray(5.0, s0.t_lower.dtype), t_upper=sp.lam[5])
+    reps = sy.timing_repeats
+    m["step_ms"] = 1e3 * _timeit(step, sp, s0, up0, qL[0], sy.alpha, 1.0, repeats=reps)
     m["step_with_replacement_ms"] = 1e3 * _timeit(
-        step, sp, st, up0, qL[1], sy.alpha, 1.0, repeats=sy.timing_repeats
+        step, sp, s0, up0, qL[1], sy.alpha, 1.0, repeats=reps
     )
     if parametric:
-        m["exact_resample_ms"] = 1e3 * _timeit(exact_f, knnL(qL[1]), repeats=sy.timing_repeats)
+        exact_f = jax.jit(lambda w: M.exact_upper_params(sp, w))
+        m["exact_resample_ms"] = 1e3 * _timeit(exact_f, knnL(qL[1]), repeats=reps)
+    return m, {"X": X, "clocks": clocks, "up0": up0}
 
-    # figures
-    achL = lower_of(jax.vmap(knnL)(qL))
+
+def _figures(st: M.Setup, cfg: Config, run_dir: Path, qL, extra: dict, curves: dict) -> None:
+    from fxspace import plot as P
+
+    sp, name, sy = st.spaces, st.name, cfg.synth
+    EL = sp.lower.warps.shape[0]
+    knn = jax.vmap(
+        lambda p: M.knn_blend_weights(p, sp.lower_params, sp.lower_weights, sp.knn_k).weights
+    )
+    achL = jax.jit(jax.vmap(lambda w: M.lower_param_of(sp, w)))(knn(qL))
     save_figure_atomic(
         P.plot_parameter_space(
             np.asarray(sp.lower_params),
@@ -231,54 +549,118 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key) -> dict:
         ),
         run_dir / f"{name}_lower_space.png",
     )
-    if parametric:
-        wL1 = knnL(qL[1])
+    if sp.upper_joint >= 0:
+        wL1 = knn(qL[1:2])[0]
         save_figure_atomic(
             P.plot_replacement(
                 sp.upper_params,
-                replace_f(wL1),
-                exact_f(wL1),
+                M.replace_samples(sp, wL1),
+                M.exact_upper_params(sp, wL1),
                 title=f"{name}: upper samples, re-placed (k={sp.k_replace}) vs exact",
             ),
             run_dir / f"{name}_replacement.png",
         )
     save_figure_atomic(
-        P.plot_filmstrip(X, skel.parents, n_panels=8, title=f"{name} (α={sy.alpha})"),
+        P.plot_filmstrip(
+            extra["X"], st.skeleton.parents, n_panels=8, title=f"{name} (α={sy.alpha})"
+        ),
         run_dir / f"{name}_filmstrip.png",
     )
     save_figure_atomic(
         P.plot_clocks(
-            {a: clocks[a] for a in sy.alphas},
+            {a: extra["clocks"][a] for a in sy.alphas},
             np.asarray(sp.lam),
             title=f"{name}: clocks T_L (--), T_U (—)",
         ),
         run_dir / f"{name}_clocks.png",
     )
-    if not parametric:  # the paper's observation: joy weight ↑ → the whole walk faster
-        speeds: dict = {}
-        for a in progress(sy.alphas, f"{name}: joy sweep"):
-            speeds[a] = [
-                M.ground_speed(_clip(sp, jnp.asarray([j, 1 - j]), qL[0], a, n_ref)[1], skel.rate)
-                for j in sy.joy_weights
-            ]
-        m["speed_vs_joy"] = {f"alpha={a:g}": v for a, v in speeds.items()}
-        m["joy_weights"] = list(sy.joy_weights)
-        save_figure_atomic(
-            P.plot_speed_vs_weight(sy.joy_weights, speeds, title=f"{name}: speed vs joy weight"),
-            run_dir / f"{name}_speed_vs_joy.png",
-        )
+    t = np.arange(len(next(iter(curves["warped"].values()))))
+    save_figure_atomic(
+        P.plot_timewarp(
+            t,
+            curves["warped"],
+            curves["plain"],
+            curves["examples"],
+            title=f"{name}: Fig. 3, blends with and without time-warp",
+        ),
+        run_dir / f"{name}_fig3_timewarp.png",
+    )
+
+
+def _joy_sweep(st: M.Setup, cfg: Config, run_dir: Path, qL) -> dict:
+    """The paper's observation for the mood walk: joy weight ↑ → the whole walk faster."""
+    from fxspace import plot as P
+
+    sp, sy, rate = st.spaces, cfg.synth, st.skeleton.rate
+    n_ref = int(sp.lam.shape[0])
+    speeds = {
+        a: [
+            M.ground_speed(_clip(sp, jnp.asarray([j, 1 - j]), qL[0], a, n_ref)[1], rate)
+            for j in sy.joy_weights
+        ]
+        for a in progress(sy.alphas, f"{st.name}: joy sweep")
+    }
+    save_figure_atomic(
+        P.plot_speed_vs_weight(sy.joy_weights, speeds, title=f"{st.name}: speed vs joy weight"),
+        run_dir / f"{st.name}_speed_vs_joy.png",
+    )
+    return {
+        "speed_vs_joy": {f"alpha={a:g}": v for a, v in speeds.items()},
+        "joy_weights": list(sy.joy_weights),
+    }
+
+
+def _run_setup(name: str, cfg: Config, run_dir: Path, key, seed: int) -> dict:
+    st = _stage_setup(name, cfg, run_dir, key)  # stage "setup"
+    qL, wq_u = _queries(st, cfg, key)
+    m: dict = {**st.info, "n_samples": int(st.spaces.lower_weights.shape[0])}
+    m["preprocessing_s"] = st.info["registration_s"] + st.info["sampling_s"]
+    paper = _TABLE1[name]
+    m["table1"] = {
+        "paper_upper_lower": list(paper),
+        "ours_upper_lower": [st.info["n_upper_examples"], st.info["n_lower_examples"]],
+        "clips": _TABLE1_WHY[name],
+    }
+    m.update(cached(run_dir, f"{name}_targets", lambda: _stage_targets(st, cfg, qL, wq_u)))
+    tw = {}
+
+    def timewarp() -> dict:
+        met, curves = _stage_timewarp(st)
+        tw["curves"] = curves
+        return {
+            **met,
+            "curves": {
+                k: {c: np.asarray(v).tolist() for c, v in d.items()} for k, d in curves.items()
+            },
+        }
+
+    fig3 = cached(run_dir, f"{name}_timewarp", timewarp)
+    curves = fig3.pop("curves")
+    m.update(fig3)
+    if name != "block_kick" and cfg.synth.session_s > 0:
+        m.update(cached(run_dir, f"{name}_session", lambda: _stage_session(st, cfg, seed, run_dir)))
+    more, extra = _clips_and_timing(st, cfg, run_dir, qL, wq_u)
+    m.update(more)
+    _figures(st, cfg, run_dir, qL, extra, curves)
+    if st.spaces.upper_joint < 0:
+        m.update(_joy_sweep(st, cfg, run_dir, qL))
     return m
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    """Run the configured set-ups; returns ``{setup: metrics}`` and writes per-set-up files."""
-    key = jax.random.PRNGKey(seed)
-    metrics: dict = {}
-    for i, name in enumerate(cfg.setups):
-        metrics[name] = _run_setup(name, cfg, Path(run_dir), jax.random.fold_in(key, i))
-        write_json_atomic(Path(run_dir) / f"{name}_metrics.json", metrics[name])
-        print(
-            f"[parametric_synthesis] {name}: "
-            + ", ".join(f"{k}={v:.4g}" for k, v in metrics[name].items() if isinstance(v, float))
-        )
-    return metrics
+    """Run the configured set-ups; returns ``{setup: metrics}`` and writes per-set-up files.
+    Stages (`STAGES`, cached per set-up in ``run_dir/cache``: an interrupted run resumes):
+    ``setup`` (registration + sampling), ``targets``, ``timewarp`` (Fig. 3), ``session``."""
+    with jax.enable_x64(cfg.x64):
+        key = jax.random.PRNGKey(seed)
+        metrics: dict = {}
+        for i, name in enumerate(cfg.setups):
+            metrics[name] = _run_setup(name, cfg, Path(run_dir), jax.random.fold_in(key, i), seed)
+            write_json_atomic(Path(run_dir) / f"{name}_metrics.json", metrics[name])
+            print(
+                f"[parametric_synthesis] {name}: "
+                + ", ".join(
+                    f"{k}={v:.4g}" for k, v in metrics[name].items() if isinstance(v, float)
+                )
+            )
+        return metrics

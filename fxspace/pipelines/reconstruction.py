@@ -1,31 +1,31 @@
-"""Control-point reconstruction experiment (issues 4 and 12; Hirose & Higuchi).
+"""Control-point reconstruction experiment (issues 4, 12 and 21; Hirose & Higuchi).
 
 A real dense face sequence — the AnimFace markers driving a ~6000-vertex face surface by
 RBF deformation — of 300 captured frames thinned to 150 as in the paper (the even-numbered
-frames dropped, ``thin = 2``) is cut into segments by the fused lasso (target 8, as in
-the paper), and **every** segment is modelled by 20–30 control points (kernel k-means, 20
-restarts); the stitched scene shares each boundary frame between its two segments.
-A sweep over (number of clusters, kernel width γ) on the most complex segment (largest
-linear-interpolation error) picks the parameters by BIC (``n·log(E/n) + k·log n``, with n
-the numbers in the segment and k the numbers the model stores); λ is picked inside the
-segmentation (a λ grid solved in one call, the largest λ giving the target number of
-segments). The most complex segment is also refined by gradient fitting (optax), and a
-key-framed edit moves the control point under the left mouth corner (a smirk), saved as
-``edits.json`` for the editor (``fxspace studio RUN_DIR``).
+frames dropped, ``thin = 2``) is cut into segments by the fused lasso, the **number of
+segments chosen from the data** (``n_segments = 0``: the elbow of the refitted error along
+the fused-lasso λ path, or BIC; a positive count overrides), and **every** segment is
+modelled by 20–30 control points (kernel k-means, 20 restarts); the stitched scene shares
+each boundary frame between its two segments. A sweep over (clusters, kernel width γ) on
+the most complex segment picks the parameters by BIC. That segment is also refined by
+gradient fitting (optax); a key on the face moves the region under the left mouth corner
+(a smirk), saved as ``edits.json`` for the editor (``fxspace studio RUN_DIR``).
 
-Reports linear-interpolation error vs ours (eq. (1)) per segment
-(``error_ratio_segments``) and for the whole scene (``error_ratio_scene``), the scene's
-compression, the whole-scene pipeline's time (compile excluded) and figures: the
-segmentation, per-segment errors, the control-point regions, and original / linear / ours
-/ edited at one frame (like the paper's fig. 1). ``scene.npz`` holds the dense scene, the
-surface's triangles and the fitted scene model.
-A second dense source (vertex sequences of a skinned glTF animation) runs the same
-pipeline when ``gltf_mesh`` is set.
+Reports eq. (1) of linear interpolation vs ours for the whole scene
+(``error_ratio_scene``), per segment (``error_ratio_segments``) and, next to the paper's
+16.44 → 1.82 on its 43-frame segment, for our segment closest to 43 frames
+(``error_ratio_paper_segment``, its frames in ``paper_segment``). A character — the
+project's stand-in (the capture's face with other proportions) or a user's OBJ/.glb with
+a marker map and optional first/last frames — is driven by the capture through the
+control points and exported as an animated glTF (``character.glb``), read back to check.
+Stages (`STAGES`) are cached in the run folder, so an interrupted run resumes.
+``file = "synthetic"`` runs on the project's synthetic face (no data needed).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -35,32 +35,45 @@ import numpy as np
 
 from fxspace._progress import progress
 from fxspace.config import ConfigError
-from fxspace.controlpoints._edits import EditKey, apply_edits, save_edits
-from fxspace.controlpoints._fitting import refine_control_points
-from fxspace.controlpoints._model import (
+from fxspace.controlpoints import (
+    ControlPointModel,
+    FaceKey,
+    Segmentation,
+    character,
     compression_ratio,
+    drive_character,
+    edited_vertices,
+    face_surface,
     fit_control_points,
-    linear_interpolation,
-    reconstruct,
-    reconstruction_error,
-    storage_size,
-)
-from fxspace.controlpoints._rbf import face_surface, rbf_deform
-from fxspace.controlpoints._scene import (
     fit_scene,
+    linear_interpolation,
+    rbf_deform,
+    reconstruct,
     reconstruct_scene,
+    reconstruction_error,
+    refine_control_points,
+    save_edits,
     scene_compression_ratio,
     scene_errors,
+    scene_from_arrays,
     scene_to_arrays,
+    segment_motion,
+    segments_from_boundaries,
+    standin_character,
+    storage_size,
     thin_frames,
 )
-from fxspace.controlpoints._segment import segment_motion, segments_from_boundaries
 from fxspace.data import data_path
-from fxspace.runs import save_figure_atomic, save_npz_atomic
+from fxspace.runs import cached, cached_arrays, save_figure_atomic, save_npz_atomic
 
-__all__ = ["Config", "run", "PAPER"]
+__all__ = ["Config", "run", "PAPER", "STAGES", "data_files"]
 
-PAPER = {"linear_error": 16.44, "ours_error": 1.82, "ratio": 0.11, "time_s": 18.0, "segments": 8}
+PAPER = {"linear_error": 16.44, "ours_error": 1.82, "ratio": 0.11, "time_s": 18.0,
+         "segments": 8, "segment_frames": 43}  # fmt: skip
+STAGES: tuple[str, ...] = (
+    "dense", "segmentation", "sweep", "scene", "refine", "character", "gltf_source",
+)  # fmt: skip
+SYNTHETIC = "synthetic"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,7 +85,8 @@ class Config:
     n_frames: int = 300
     thin: int = 2
     n_vertices: int = 6000
-    n_segments: int = 8
+    n_segments: int = 0
+    segment_criterion: str = "elbow"
     segment_on: str = "velocity"
     min_length: int = 4
     clusters: tuple[int, ...] = (20, 25, 30)
@@ -86,110 +100,77 @@ class Config:
     edit_offset_mm: tuple[float, ...] = (6.0, 8.0, 0.0)
     edit_marker: str = "Mouth_Lend"
     timing_repeats: int = 2
+    paper_segment_frames: int = 43
+    character: str = "standin"
+    character_markers: str = ""
+    character_first: str = ""
+    character_last: str = ""
+    character_vertices: int = 3000
     gltf_mesh: str = "CesiumMan"
     gltf_frames: int = 150
     gltf_clusters: int = 25
+    x64: bool = True
+
+    def validate(self) -> None:
+        """Every config check, naming the key (`fxspace.config.ConfigError`)."""
+        for k in ("start", "n_segments", "refine_steps", "fit_steps"):
+            if getattr(self, k) < 0:
+                raise ConfigError(f"{k} must be >= 0, got {getattr(self, k)}")
+        for k in ("n_frames", "thin", "n_vertices", "min_length", "n_init", "max_points",
+                  "fit_support", "timing_repeats", "paper_segment_frames", "gltf_frames",
+                  "gltf_clusters", "character_vertices"):  # fmt: skip
+            if getattr(self, k) < 1:
+                raise ConfigError(f"{k} must be >= 1, got {getattr(self, k)}")
+        if self.n_frames // self.thin < 3 * max(self.n_segments, 1):
+            raise ConfigError(
+                f"n_frames/thin = {self.n_frames // self.thin} too short for n_segments="
+                f"{self.n_segments}"
+            )
+        if self.segment_criterion not in ("elbow", "bic"):
+            raise ConfigError(
+                f"segment_criterion must be 'elbow' or 'bic', got {self.segment_criterion!r}"
+            )
+        if self.segment_on not in ("velocity", "position"):
+            raise ConfigError(
+                f"segment_on must be 'velocity' or 'position', got {self.segment_on!r}"
+            )
+        if not self.clusters or min(self.clusters) < 1 or not self.gammas or min(self.gammas) <= 0:
+            raise ConfigError("clusters must be integers >= 1 and gammas numbers > 0 (non-empty)")
+        if len(self.edit_offset_mm) != 3 or not np.all(np.isfinite(self.edit_offset_mm)):
+            raise ConfigError(f"edit_offset_mm must be 3 finite numbers, got {self.edit_offset_mm}")
+        if self.fit_smoothness < 0 or not np.isfinite(self.fit_smoothness):
+            raise ConfigError(f"fit_smoothness must be finite and >= 0, got {self.fit_smoothness}")
+        if self.character not in ("", "standin") and not self.character_markers:
+            raise ConfigError(
+                "character_markers must name a JSON {marker name: vertex index} file when "
+                "character is a mesh file"
+            )
 
 
-def _most_complex(X: np.ndarray, bounds: np.ndarray) -> tuple[int, int, list[float]]:
-    errs = []
-    for a, b in segments_from_boundaries(bounds):
-        seg = X[a : b + 1]
-        errs.append(
-            float(reconstruction_error(seg, linear_interpolation(seg[0], seg[-1], len(seg))))
-        )
-    i = int(np.argmax(errs))
-    a, b = segments_from_boundaries(bounds)[i]
-    return a, b, errs
+def _path(name: str) -> Path:
+    return data_path(name)
 
 
-def _up(names, markers: np.ndarray) -> np.ndarray | None:
-    """Chin → forehead direction (for the figure's orientation), if those markers exist."""
-    if "ForeHead_M" in names and "Chin" in names:
-        return markers[list(names).index("ForeHead_M")] - markers[list(names).index("Chin")]
-    return None
+def data_files(cfg: Config) -> list[Path]:
+    """The files a run reads (for its content key)."""
+    files = [] if cfg.file == SYNTHETIC else [_path(cfg.file)]
+    for f in (cfg.character if cfg.character not in ("", "standin") else "",
+              cfg.character_markers, cfg.character_first, cfg.character_last):  # fmt: skip
+        if f:
+            files.append(_path(f))
+    return files
 
 
-def _bic(err: float, n: int, k: int) -> float:
-    return n * float(np.log(max(err, 1e-300) / n)) + k * float(np.log(n))
+def _read_capture(cfg: Config, seed: int) -> tuple[np.ndarray, tuple[str, ...], float, str]:
+    """``(markers (T, M, 3) thinned, names, rate, units)`` of the configured capture."""
+    from fxspace.io import read_markers
+    from fxspace.synthetic import synthetic_face
 
-
-def _pipeline(X, cfg: Config, n_clusters: int, gamma: float, key, show_progress=False):
-    """segments → every segment's control points → stitched reconstruction (timed part)."""
-    fit = fit_scene(
-        X, n_clusters, n_segments=cfg.n_segments, min_length=cfg.min_length,
-        segment_on=cfg.segment_on, gamma=gamma, key=key, n_init=cfg.n_init,
-        max_points=cfg.max_points, refine_steps=cfg.refine_steps, show_progress=show_progress,
-    )  # fmt: skip
-    Xh = reconstruct_scene(fit.model)
-    Xh.block_until_ready()
-    return fit, Xh
-
-
-def _sweep(S, cfg: Config, key) -> list[dict]:
-    rows = []
-    n = int(np.prod(S.shape))
-    lin = float(reconstruction_error(S, linear_interpolation(S[0], S[-1], S.shape[0])))
-    grid = [(c, g) for c in cfg.clusters for g in cfg.gammas]
-    for c, g in progress(grid, desc="(clusters, γ) sweep"):
-        model, km = fit_control_points(
-            S, c, gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
-            refine_steps=cfg.refine_steps,
-        )  # fmt: skip
-        err = float(reconstruction_error(S, reconstruct(model)))
-        k = storage_size(model)
-        rows.append({
-            "clusters": c, "gamma": g, "error": err, "ratio": err / lin,
-            "compression": compression_ratio(model), "bic": _bic(err, n, k),
-            "kkm_steps": int(km.num_steps), "kkm_converged": bool(km.converged),
-        })  # fmt: skip
-    return rows
-
-
-def _gltf_source(cfg: Config, key) -> dict:
-    """The same pipeline on the vertex sequence of a skinned glTF animation."""
-    from fxspace.io import read_gltf
-
-    mesh = read_gltf(data_path("mesh", f"{cfg.gltf_mesh}.glb"))
-    t0, t1 = mesh.animation_range(0)
-    times = np.linspace(t0, t1, cfg.gltf_frames)
-    X = jnp.asarray(mesh.animation_vertices(0, times))
-    t = time.perf_counter()
-    seg = segment_motion(X, cfg.n_segments, min_length=cfg.min_length, on=cfg.segment_on)
-    a, b, errs = _most_complex(np.asarray(X), seg.boundaries)
-    S = X[a : b + 1]
-    model, _ = fit_control_points(
-        S, min(cfg.gltf_clusters, S.shape[1]), key=key, n_init=cfg.n_init, max_points=cfg.max_points
-    )
-    err = float(reconstruction_error(S, reconstruct(model)))
-    return {
-        "mesh": cfg.gltf_mesh, "animation": mesh.animation_names[0],
-        "n_vertices": int(X.shape[1]), "n_frames": int(X.shape[0]),
-        "boundaries": seg.boundaries.tolist(), "segment": [a, b],
-        "linear_error": errs[int(np.argmax(errs))], "ours_error": err,
-        "ratio": err / errs[int(np.argmax(errs))], "compression": compression_ratio(model),
-        "time_s_with_compile": time.perf_counter() - t,
-    }  # fmt: skip
-
-
-def run(cfg: Config, run_dir: Path, seed: int) -> dict:
-    from fxspace.io import read_markers, write_trc
-    from fxspace.plot import (
-        plot_control_points,
-        plot_reconstruction_frames,
-        plot_scene_errors,
-        plot_segmentation,
-    )
-
-    if cfg.thin < 1:
-        raise ConfigError(f"thin must be >= 1, got {cfg.thin}")
-    if cfg.n_frames // cfg.thin < 3 * cfg.n_segments:
-        raise ConfigError(
-            f"n_frames/thin = {cfg.n_frames // cfg.thin} too short for n_segments={cfg.n_segments}"
-        )
-    jax.config.update("jax_enable_x64", True)
-    key = jax.random.PRNGKey(seed)
-    seq = read_markers(data_path(cfg.file))  # relative to the data root; absolute kept
+    if cfg.file == SYNTHETIC:
+        sf = synthetic_face(41, cfg.start + cfg.n_frames, seed=seed, rate=60.0)
+        seq = sf.sequence
+    else:
+        seq = read_markers(_path(cfg.file))
     P = np.asarray(seq.positions, dtype=np.float64)
     if cfg.start + cfg.n_frames > P.shape[0]:
         raise ConfigError(
@@ -201,156 +182,378 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         raise ConfigError(
             f"{cfg.file} frames {cfg.start}… have missing markers; pick another start"
         )
-    rate = seq.rate / cfg.thin
+    return M, tuple(seq.names), seq.rate / cfg.thin, getattr(seq, "units", "mm")
 
-    # 1. dense sequence: markers → face surface by RBF deformation
-    dense_times = []
+
+def _dense(cfg: Config, M: np.ndarray) -> dict:
+    """Stage ``dense``: markers → face surface by RBF deformation (timed, compile excluded)."""
+    times = []
     for _ in range(2):  # the first call compiles
         t = time.perf_counter()
         surf = face_surface(M[0], cfg.n_vertices)
         X = rbf_deform(surf.vertices, M[0], M)
         X.block_until_ready()
-        dense_times.append(time.perf_counter() - t)
-    dense_s = dense_times[-1]
+        times.append(time.perf_counter() - t)
+    return {"X": np.asarray(X), "faces": surf.faces, "marker_vertex": surf.marker_vertex,
+            "times": np.asarray(times)}  # fmt: skip
 
-    # 2. parameter sweep on the most complex segment (λ inside segment_motion)
-    seg = segment_motion(X, cfg.n_segments, min_length=cfg.min_length, on=cfg.segment_on)
-    a, b, seg_errs = _most_complex(np.asarray(X), seg.boundaries)
-    S = X[a : b + 1]
-    rows = _sweep(S, cfg, key)
-    best = min(rows, key=lambda r: r["bic"])
-    c, g = int(best["clusters"]), float(best["gamma"])
 
-    # 3. the whole-scene pipeline with the chosen parameters: compile once, then time it
+def _segmentation(cfg: Config, X) -> dict:
+    """Stage ``segmentation``: the fused-lasso cut, the count chosen from the data."""
+    n = "auto" if cfg.n_segments == 0 else cfg.n_segments
+    seg = segment_motion(X, n, min_length=cfg.min_length, on=cfg.segment_on,  # type: ignore[arg-type]
+                         criterion=cfg.segment_criterion)  # type: ignore[arg-type]  # fmt: skip
+    sel = seg.selection or {"criterion": "given", "chosen": cfg.n_segments,
+                            "why": "n_segments set in the config"}  # fmt: skip
+    return {"boundaries": seg.boundaries, "summary": seg.summary, "fit": seg.fit,
+            "lam": np.float64(seg.lam), "jump_energy": seg.jump_energy,
+            "selection": np.asarray(json.dumps(sel))}  # fmt: skip
+
+
+def _bic(err: float, n: int, k: int) -> float:
+    return n * float(np.log(max(err, 1e-300) / n)) + k * float(np.log(n))
+
+
+def _sweep(S, cfg: Config, key) -> list[dict]:
+    rows = []
+    n = int(np.prod(S.shape))
+    lin = float(reconstruction_error(S, linear_interpolation(S[0], S[-1], S.shape[0])))
+    grid = [(c, g) for c in cfg.clusters for g in cfg.gammas]
+    for c, g in progress(grid, desc="(clusters, γ) sweep"):
+        model, km = fit_control_points(
+            S, min(c, S.shape[1]), gamma=g, key=key, n_init=cfg.n_init,
+            max_points=cfg.max_points, refine_steps=cfg.refine_steps,
+        )  # fmt: skip
+        err = float(reconstruction_error(S, reconstruct(model)))
+        rows.append({
+            "clusters": c, "gamma": g, "error": err, "ratio": err / lin,
+            "compression": compression_ratio(model), "bic": _bic(err, n, storage_size(model)),
+            "kkm_steps": int(km.num_steps), "kkm_converged": bool(km.converged),
+        })  # fmt: skip
+    return rows
+
+
+def _scene(cfg: Config, X, n_segments: int, c: int, g: float, key) -> dict:
+    """Stage ``scene``: the whole-scene pipeline (segments → every segment's control
+    points → stitched reconstruction), compiled once then timed."""
+
+    def once(show: bool):
+        fit = fit_scene(
+            X, c, n_segments=n_segments, min_length=cfg.min_length, segment_on=cfg.segment_on,
+            gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
+            refine_steps=cfg.refine_steps, show_progress=show,
+        )  # fmt: skip
+        reconstruct_scene(fit.model).block_until_ready()
+        return fit
+
     t = time.perf_counter()
-    _pipeline(X, cfg, c, g, key, show_progress=True)
-    first_s = time.perf_counter() - t
+    once(True)
+    first = time.perf_counter() - t
     times = []
     for _ in range(max(1, cfg.timing_repeats)):
         t = time.perf_counter()
-        fit_s_, Xh = _pipeline(X, cfg, c, g, key)
+        fit = once(False)
         times.append(time.perf_counter() - t)
-    pipe_s = float(np.median(times))
-    scene = fit_s_.model
-    seg = fit_s_.segmentation
-    errs = scene_errors(X, scene)
-    bounds = scene.boundaries
-    si = int(np.argmax(errs.linear))  # the most complex segment
-    a, b = segments_from_boundaries(bounds)[si]
-    S = X[a : b + 1]
-    T = S.shape[0]
-    model = scene.segments[si]
-    km = fit_s_.clusterings[si]
-    lin, err = float(errs.linear[si]), float(errs.model[si])
+    kkm = [int(k.num_steps) for k in fit.clusterings]
+    return {**scene_to_arrays(fit.model), "first_s": np.float64(first),
+            "times": np.asarray(times), "kkm_steps": np.asarray(kkm)}  # fmt: skip
 
-    # 4. gradient refinement (optax) of that segment's trajectories + sparse blend weights
+
+def _marker_map(path: Path, names: tuple[str, ...], n_vertices: int) -> np.ndarray:
+    try:
+        raw = json.loads(path.read_text())
+        mv = np.asarray([int(raw[n]) for n in names], np.int64)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ConfigError(
+            f"character_markers {path}: need a JSON object mapping every capture marker "
+            f"name to a vertex index ({e!r})"
+        ) from None
+    if mv.min() < 0 or mv.max() >= n_vertices:
+        raise ConfigError(f"character_markers {path}: vertex indices must be in [0, {n_vertices})")
+    return mv
+
+
+def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    from fxspace.io import read_gltf_morph, read_obj
+
+    if path.suffix.lower() == ".obj":
+        return read_obj(path)
+    if path.suffix.lower() == ".glb":
+        m = read_gltf_morph(path)
+        return m.vertices[0], m.faces
+    raise ConfigError(f"character mesh {path}: use an .obj or .glb file")
+
+
+def _character(cfg: Config, M: np.ndarray, names, scene, X0) -> dict:
+    """Stage ``character``: the target face driven by the capture through the control
+    points (`fxspace.drive_character`)."""
+    if cfg.character == "standin":
+        ch = standin_character(M[0], cfg.character_vertices)
+    else:
+        V, F = _read_mesh(_path(cfg.character))
+        mv = _marker_map(_path(cfg.character_markers), names, len(V))
+        first = _read_mesh(_path(cfg.character_first))[0] if cfg.character_first else None
+        last = _read_mesh(_path(cfg.character_last))[0] if cfg.character_last else None
+        ch = character(V, F, mv, first, last)
+    Y = drive_character(ch, scene, M, X0)
+    return {"vertices": Y, "faces": ch.faces, "rest": ch.vertices}
+
+
+def _gltf_source(cfg: Config, key) -> dict:
+    """The same pipeline on the vertex sequence of a skinned glTF animation."""
+    from fxspace.io import read_gltf
+    from fxspace.mesh import animation_vertices
+
+    mesh = read_gltf(data_path("mesh", f"{cfg.gltf_mesh}.glb"))
+    t0, t1 = mesh.animation_range(0)
+    X = jnp.asarray(animation_vertices(mesh, 0, np.linspace(t0, t1, cfg.gltf_frames)))
     t = time.perf_counter()
-    fit = refine_control_points(
-        S, model, steps=cfg.fit_steps, support=cfg.fit_support, smoothness=cfg.fit_smoothness
+    n = "auto" if cfg.n_segments == 0 else cfg.n_segments
+    seg = segment_motion(X, n, min_length=cfg.min_length, on=cfg.segment_on,  # type: ignore[arg-type]
+                         criterion=cfg.segment_criterion)  # type: ignore[arg-type]  # fmt: skip
+    errs = [_lin_error(X[a : b + 1]) for a, b in segments_from_boundaries(seg.boundaries)]
+    a, b = segments_from_boundaries(seg.boundaries)[int(np.argmax(errs))]
+    S = X[a : b + 1]
+    model, _ = fit_control_points(
+        S, min(cfg.gltf_clusters, S.shape[1]), key=key, n_init=cfg.n_init, max_points=cfg.max_points
     )
-    fit.error.block_until_ready()
-    fit_s = time.perf_counter() - t
+    err = float(reconstruction_error(S, reconstruct(model)))
+    return {
+        "mesh": cfg.gltf_mesh, "animation": mesh.animation_names[0],
+        "n_vertices": int(X.shape[1]), "n_frames": int(X.shape[0]),
+        "boundaries": seg.boundaries.tolist(), "segment": [a, b],
+        "linear_error": max(errs), "ours_error": err, "ratio": err / max(errs),
+        "compression": compression_ratio(model),
+        "time_s_with_compile": time.perf_counter() - t,
+    }  # fmt: skip
 
-    # 5. a key-framed edit: move the control point under the chosen marker (a smirk), keyed
-    # at the segment's middle frame (zero at its key frames), saved for the editor
-    mi = list(seq.names).index(cfg.edit_marker) if cfg.edit_marker in seq.names else 0
-    vi = int(surf.marker_vertex[mi])
-    cp = int(model.labels[vi])
-    keys = [EditKey(si, cp, a + (T - 1) // 2, tuple(float(v) for v in cfg.edit_offset_mm))]
-    edited_scene = apply_edits(scene, keys)
-    Xe = np.asarray(reconstruct_scene(edited_scene))
-    moved = np.linalg.norm(Xe - np.asarray(Xh), axis=2).max(0) > 1e-9
-    save_edits(run_dir / "edits.json", keys, boundaries=bounds.tolist())
-    save_npz_atomic(
-        run_dir / "scene.npz",
-        original=np.asarray(X, np.float32),
-        faces=surf.faces,
-        marker_vertex=surf.marker_vertex,
-        marker_names=np.asarray(seq.names),
-        markers=M,
-        rate=np.float64(rate),
-        gamma=np.float64(g),
-        **scene_to_arrays(scene),
-    )
-    Me = M + (Xe - np.asarray(Xh))[:, surf.marker_vertex]
-    save_npz_atomic(
-        run_dir / "edited_sequence.npz",
-        vertices=Xe.astype(np.float32),
-        faces=surf.faces,
-        boundaries=bounds,
-        markers=Me,
-    )
-    write_trc(run_dir / "edited_markers.trc", type(seq)(Me, seq.names, rate, seq.units))
 
-    # 6. figures
-    save_figure_atomic(plot_segmentation(seg, rate=rate), run_dir / "segmentation.png")
-    save_figure_atomic(plot_scene_errors(errs, bounds), run_dir / "scene_errors.png")
-    save_figure_atomic(
-        plot_control_points(np.asarray(S[0]), np.asarray(model.labels)),
-        run_dir / "control_points.png",
+def _lin_error(S) -> float:
+    return float(reconstruction_error(S, linear_interpolation(S[0], S[-1], S.shape[0])))
+
+
+def run(cfg: Config, run_dir: Path, seed: int) -> dict:
+    """Run the experiment in ``run_dir`` (every costly stage cached there); returns the
+    metrics."""
+    cfg.validate()
+    with jax.enable_x64(cfg.x64):
+        return _run(cfg, Path(run_dir), seed)
+
+
+def _say(stage: str, fn):
+    """``fn`` announced as it starts (only runs when the stage is not cached)."""
+
+    def go():
+        i = STAGES.index(stage) + 1
+        print(f"[reconstruction] stage {i}/{len(STAGES)}: {stage} …", flush=True)
+        return fn()
+
+    return go
+
+
+def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
+    key = jax.random.PRNGKey(seed)
+    M, names, rate, units = _read_capture(cfg, seed)
+    dense = cached_arrays(run_dir, "dense", _say("dense", lambda: _dense(cfg, M)))
+    X = jnp.asarray(dense["X"])
+    sg = cached_arrays(run_dir, "segmentation", _say("segmentation", lambda: _segmentation(cfg, X)))
+    bounds0 = sg["boundaries"]
+    errs0 = [_lin_error(X[a : b + 1]) for a, b in segments_from_boundaries(bounds0)]
+    a0, b0 = segments_from_boundaries(bounds0)[int(np.argmax(errs0))]
+    rows = cached(run_dir, "sweep", _say("sweep", lambda: _sweep(X[a0 : b0 + 1], cfg, key)))
+    best = min(rows, key=lambda r: r["bic"])
+    c, g = int(best["clusters"]), float(best["gamma"])
+    n_seg = len(bounds0) - 1
+    sc = cached_arrays(run_dir, "scene", _say("scene", lambda: _scene(cfg, X, n_seg, c, g, key)))
+    scene = scene_from_arrays(sc)
+    errs = scene_errors(X, scene)
+    si = int(np.argmax(errs.linear))  # the most complex segment
+    a, b = segments_from_boundaries(scene.boundaries)[si]
+    S, model = X[a : b + 1], scene.segments[si]
+
+    def refine() -> dict:
+        t = time.perf_counter()
+        fr = refine_control_points(S, model, steps=max(cfg.fit_steps, 1),
+                                   support=min(cfg.fit_support, model.controls.shape[0]),
+                                   smoothness=cfg.fit_smoothness)  # fmt: skip
+        fr.error.block_until_ready()
+        return {"controls": fr.model.controls, "weights": fr.model.weights,
+                "error": fr.error, "converged": fr.converged,
+                "time_s": np.float64(time.perf_counter() - t)}  # fmt: skip
+
+    rf = cached_arrays(run_dir, "refine", _say("refine", refine))
+    fitted = model._replace(
+        controls=jnp.asarray(rf["controls"]), weights=jnp.asarray(rf["weights"])
     )
+    ch = None
+    if cfg.character:
+        X0 = np.asarray(X[0])
+        ch = cached_arrays(
+            run_dir, "character", _say("character", lambda: _character(cfg, M, names, scene, X0))
+        )
+    gl = (
+        cached(run_dir, "gltf_source", _say("gltf_source", lambda: _gltf_source(cfg, key)))
+        if cfg.gltf_mesh
+        else {}
+    )
+    ctx = dict(cfg=cfg, run_dir=run_dir, M=M, names=names, rate=rate, units=units,
+               dense=dense, sg=sg, X=X, scene=scene, errs=errs, si=si, fitted=fitted,
+               rf=rf, rows=rows, c=c, g=g, sc=sc, ch=ch, gl=gl)  # fmt: skip
+    outputs = _write_outputs(ctx)
+    return _metrics(ctx, outputs)
+
+
+def _write_outputs(ctx: dict) -> dict:
+    """The edit (``edits.json``), ``scene.npz`` for the editor, the edited sequence, the
+    character's glTF, and the figures."""
+    from fxspace.io import MarkerSequence, read_gltf_morph, write_gltf_morph, write_trc
+
+    cfg, run_dir, scene, X, M = ctx["cfg"], ctx["run_dir"], ctx["scene"], ctx["X"], ctx["M"]
+    names, dense, si = ctx["names"], ctx["dense"], ctx["si"]
+    a, b = segments_from_boundaries(scene.boundaries)[si]
+    mv = dense["marker_vertex"]
+    vi = int(mv[names.index(cfg.edit_marker)]) if cfg.edit_marker in names else int(mv[0])
+    keys = [FaceKey(a + (b - a) // 2, vi, tuple(float(v) for v in cfg.edit_offset_mm))]
+    Xh = np.asarray(reconstruct_scene(scene))
+    Xe = edited_vertices(scene, keys)
+    moved = np.linalg.norm(Xe - Xh, axis=2).max(0) > 1e-9
+    save_edits(run_dir / "edits.json", keys, n_frames=scene.n_frames,
+               n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist())  # fmt: skip
+    save_npz_atomic(run_dir / "scene.npz", original=np.asarray(X, np.float32),
+                    faces=dense["faces"], marker_vertex=mv, marker_names=np.asarray(names),
+                    markers=M, rate=np.float64(ctx["rate"]), gamma=np.float64(ctx["g"]),
+                    **scene_to_arrays(scene))  # fmt: skip
+    Me = M + (Xe - Xh)[:, mv]
+    save_npz_atomic(run_dir / "edited_sequence.npz", vertices=Xe.astype(np.float32),
+                    faces=dense["faces"], boundaries=scene.boundaries, markers=Me)  # fmt: skip
+    write_trc(run_dir / "edited_markers.trc", MarkerSequence(Me, names, ctx["rate"], ctx["units"]))
+    out = {"keys": keys, "moved": int(moved.sum()), "Xe": Xe, "vi": vi}
+    if ctx["ch"] is not None:
+        Y = ctx["ch"]["vertices"]
+        p = write_gltf_morph(run_dir / "character.glb", Y, ctx["ch"]["faces"], ctx["rate"],
+                             name="character")  # fmt: skip
+        back = read_gltf_morph(p)
+        out["character"] = {
+            "file": p.name, "n_vertices": int(Y.shape[1]), "n_frames": int(Y.shape[0]),
+            "source": cfg.character,
+            "reloaded_max_abs_diff": float(np.abs(back.vertices - Y).max()),
+            "reloaded_fps": back.fps,
+        }  # fmt: skip
+    _figures(ctx, out)
+    return out
+
+
+def _figures(ctx: dict, out: dict) -> None:
+    from fxspace.plot import (
+        plot_control_points,
+        plot_reconstruction_frames,
+        plot_scene_errors,
+        plot_segmentation,
+    )
+
+    run_dir, sg, scene, errs, si = ctx["run_dir"], ctx["sg"], ctx["scene"], ctx["errs"], ctx["si"]
+    seg = Segmentation(sg["boundaries"], sg["summary"], sg["fit"], float(sg["lam"]),
+                       sg["jump_energy"])  # fmt: skip
+    save_figure_atomic(plot_segmentation(seg, rate=ctx["rate"]), run_dir / "segmentation.png")
+    save_figure_atomic(plot_scene_errors(errs, scene.boundaries), run_dir / "scene_errors.png")
+    a, b = segments_from_boundaries(scene.boundaries)[si]
+    S, model = ctx["X"][a : b + 1], scene.segments[si]
+    save_figure_atomic(plot_control_points(np.asarray(S[0]), np.asarray(model.labels)),
+                       run_dir / "control_points.png")  # fmt: skip
+    T = S.shape[0]
     fr = (T - 1) // 2
     L = linear_interpolation(S[0], S[-1], T)
-    ours = reconstruct(fit.model)
-    km_rec = reconstruct(model)
+    names, M = ctx["names"], ctx["M"]
+    up = None
+    if "ForeHead_M" in names and "Chin" in names:
+        up = M[0][names.index("ForeHead_M")] - M[0][names.index("Chin")]
     fig = plot_reconstruction_frames(
-        [S[fr], L[fr], km_rec[fr], ours[fr], Xe[a + fr]],
-        ["original", f"linear (E={lin:.3g})",
-         f"ours k-means (E={err:.3g})", f"ours fitted (E={float(fit.error):.3g})",
-         "edited (smirk)"],
-        faces=surf.faces, reference=np.asarray(S[fr]), up=_up(seq.names, M[0]),
+        [S[fr], L[fr], reconstruct(model)[fr], reconstruct(ctx["fitted"])[fr], out["Xe"][a + fr]],
+        ["original", f"linear (E={float(errs.linear[si]):.3g})",
+         f"ours k-means (E={float(errs.model[si]):.3g})",
+         f"ours fitted (E={float(ctx['rf']['error']):.3g})", "edited (smirk)"],
+        faces=ctx["dense"]["faces"], reference=np.asarray(S[fr]), up=up,
     )  # fmt: skip
     save_figure_atomic(fig, run_dir / "reconstruction.png")
 
-    gl = {}
-    if cfg.gltf_mesh:
-        gl = _gltf_source(cfg, key)
 
-    n_vals = int(np.prod(S.shape))
-    comp = scene_compression_ratio(scene)
+def paper_segment(boundaries, errors, frames: int = 43) -> int:
+    """Index of the segment closest in length to the paper's (``frames`` frames after
+    thinning); ties go to the larger linear-interpolation error."""
+    spans = segments_from_boundaries(boundaries)
+    lens = np.array([e - a + 1 for a, e in spans])
+    gap = np.abs(lens - frames)
+    cand = np.flatnonzero(gap == gap.min())
+    return int(cand[int(np.argmax(np.asarray(errors.linear)[cand]))])
+
+
+def _metrics(ctx: dict, out: dict) -> dict:
+    cfg, scene, errs, si, X = ctx["cfg"], ctx["scene"], ctx["errs"], ctx["si"], ctx["X"]
+    bounds = scene.boundaries
+    a, b = segments_from_boundaries(bounds)[si]
+    model: ControlPointModel = scene.segments[si]
+    lin, err = float(errs.linear[si]), float(errs.model[si])
+    n_vals = (b - a + 1) * X.shape[1]
+    pi = paper_segment(bounds, errs, cfg.paper_segment_frames)
+    pa, pb = segments_from_boundaries(bounds)[pi]
+    sel = json.loads(str(ctx["sg"]["selection"]))
+    pipe_s = float(np.median(ctx["sc"]["times"]))
+    dense_t = ctx["dense"]["times"]
+    fit_err = float(ctx["rf"]["error"])
     metrics = {
         "data": {"file": cfg.file, "start": cfg.start, "n_frames_captured": cfg.n_frames,
                  "thin": cfg.thin, "n_frames": int(X.shape[0]),
-                 "n_vertices": int(X.shape[1]), "n_markers": int(M.shape[1])},
-        "segmentation": {"boundaries": bounds.tolist(), "lambda": seg.lam,
-                         "n_segments": len(bounds) - 1,
+                 "n_vertices": int(X.shape[1]), "n_markers": int(ctx["M"].shape[1])},
+        "segmentation": {"boundaries": bounds.tolist(), "lambda": float(ctx["sg"]["lam"]),
+                         "n_segments": len(bounds) - 1, "selection": sel,
                          "linear_error_per_segment": errs.linear.tolist()},
+        "n_segments_chosen": len(bounds) - 1,
+        "n_segments_why": sel.get("why", ""),
         "error_ratio_scene": errs.ratio_scene,
         "error_ratio_segments": errs.ratio.tolist(),
+        "error_ratio_paper_segment": float(errs.ratio[pi]),
+        "paper_segment": {"index": pi, "frames": [pa, pb], "n_frames": pb - pa + 1,
+                          "linear_error": float(errs.linear[pi]),
+                          "ours_error": float(errs.model[pi]),
+                          "paper": {"n_frames": 43, "linear_error": 16.44, "ours_error": 1.82,
+                                    "ratio": 1.82 / 16.44}},
         "linear_error_scene": errs.linear_scene, "ours_error_scene": errs.model_scene,
         "ours_error_per_segment": errs.model.tolist(),
-        "scene_compression_ratio": comp,
-        "scene_pipeline_time_s": pipe_s, "scene_pipeline_first_call_s": first_s,
-        "segment": [a, b], "segment_index": si, "segment_frames": T,
-        "chosen": {"clusters": c, "gamma": g, "criterion": "BIC (most complex segment)"},
-        "sweep": rows,
+        "scene_compression_ratio": scene_compression_ratio(scene),
+        "scene_pipeline_time_s": pipe_s,
+        "scene_pipeline_first_call_s": float(ctx["sc"]["first_s"]),
+        "segment": [a, b], "segment_index": si, "segment_frames": b - a + 1,
+        "chosen": {"clusters": ctx["c"], "gamma": ctx["g"],
+                   "criterion": "BIC (most complex segment)"},
+        "sweep": ctx["rows"],
         "linear_error": lin, "ours_error": err, "ratio": err / lin,
         "compression_ratio": compression_ratio(model),
-        "fitted_error": float(fit.error), "fitted_ratio": float(fit.error) / lin,
-        "fitted_compression_ratio": compression_ratio(fit.model),
-        "fit_converged": bool(fit.converged),
-        "linear_rmse_mm": float(np.sqrt(lin / (n_vals / 3))),
-        "ours_rmse_mm": float(np.sqrt(err / (n_vals / 3))),
-        "fitted_rmse_mm": float(np.sqrt(float(fit.error) / (n_vals / 3))),
-        "kkm_restarts": cfg.n_init, "kkm_steps": int(km.num_steps),
-        "pipeline_time_s": pipe_s, "pipeline_first_call_s": first_s,
-        "dense_transfer_time_s": dense_s, "dense_transfer_first_call_s": dense_times[0],
-        "pipeline_with_dense_transfer_s": pipe_s + dense_s, "fit_time_s": fit_s,
-        "edit": {"segment": si, "control_point": cp, "marker": cfg.edit_marker,
-                 "keys": [k._asdict() for k in keys],
-                 "vertices_moved": int(moved.sum()),
-                 "cluster_size": int(np.sum(np.asarray(model.labels) == cp))},
+        "fitted_error": fit_err, "fitted_ratio": fit_err / lin,
+        "fitted_compression_ratio": compression_ratio(ctx["fitted"]),
+        "fit_converged": bool(ctx["rf"]["converged"]),
+        "linear_rmse_mm": float(np.sqrt(lin / n_vals)),
+        "ours_rmse_mm": float(np.sqrt(err / n_vals)),
+        "fitted_rmse_mm": float(np.sqrt(fit_err / n_vals)),
+        "kkm_restarts": cfg.n_init, "kkm_steps": int(ctx["sc"]["kkm_steps"][si]),
+        "pipeline_time_s": pipe_s, "pipeline_first_call_s": float(ctx["sc"]["first_s"]),
+        "dense_transfer_time_s": float(dense_t[-1]),
+        "dense_transfer_first_call_s": float(dense_t[0]),
+        "pipeline_with_dense_transfer_s": pipe_s + float(dense_t[-1]),
+        "fit_time_s": float(ctx["rf"]["time_s"]),
+        "edit": {"anchor_vertex": out["vi"], "marker": cfg.edit_marker,
+                 "keys": [k._asdict() for k in out["keys"]], "vertices_moved": out["moved"]},
         "targets": {"ratio_scene_le_0.11": errs.ratio_scene <= 0.11,
                     "ratio_segments_le_0.11": bool(np.all(errs.ratio <= 0.11)),
                     "scene_pipeline_le_18s": pipe_s <= 18.0},
+        "character": out.get("character", {}),
         "paper": PAPER,
-        "gltf": gl,
+        "gltf": ctx["gl"],
     }  # fmt: skip
     print(
         f"[reconstruction] scene {X.shape[0]} frames × {X.shape[1]} vertices, "
-        f"{len(bounds) - 1} segments: ratio {errs.ratio_scene:.4f} (segments "
-        f"{np.round(errs.ratio, 3).tolist()}), compression {comp:.1f}x, {c} control points, "
-        f"γ={g}; whole-scene pipeline {pipe_s:.2f} s (+ dense transfer {dense_s:.2f} s; "
-        f"first call {first_s:.2f} s)"
+        f"{len(bounds) - 1} segments ({sel.get('why', '')}): ratio {errs.ratio_scene:.4f}; "
+        f"paper-like segment {pa}–{pb} ({pb - pa + 1} frames): {float(errs.linear[pi]):.4g} → "
+        f"{float(errs.model[pi]):.4g} (×{float(errs.ratio[pi]):.3f}; paper 16.44 → 1.82, "
+        f"×0.111); whole-scene pipeline {pipe_s:.2f} s"
     )
     return metrics

@@ -14,7 +14,7 @@ __all__ = ["plot_segmentation", "plot_control_points", "plot_reconstruction_fram
 def plot_segmentation(seg, n_channels: int = 3, rate: float | None = None) -> Figure:
     """Summary channels, their fused-lasso fit and the segment boundaries.
 
-    ``seg`` is a :class:`fxspace.Segmentation`.
+    ``seg`` is a `fxspace.Segmentation`.
     """
     Z = np.asarray(seg.summary)
     B = np.asarray(seg.fit)
@@ -113,7 +113,7 @@ def plot_reconstruction_frames(
 
 def plot_scene_errors(errors, boundaries: Sequence[int] | None = None) -> Figure:
     """Eq. (1) per segment: linear interpolation vs the control-point model (log scale),
-    with each segment's ratio; ``errors`` is a :class:`fxspace.SceneErrors`."""
+    with each segment's ratio; ``errors`` is a `fxspace.SceneErrors`."""
     lin = np.asarray(errors.linear, float)
     mod = np.asarray(errors.model, float)
     k = np.arange(len(lin))

@@ -12,6 +12,7 @@ from matplotlib.figure import Figure
 
 __all__ = [
     "plot_ik_poses",
+    "plot_model_speedups",
     "plot_time_per_frame",
     "plot_vs_markers",
     "shade_mesh",
@@ -132,5 +133,30 @@ def plot_vs_markers(
     ax.legend()
     if title:
         ax.set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def plot_model_speedups(
+    models: Sequence[str],
+    ratios: Mapping[str, Sequence[float]],
+    title: str = "",
+    paper: float | None = 3.14,
+) -> Figure:
+    """Fig. 9 over models: the naive / factored time ratio per model, one bar group per
+    model and one bar per measure (``ratios[measure][model]``: e.g. per gradient
+    evaluation, per solved frame cold / warm), with the paper's mean speed-up as a line."""
+    fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(models), 3.6))
+    n = max(len(ratios), 1)
+    x = np.arange(len(models))
+    for i, (name, vals) in enumerate(ratios.items()):
+        ax.bar(x + (i - (n - 1) / 2) * 0.8 / n, vals, width=0.8 / n, label=name)
+    if paper is not None:
+        ax.axhline(paper, color="k", lw=0.8, ls="--", label=f"paper mean {paper:g}x")
+    ax.axhline(1.0, color="0.5", lw=0.6)
+    ax.set_xticks(x, list(models), rotation=15)
+    ax.set_ylabel("naive / factored time")
+    ax.set_title(title)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     return fig

@@ -146,3 +146,27 @@ def plot_replacement(stale, replaced, exact, title: str = "") -> Figure:
     axes[0].legend(fontsize=8)
     fig.suptitle(title)
     return fig
+
+
+def plot_timewarp(t, warped: dict, plain: dict, examples: dict, title: str = "") -> Figure:
+    """Ha & Han Fig. 3 as numbers: the same blends with and without time-warping.
+
+    ``t`` ``(T,)`` reference frames; ``warped`` / ``plain`` ``{label: (T,) toe height}``
+    of each blend with the registration (eq. 1's ``C_i``) and with plain linear time
+    normalisation; ``examples`` ``{label: (T_i,) toe height}`` of the blended clips. A
+    blend without registration averages feet in different phases: the foot no longer
+    lands (it floats or slides)."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6), sharey=True)
+    for ax, (name, curves) in zip(axes, (("with time-warp", warped), ("without", plain)),
+                                  strict=True):  # fmt: skip
+        for lab, h in examples.items():
+            ax.plot(np.linspace(0, t[-1], len(h)), h, color="0.75", lw=1, label=lab)
+        for lab, h in curves.items():
+            ax.plot(t, h, lw=1.8, label=lab)
+        ax.set_title(name)
+        ax.set_xlabel("reference frame")
+    axes[0].set_ylabel("left toe height (m)")
+    axes[1].legend(fontsize=7, loc="upper right")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -1,11 +1,11 @@
 """Figures and animation of the hierarchy and of a navigation (seed paper figs. 4–8).
 
-- :func:`plot_level`: one level — frames (grey), centres shown at their frames (numbered),
+- `plot_level`: one level — frames (grey), centres shown at their frames (numbered),
   links dashed, an optional route (key centres ringed, frame path as a line).
-- :func:`plot_levels_grid`: every level side by side, with each level's route.
-- :func:`face_wireframe`: a fixed wireframe for a marker set (Delaunay triangulation of
+- `plot_levels_grid`: every level side by side, with each level's route.
+- `face_wireframe`: a fixed wireframe for a marker set (Delaunay triangulation of
   the neutral frame's front projection, long hull edges removed).
-- :func:`write_navigation_animation`: GIF (Pillow) or MP4 (ffmpeg, when present) of the
+- `write_navigation_animation`: GIF (Pillow) or MP4 (ffmpeg, when present) of the
   2-D path with a moving cross beside the 3-D face.
 """
 
@@ -104,9 +104,11 @@ def plot_level(
     return fig
 
 
-def plot_levels_grid(hierarchy, routes: Sequence | None = None, ncols: int = 4) -> Figure:
-    """Every level in a grid; ``routes`` (e.g. from :func:`fxspace.navigate`) are drawn on
-    their levels."""
+def plot_levels_grid(
+    hierarchy, routes: Sequence | None = None, ncols: int = 4, title: str | None = None
+) -> Figure:
+    """Every level in a grid; ``routes`` (e.g. from `fxspace.navigate`) are drawn on
+    their levels; `title` (e.g. the ε and the criterion that chose it) above them."""
     n = len(hierarchy.levels)
     ncols = min(ncols, n)
     nrows = math.ceil(n / ncols)
@@ -119,12 +121,14 @@ def plot_levels_grid(hierarchy, routes: Sequence | None = None, ncols: int = 4) 
         else:
             ax.axis("off")
     fig.legend(handles=_levels_legend(bool(by_level)), loc="lower center", ncol=5, fontsize=8)
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.97 if title else 1))
     return fig
 
 
 def _levels_legend(with_route: bool) -> list:
-    """Legend handles of :func:`plot_levels_grid` (what each mark in a level means)."""
+    """Legend handles of `plot_levels_grid` (what each mark in a level means)."""
     from matplotlib.lines import Line2D
 
     h = [
@@ -195,9 +199,9 @@ def write_navigation_animation(
     dpi: int = 80,
     title: str = "",
 ) -> Path:
-    """Write the playback ``play`` (:class:`fxspace.Playback`) as an animation: the 2-D
+    """Write the playback ``play`` (`fxspace.Playback`) as an animation: the 2-D
     expression space with the path and a moving cross, beside the 3-D face (markers joined
-    by ``edges``, default :func:`face_wireframe` of the first frame).
+    by ``edges``, default `face_wireframe` of the first frame).
 
     ``path`` ending in ``.mp4`` needs ffmpeg (falls back to ``.gif`` with Pillow when it is
     absent). Output is written to a temporary name and renamed (atomic). Returns the path

@@ -1,7 +1,7 @@
 """Browser apps (viser): one module per paper's interactive system, plus shared helpers.
 
 ``fxspace studio RUN_DIR|CONFIG`` picks the app from the run's experiment through
-:data:`APPS` (experiment name → ``"module:function"``; the function takes the target and
+`APPS` (experiment name → ``"module:function"``; the function takes the target and
 ``port=``). viser is an optional extra (``pip install -e ".[viewer]"``); it is imported
 only when an app starts.
 """
@@ -29,6 +29,7 @@ from fxspace.studio._nav_controller import NavData as NavData
 from fxspace.studio._nav_controller import NavigatorController as NavigatorController
 from fxspace.studio._nav_controller import load_nav_data as load_nav_data
 from fxspace.studio._navigator import serve_navigator as serve_navigator
+from fxspace.studio._server import ServeOptions as ServeOptions
 from fxspace.studio._server import density_rgba as density_rgba
 from fxspace.studio._server import frame_density as frame_density
 from fxspace.studio._server import read_run_config
@@ -55,6 +56,7 @@ __all__ = [
     "serve_navigator",
     "density_rgba",
     "frame_density",
+    "ServeOptions",
 ]
 
 #: experiment name → ``"module:function"`` serving that experiment's app

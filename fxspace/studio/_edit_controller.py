@@ -1,11 +1,13 @@
 """The control-point editor's state and actions (Hirose & Higuchi §1–2), without any UI.
 
 The scene (a dense face sequence) is modelled by control points per segment
-(:func:`fxspace.fit_scene`). The animator scrubs to a frame, moves a control point (a key
-``(segment, control, frame, offset)``, :class:`fxspace.EditKey`), sees the region follow
-through the blend weights, reviews, re-edits or undoes; the keys are saved as data in the
-run folder (``edits.json``) after every change and replayed on the next start. The paper's
-knobs (segments, control points, kernel width) re-fit the scene.
+(`fxspace.fit_scene`). The animator scrubs to any frame (segment boundaries included),
+moves a control point — a key anchored on the face, ``FaceKey(frame, vertex, offset)``,
+whose vertex stands for the control point's region — sees the region follow through the
+blend weights, reviews, re-edits, undoes or redoes; the keys are saved as data in the run
+folder (``edits.json``) after every change and replayed on the next start (old
+per-segment files are converted). The paper's knobs (segments, control points, kernel
+width) re-fit the scene and the keys stay, since they live on the face, not on a segment.
 """
 
 from __future__ import annotations
@@ -18,10 +20,14 @@ from typing import Literal
 import numpy as np
 
 from fxspace.controlpoints import (
-    EditKey,
+    FaceKey,
     SceneModel,
-    apply_edits,
-    control_positions,
+    anchor_offsets,
+    anchor_vertex,
+    check_face_keys,
+    convert_keys,
+    edit_displacements,
+    edited_control_positions,
     fit_scene,
     linear_scene,
     load_edits,
@@ -56,6 +62,7 @@ class EditorData:
     run_dir: Path | None = None
     marker_vertex: np.ndarray | None = None
     marker_names: tuple[str, ...] = ()
+    markers: np.ndarray | None = None  # (T, M, 3) the capture, when the run kept it
 
 
 def save_editor_data(run_dir: str | Path, data: EditorData, name: str = _SCENE) -> Path:
@@ -63,6 +70,8 @@ def save_editor_data(run_dir: str | Path, data: EditorData, name: str = _SCENE) 
     from fxspace.runs import save_npz_atomic
 
     extra = {} if data.marker_vertex is None else {"marker_vertex": data.marker_vertex}
+    if data.markers is not None:
+        extra["markers"] = np.asarray(data.markers, np.float64)
     if data.marker_names:
         extra["marker_names"] = np.asarray(data.marker_names)
     return save_npz_atomic(
@@ -73,7 +82,7 @@ def save_editor_data(run_dir: str | Path, data: EditorData, name: str = _SCENE) 
 
 
 def load_editor_data(target: str | Path) -> EditorData:
-    """:class:`EditorData` of a reconstruction run folder (``scene.npz``; a re-fit saved
+    """`EditorData` of a reconstruction run folder (``scene.npz``; a re-fit saved
     by the editor, ``editor_scene.npz``, wins), or of a config's default run folder
     (``runs/<config stem>``)."""
     p = Path(target)
@@ -99,47 +108,53 @@ def load_editor_data(target: str | Path) -> EditorData:
         gamma=None if np.isnan(g) else g, run_dir=p,
         marker_vertex=np.asarray(z["marker_vertex"]) if "marker_vertex" in z else None,
         marker_names=tuple(str(s) for s in z["marker_names"]) if "marker_names" in z else (),
+        markers=np.asarray(z["markers"], np.float64) if "markers" in z else None,
     )  # fmt: skip
 
 
 class EditorController:
-    """State: ``frame``, ``mode`` (one of :data:`MODES`), ``keys`` (the edit history),
-    ``playing``/``loop``, ``message``; sequences are cached per mode."""
+    """State: ``frame``, ``mode`` (one of `MODES`), ``keys`` (the edit history, `FaceKey`s),
+    ``redo_keys``, ``playing``/``loop``, ``message``; sequences are cached per mode."""
 
     def __init__(self, data: EditorData):
         self.data = data
         self.frame = 0
         self.mode: str = "edited"
-        self.keys: list[EditKey] = []
+        self.keys: list[FaceKey] = []
+        self.redo_keys: list[FaceKey] = []
         self.playing = False
         self.loop = True
-        self.message = "scrub to a frame and move a control point"
+        self.message = "scrub to a frame and drag a control point"
         self._cache: dict[str, np.ndarray] = {}
-        self._edited: SceneModel | None = None
         self._lock = threading.RLock()
         if data.run_dir is not None and (data.run_dir / _EDITS).is_file():
-            keys, meta = load_edits(data.run_dir / _EDITS)
-            if list(meta.get("boundaries", data.scene.boundaries.tolist())) == (
-                data.scene.boundaries.tolist()
-            ):
-                try:
-                    apply_edits(data.scene, keys)
-                    self.keys = keys
-                    self.message = f"replayed {len(keys)} edit keys from {_EDITS}"
-                except FxspaceError as e:
-                    self.message = f"{_EDITS} ignored: {e}"
-            else:
-                self.message = f"{_EDITS} ignored: it belongs to another segmentation"
+            self.message = self._load_keys(data.run_dir / _EDITS)
+
+    def _load_keys(self, path: Path) -> str:
+        """Replay ``edits.json`` (per-segment files of older runs are converted)."""
+        try:
+            keys, meta = load_edits(path)
+        except FxspaceError as e:
+            return f"{_EDITS} ignored: {e}"
+        scene = self.data.scene
+        legacy = any(not isinstance(k, FaceKey) for k in keys)
+        if legacy and list(meta.get("boundaries", scene.boundaries.tolist())) != (
+            scene.boundaries.tolist()
+        ):
+            return f"{_EDITS} ignored: it belongs to another segmentation"
+        try:
+            self.keys = check_face_keys(scene, convert_keys(scene, keys))
+        except FxspaceError as e:
+            return f"{_EDITS} ignored: {e}"
+        if legacy:
+            self._save()
+            return f"replayed {len(keys)} edit keys from {_EDITS} (converted to keys on the face)"
+        return f"replayed {len(keys)} edit keys from {_EDITS}"
 
     # -- sequences -----------------------------------------------------------------------
     @property
     def n_frames(self) -> int:
         return int(self.data.original.shape[0])
-
-    def edited_scene(self) -> SceneModel:
-        if self._edited is None:
-            self._edited = apply_edits(self.data.scene, self.keys)
-        return self._edited
 
     def sequence(self, mode: str | None = None) -> np.ndarray:
         """``(T, N, 3)`` frames of ``mode`` (default the shown one)."""
@@ -156,7 +171,7 @@ class EditorController:
                 elif mode == "control points":
                     X = reconstruct_scene(d.scene)
                 else:
-                    X = reconstruct_scene(self.edited_scene())
+                    X = self.sequence("control points") + edit_displacements(d.scene, self.keys)
                 self._cache[mode] = np.asarray(X, np.float32)
             return self._cache[mode]
 
@@ -165,15 +180,20 @@ class EditorController:
 
     def controls(self, frame: int | None = None) -> tuple[int, np.ndarray]:
         """``(segment, (c, 3))`` control points (edited) at ``frame``."""
-        return control_positions(self.edited_scene(), self.frame if frame is None else frame)
+        f = self.frame if frame is None else int(frame)
+        return edited_control_positions(self.data.scene, self.keys, f)
+
+    def key_frames(self) -> list[int]:
+        """Frames that hold a key (sorted, once each): what the timeline marks."""
+        return sorted({int(k.frame) for k in self.keys})
 
     def _invalidate(self) -> None:
-        self._edited = None
         self._cache.pop("edited", None)
 
     def _save(self) -> None:
         if self.data.run_dir is not None:
-            save_edits(self.data.run_dir / _EDITS, self.keys,
+            save_edits(self.data.run_dir / _EDITS, self.keys, n_frames=self.n_frames,
+                       n_vertices=int(self.data.original.shape[1]),
                        boundaries=self.data.scene.boundaries.tolist())  # fmt: skip
 
     # -- actions -------------------------------------------------------------------------
@@ -185,35 +205,48 @@ class EditorController:
             raise FxspaceError(f"mode must be one of {MODES}; got {mode!r}")
         self.mode = mode
 
-    def _key_for(self, control: int, position) -> EditKey | None:
-        s, t = segment_of_frame(self.data.scene.boundaries, self.frame)
-        T = int(self.data.scene.boundaries[s + 1] - self.data.scene.boundaries[s]) + 1
-        if t == 0 or t == T - 1:
+    def anchor_of(self, control: int, frame: int | None = None) -> int:
+        """The vertex a drag of ``control`` (of the segment holding ``frame``) keys: an
+        anchor already keyed inside that control point's cluster (the latest), else the
+        control point's own `anchor_vertex`."""
+        f = self.frame if frame is None else int(frame)
+        s, _ = segment_of_frame(self.data.scene.boundaries, f)
+        W = np.asarray(self.data.scene.segments[s].weights)
+        for k in reversed(self.keys):
+            if int(np.argmax(W[k.vertex])) == int(control):
+                return int(k.vertex)
+        return anchor_vertex(self.data.scene, s, int(control), f)
+
+    def _key_for(self, control: int, position) -> FaceKey | None:
+        s, C = self.controls()
+        if not 0 <= int(control) < len(C):
             self.message = (
-                f"frame {self.frame} is a segment boundary (a stored key frame): move to an "
-                "in-between frame to edit"
+                f"control point {control} does not exist in segment {s} (0 … {len(C) - 1})"
             )
             return None
-        c = self.data.scene.segments[s].controls.shape[0]
-        if not 0 <= int(control) < c:
-            self.message = f"control point {control} does not exist in segment {s} (0 … {c - 1})"
+        p = np.asarray(position, np.float64).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            self.message = f"position must be 3 finite numbers; got {p.tolist()}"
             return None
-        base = np.asarray(self.data.scene.segments[s].controls[int(control), t], np.float64)
-        off = np.asarray(position, np.float64).reshape(3) - base
-        return EditKey(s, int(control), self.frame, tuple(float(v) for v in off))  # type: ignore[arg-type]
+        v = self.anchor_of(control)
+        now = anchor_offsets(self.keys, self.data.scene.boundaries).get(v)
+        cur = np.zeros(3) if now is None else now[self.frame]
+        off = cur + (p - C[int(control)])
+        return FaceKey(self.frame, v, tuple(float(x) for x in off))  # type: ignore[arg-type]
 
     def move_control(self, control: int, position) -> bool:
-        """Move control point ``control`` of the current frame's segment to ``position``
-        (scene units) at the current frame: writes a key, re-plays, saves."""
+        """Move control point ``control`` (of the segment holding the current frame) to
+        ``position`` (scene units) at the current frame: writes a key, replays, saves."""
         with self._lock:
             k = self._key_for(control, position)
             if k is None:
                 return False
             self.keys.append(k)
+            self.redo_keys = []
             self._invalidate()
             self._save()
             self.message = (
-                f"key: control point {k.control} of segment {k.segment} at frame {k.frame}, "
+                f"key at frame {k.frame}: control point {control} (vertex {k.vertex}), "
                 f"offset {np.round(k.offset, 2).tolist()}"
             )
             return True
@@ -224,19 +257,20 @@ class EditorController:
         if not 0 <= int(control) < len(C):
             self.message = f"control point {control} does not exist here (0 … {len(C) - 1})"
             return False
-        return self.move_control(control, C[int(control)] + np.asarray(delta, np.float64))
+        d = np.asarray(delta, np.float64).reshape(-1)
+        if d.shape != (3,) or not np.all(np.isfinite(d)):
+            self.message = f"offset must be 3 finite numbers; got {d.tolist()}"
+            return False
+        return self.move_control(control, C[int(control)] + d)
 
     def preview(self, control: int, position) -> np.ndarray | None:
         """The current frame's vertices if control ``control`` were at ``position`` (no key
-        written: the live view while dragging)."""
+        written: the live view while dragging); equal to the frame after `move_control`."""
         k = self._key_for(control, position)
         if k is None:
             return None
-        s, t = segment_of_frame(self.data.scene.boundaries, self.frame)
-        _, C = self.controls()
-        w = np.asarray(self.data.scene.segments[s].weights[:, int(control)], np.float64)
-        edited = self.sequence("edited")[self.frame].astype(np.float64)
-        return edited + w[:, None] * (np.asarray(position) - C[int(control)])[None, :]
+        D = edit_displacements(self.data.scene, [*self.keys, k], [self.frame])[0]
+        return self.sequence("control points")[self.frame].astype(np.float64) + D
 
     def undo(self) -> None:
         with self._lock:
@@ -244,20 +278,33 @@ class EditorController:
                 self.message = "nothing to undo"
                 return
             k = self.keys.pop()
+            self.redo_keys.append(k)
             self._invalidate()
             self._save()
-            self.message = f"undone: key of control point {k.control} at frame {k.frame}"
+            self.message = f"undone: key at frame {k.frame} (vertex {k.vertex})"
+
+    def redo(self) -> None:
+        with self._lock:
+            if not self.redo_keys:
+                self.message = "nothing to redo"
+                return
+            k = self.redo_keys.pop()
+            self.keys.append(k)
+            self._invalidate()
+            self._save()
+            self.message = f"redone: key at frame {k.frame} (vertex {k.vertex})"
 
     def clear_edits(self) -> None:
         with self._lock:
+            self.redo_keys = list(reversed(self.keys))
             self.keys = []
             self._invalidate()
             self._save()
-            self.message = "edits cleared"
+            self.message = "edits cleared (redo brings them back)"
 
     def refit(self, n_segments: int, n_clusters: int, gamma: float | None, seed: int = 0) -> None:
-        """Re-fit the scene with the paper's knobs; the old keys belong to the old model and
-        are dropped (the re-fit model is saved as ``editor_scene.npz``)."""
+        """Re-fit the scene with the paper's knobs (saved as ``editor_scene.npz``); the
+        keys live on the face, so they stay and are replayed on the new model."""
         import jax
 
         with self._lock:
@@ -266,16 +313,15 @@ class EditorController:
                 gamma=gamma, key=jax.random.PRNGKey(seed), n_init=10,
             )  # fmt: skip
             self.data = replace(self.data, scene=fit.model, gamma=gamma)
-            self.keys = []
             self._cache.clear()
-            self._invalidate()
             if self.data.run_dir is not None:
                 save_editor_data(self.data.run_dir, self.data, _REFIT)
             self._save()
             e = scene_errors(self.data.original, fit.model)
             self.message = (
                 f"re-fitted: {len(fit.model.boundaries) - 1} segments, {n_clusters} control "
-                f"points, γ={gamma}: ratio {e.ratio_scene:.4f} vs linear; edits cleared"
+                f"points, γ={gamma}: ratio {e.ratio_scene:.4f} vs linear; "
+                f"{len(self.keys)} edit keys kept"
             )
 
     def step(self) -> int:
@@ -309,22 +355,41 @@ class EditorController:
         else:
             raise FxspaceError(f"fmt must be 'gltf', 'obj' or 'ply'; got {fmt!r}")
         paths.append(save_npz_atomic(out / "control_points.npz",
-                                     **scene_to_arrays(self.edited_scene())))  # fmt: skip
-        paths.append(save_edits(out / _EDITS, self.keys,
-                                boundaries=self.data.scene.boundaries.tolist()))  # fmt: skip
+                                     **scene_to_arrays(self.data.scene)))  # fmt: skip
+        paths.append(save_edits(out / _EDITS, self.keys, n_frames=self.n_frames))
         self.message = f"exported {len(paths)} files to {out}"
         return [Path(p) for p in paths]
 
+    def timeline(self, width: int = 60) -> str:
+        """One line of text: ``|`` segment boundaries, ``◆`` key frames, ``▲`` the
+        current frame, ``·`` other frames (``width`` cells over the scene)."""
+        T = self.n_frames
+        cells = ["·"] * min(width, T)
+        n = len(cells)
+
+        def cell(f: int) -> int:
+            return min(n - 1, int(f * n / T))
+
+        for b in self.data.scene.boundaries:
+            cells[cell(int(b))] = "|"
+        for f in self.key_frames():
+            cells[cell(f)] = "◆"
+        cells[cell(self.frame)] = "▲"
+        return "".join(cells)
+
     def status(self) -> str:
-        s, t = segment_of_frame(self.data.scene.boundaries, self.frame)
+        s, _ = segment_of_frame(self.data.scene.boundaries, self.frame)
         b = self.data.scene.boundaries
         diff = float(np.abs(self.sequence("edited")[self.frame]
                             - self.sequence("control points")[self.frame]).max())  # fmt: skip
+        kf = self.key_frames()
         return (
             f"**Frame {self.frame}** of {self.n_frames - 1} — segment {s} "
             f"(frames {int(b[s])}–{int(b[s + 1])})  \n"
             f"Showing: {self.mode}  \n"
             f"Edit keys: {len(self.keys)}  \n"
+            f"Keys at frames: {', '.join(map(str, kf)) if kf else 'none'}  \n"
+            f"`{self.timeline()}`  \n"
             f"Edited vs model here: {diff:.3f} max  \n"
             f"{'Playing' if self.playing else 'Paused'}  \n"
             f"_{self.message}_"

@@ -8,16 +8,16 @@ the surface of the model and their target positions are set":
   the camera, the paper's visibility test; or type a triangle index and press
   *Add marker*);
 - each marker's target is a **draggable gizmo**; the mesh follows on every drag event
-  (one warm-started :func:`fxspace.solve_ik` per event), or type a target and press
+  (one warm-started `fxspace.solve_ik` per event), or type a target and press
   *Move target*;
 - *Remove marker*; *Play / Pause* plays the mesh's own animation and tracks it with the
   current markers (their targets follow the animated surface, IK warm-started per frame);
 - *Export BVH* writes the current pose, or the tracked frames, as BVH
-  (:func:`fxspace.io.write_ik_bvh`); *Export glTF* writes them with the mesh as an
-  animated ``.glb`` (:func:`fxspace.io.write_ik_gltf`).
+  (`fxspace.io.write_ik_bvh`); *Export glTF* writes them with the mesh as an
+  animated ``.glb`` (`fxspace.io.write_ik_gltf`).
 
-The state and actions live in :class:`IKController` (plain Python, testable without a
-browser); :func:`serve_ik` draws and wires it.
+The state and actions live in `IKController` (plain Python, testable without a
+browser); `serve_ik` draws and wires it.
 
 Example: ``server, ctl = serve_ik("CesiumMan.glb", port=0, block=False)``.
 """
@@ -36,26 +36,33 @@ from fxspace.errors import FxspaceError
 from fxspace.mesh import (
     MarkerSet,
     Pose,
+    animation_vertices,
+    ik_constraints,
     ik_model,
     marker_positions,
+    normal_constraint,
+    plane_contact,
     pose_vertices,
     solve_ik,
     triangle_normals,
 )
+from fxspace.results import RESULTS
 from fxspace.studio._server import (
     Player,
+    ServeOptions,
     attach_stop,
+    new_server,
     read_run_config,
     run_until_interrupted,
     serialized,
 )
 
-__all__ = ["IKController", "load_ik_mesh", "serve_ik"]
+__all__ = ["IKController", "IKView", "load_ik_mesh", "serve_ik"]
 
 
 def load_ik_mesh(target):
     """The skinned mesh of ``target``: a ``.glb``/``.gltf`` file, a ``mesh_ik`` config or
-    run folder (its first mesh), or an already-read :class:`fxspace.SkinnedMesh`;
+    run folder (its first mesh), or an already-read `fxspace.SkinnedMesh`;
     returns ``(mesh, animation name or None)``."""
     from fxspace.io import read_gltf
     from fxspace.mesh import SkinnedMesh
@@ -81,7 +88,7 @@ class IKController:
     """The IK studio's state and actions, independent of any UI.
 
     ``markers`` (triangle, barycentric) and ``targets`` ``(K, 3)``; ``pose`` the current
-    :class:`fxspace.Pose`; ``vertices`` the posed mesh; ``recorded`` the poses tracked
+    `fxspace.Pose`; ``vertices`` the posed mesh; ``recorded`` the poses tracked
     while playing; ``message`` the last status line.
     """
 
@@ -100,9 +107,13 @@ class IKController:
         self.playing = False
         self.last_result = None
         self.message = "click the mesh (or type a triangle) to add a marker"
+        self.constraints: dict[int, str] = {}  # marker index → "normal" | "floor"
+        self.constraint_weight = {"normal": 0.1, "floor": 100.0}
         self._model = None
         self._posed = jax.jit(lambda p: pose_vertices(mesh, p))
         self.vertices = np.asarray(self._posed(self.pose))
+        self.floor_height = float(self.vertices[:, 1].min())  # the rest pose's lowest point
+        self._normals = None
         self._lock = threading.RLock()
 
     # ------------------------------------------------------------------ markers
@@ -181,6 +192,9 @@ class IKController:
                 raise FxspaceError(f"marker {index} does not exist ({self.num_markers} markers)")
             del self.triangles[index]
             del self.barycentric[index]
+            self.constraints = {
+                (i - (i > index)): kind for i, kind in self.constraints.items() if i != index
+            }
             self.targets = np.delete(self.targets, index, axis=0)
             self._model = None
             self.message = f"removed marker {index}; {self.num_markers} left"
@@ -191,15 +205,70 @@ class IKController:
             self._model = ik_model(self.mesh, self.marker_set(), dtype=jnp.float32)
         return self._model
 
+    def add_constraint(self, index: int, kind: str) -> None:
+        """Constrain marker ``index``: ``"normal"`` (keep its surface normal as it is now,
+        `fxspace.mesh.normal_constraint`), ``"floor"`` (keep it on the floor plane
+        ``y = floor_height``, `fxspace.mesh.plane_contact`; its target no longer pulls) or
+        ``"none"`` (remove the constraint); re-solves."""
+        with self._lock:
+            if not 0 <= index < self.num_markers:
+                raise FxspaceError(f"marker {index} does not exist ({self.num_markers} markers)")
+            if kind not in ("normal", "floor", "none"):
+                raise FxspaceError(f"kind must be 'normal', 'floor' or 'none', got {kind!r}")
+            if kind == "none":
+                self.constraints.pop(index, None)
+            else:
+                self.constraints[index] = kind
+            self._normals = self._current_normals()
+            self.solve()
+            self.message = f"marker {index}: constraint {kind}; " + self.message
+
+    def _current_normals(self) -> np.ndarray:
+        n = np.asarray(triangle_normals(self.vertices, self.faces))[np.asarray(self.triangles)]
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+    def ik_constraints(self):
+        """The `fxspace.mesh.IKConstraints` of the markers' constraints (None when there
+        are none) and the target normals of the normal-constrained markers."""
+        if not self.constraints:
+            return None, None
+        model = self._ik()
+        normal = sorted(i for i, k in self.constraints.items() if k == "normal")
+        floor = sorted(i for i, k in self.constraints.items() if k == "floor")
+        w = np.ones(self.num_markers)
+        w[floor] = 0.0
+        nc = ct = tn = None
+        if normal:
+            nc = normal_constraint(
+                self.mesh, self.marker_set(), self.constraint_weight["normal"], normal, jnp.float32
+            )
+            normals = self._normals
+            if normals is None or len(normals) != self.num_markers:
+                normals = self._current_normals()
+            tn = jnp.asarray(normals[normal], jnp.float32)
+        if floor:
+            ct = plane_contact(
+                model, floor, (0.0, 1.0, 0.0), self.floor_height, self.constraint_weight["floor"]
+            )
+        return ik_constraints(model, marker_weights=w, normal=nc, contact=ct), tn
+
     def solve(self):
-        """One warm-started IK solve towards the current targets; updates the pose."""
+        """One warm-started IK solve towards the current targets (and the markers'
+        constraints); updates the pose."""
         with self._lock:
             if not self.num_markers:
                 self.message = "add a marker first"
                 return None
             t0 = time.perf_counter()
-            res = solve_ik(self._ik(), jnp.asarray(self.targets, jnp.float32), self.pose)
-            if bool(res.converged) or int(res.status) != 2:
+            cons, tn = self.ik_constraints()
+            res = solve_ik(
+                self._ik(),
+                jnp.asarray(self.targets, jnp.float32),
+                self.pose,
+                constraints=cons,
+                target_normals=tn,
+            )
+            if res.result not in (RESULTS.nonfinite_input, RESULTS.nonfinite_output):
                 self.pose = res.pose
                 self.vertices = np.asarray(self._posed(self.pose))
             self.last_result = res
@@ -231,9 +300,9 @@ class IKController:
         with self._lock:
             self.time = float(t)
             if not self.num_markers:
-                self.vertices = self.mesh.animation_vertices(self.animation, [self.time])[0]
+                self.vertices = animation_vertices(self.mesh, self.animation, [self.time])[0]
                 return
-            v = self.mesh.animation_vertices(self.animation, [self.time])[0]
+            v = animation_vertices(self.mesh, self.animation, [self.time])[0]
             self.targets = np.asarray(marker_positions(v, self.faces, self.marker_set()))
             self.solve()
             self.recorded.append(self.pose)
@@ -270,10 +339,129 @@ class IKController:
         return out
 
     def status(self) -> str:
+        cons = ", ".join(f"{i}: {k}" for i, k in sorted(self.constraints.items()))
         return (
-            f"**Markers: {self.num_markers}**  \n{'Playing' if self.playing else 'Paused'}"
+            f"**Markers: {self.num_markers}**"
+            + (f"  \nConstraints: {cons}" if cons else "")
+            + f"  \n{'Playing' if self.playing else 'Paused'}"
             f" t = {self.time:.2f} s  \n{self.message}"
         )
+
+
+class IKView:
+    """The IK studio's page: the shaded mesh, the markers and targets (with a draggable
+    gizmo per target) and the controls, each wired to one `IKController` method."""
+
+    def __init__(self, server, ctl: IKController, export_path, gltf_path):
+        self.server, self.ctl = server, ctl
+        lo, hi = ctl.mesh.vertices.min(0), ctl.mesh.vertices.max(0)
+        centre, self.size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+        server.initial_camera.position = tuple(centre + np.array([0.0, 0.0, 1.5 * self.size]))
+        server.initial_camera.look_at = tuple(centre)
+        server.initial_camera.up = (0.0, 1.0, 0.0)
+        self.gizmos: list = []
+        gui = server.gui
+        self.gui_status = gui.add_markdown(ctl.status())
+        self.tri_text = gui.add_text("Triangle", initial_value="0")
+        self.add_btn = gui.add_button("Add marker")
+        self.idx_text = gui.add_text("Marker", initial_value="0")
+        self.tgt_text = gui.add_text("Target x y z", initial_value="")
+        self.move_btn = gui.add_button("Move target")
+        self.rm_btn = gui.add_button("Remove marker")
+        self.kind = gui.add_dropdown("Constraint", ("normal", "floor", "none"))
+        self.cons_btn = gui.add_button("Constrain marker")
+        self.play_btn = gui.add_button("Play / Pause", disabled=ctl.animation is None)
+        self.export_btn = gui.add_button("Export BVH")
+        self.gltf_btn = gui.add_button("Export glTF")
+        self.redraw = serialized(server)(self._redraw)
+        self._wire(export_path, gltf_path)
+
+    def draw_mesh(self) -> None:
+        h = self.server.scene.add_mesh_simple(
+            "/mesh", self.ctl.vertices.astype(np.float32), self.ctl.faces, color=(200, 170, 140)
+        )
+        h.on_click(self.on_mesh_click)
+
+    def draw_markers(self, gizmos: bool = True) -> None:
+        scene, ctl = self.server.scene, self.ctl
+        pts = ctl.marker_points().astype(np.float32)
+        if len(pts):
+            scene.add_point_cloud(
+                "/markers", pts, colors=(30, 90, 220), point_size=0.01 * self.size
+            )
+            scene.add_point_cloud(
+                "/targets",
+                ctl.targets.astype(np.float32),
+                colors=(220, 40, 40),
+                point_size=0.012 * self.size,
+            )
+        else:
+            scene.remove_by_name("/markers")
+            scene.remove_by_name("/targets")
+        if not gizmos:
+            return
+        for g in self.gizmos:
+            g.remove()
+        self.gizmos = []
+        for i, p in enumerate(ctl.targets):
+            g = scene.add_transform_controls(
+                f"/target_{i}", scale=0.08 * self.size, disable_rotations=True, position=tuple(p)
+            )
+            g.on_update(lambda _e, i=i, g=g: self.on_drag(i, g))
+            self.gizmos.append(g)
+
+    def _redraw(self, gizmos: bool = True) -> None:
+        self.draw_mesh()
+        self.draw_markers(gizmos)
+        self.gui_status.content = self.ctl.status()
+
+    def on_mesh_click(self, e) -> None:
+        self.guarded(lambda: self.ctl.pick(e.ray_origin, e.ray_direction))
+
+    def on_drag(self, i: int, g) -> None:
+        self.ctl.move_target(i, np.asarray(g.position))
+        self.redraw(gizmos=False)
+
+    def guarded(self, action) -> None:
+        """Run a controller action; a user error becomes the status line; redraw."""
+        try:
+            action()
+        except (FxspaceError, ValueError, OSError) as err:
+            self.ctl.message = str(err)
+        self.redraw()
+
+    def _add_marker(self, e) -> None:
+        cam = e.client.camera if e.client is not None else None
+        view = None if cam is None else np.asarray(cam.look_at) - np.asarray(cam.position)
+        self.ctl.add_marker(int(str(self.tri_text.value).strip()), view_dir=view)
+
+    def _move_target(self) -> None:
+        xyz = [float(x) for x in str(self.tgt_text.value).replace(",", " ").split()]
+        if len(xyz) != 3:
+            raise ValueError(f"target needs three numbers 'x y z', got {self.tgt_text.value!r}")
+        self.ctl.move_target(self._marker(), xyz)
+
+    def _marker(self) -> int:
+        return int(str(self.idx_text.value).strip())
+
+    def _toggle_play(self) -> None:
+        self.ctl.playing = not self.ctl.playing
+        if self.ctl.playing:
+            self.ctl.recorded = []
+
+    def _wire(self, export_path, gltf_path) -> None:
+        ctl = self.ctl
+        self.add_btn.on_click(lambda e: self.guarded(lambda: self._add_marker(e)))
+        self.move_btn.on_click(lambda _e: self.guarded(self._move_target))
+        self.rm_btn.on_click(lambda _e: self.guarded(lambda: ctl.remove_marker(self._marker())))
+        self.cons_btn.on_click(
+            lambda _e: self.guarded(
+                lambda: ctl.add_constraint(self._marker(), str(self.kind.value))
+            )
+        )
+        self.play_btn.on_click(lambda _e: self.guarded(self._toggle_play))
+        self.export_btn.on_click(lambda _e: self.guarded(lambda: ctl.export_bvh(export_path)))
+        self.gltf_btn.on_click(lambda _e: self.guarded(lambda: ctl.export_gltf(gltf_path)))
 
 
 def serve_ik(
@@ -286,157 +474,36 @@ def serve_ik(
     environment_map: bool = True,
     export_path: str | Path = "ik_pose.bvh",
     gltf_path: str | Path | None = None,
+    options: ServeOptions | None = None,
 ):
-    """Serve the IK studio for ``target`` (see :func:`load_ik_mesh`); ``port=0`` picks a
-    free port (``server.get_port()``). With ``block=False`` returns ``(server, controller)``
-    at once (stop with ``server.stop()``). *Export glTF* writes `gltf_path` (default:
-    `export_path` with the suffix ``.glb``)."""
-    try:
-        import viser
-    except ImportError as e:
-        raise FxspaceError(
-            f"the IK studio needs the optional viewer extra: pip install -e '.[viewer]' ({e})"
-        ) from e
+    """Serve the IK studio for ``target`` (see `load_ik_mesh`); ``port=0`` picks a free
+    port (``server.get_port()``), or pass `options`, a `ServeOptions`, which wins over
+    the keywords. With ``block=False`` returns ``(server, controller)`` at once (stop with
+    ``server.stop()``; the page's `IKView` is ``server.fxspace_view``). *Export glTF*
+    writes `gltf_path` (default: `export_path` with the suffix ``.glb``)."""
+    o = options or ServeOptions(port, host, 30.0, block, environment_map)
     mesh, anim = load_ik_mesh(target)
-    ctl = IKController(mesh, anim)
-    server = viser.ViserServer(host=host, port=port, verbose=False)
-    if not environment_map:
-        server.scene.configure_environment_map(None)
-    server.scene.set_up_direction("+y")
-    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
-    centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
-    server.initial_camera.position = tuple(centre + np.array([0.0, 0.0, 1.5 * size]))
-    server.initial_camera.look_at = tuple(centre)
-    server.initial_camera.up = (0.0, 1.0, 0.0)
-    gizmo_scale = 0.08 * size
-    handles: dict = {"gizmos": []}
-    gui_status = server.gui.add_markdown(ctl.status())
-    tri_text = server.gui.add_text("Triangle", initial_value="0")
-    add_btn = server.gui.add_button("Add marker")
-    idx_text = server.gui.add_text("Marker", initial_value="0")
-    tgt_text = server.gui.add_text("Target x y z", initial_value="")
-    move_btn = server.gui.add_button("Move target")
-    rm_btn = server.gui.add_button("Remove marker")
-    play_btn = server.gui.add_button("Play / Pause", disabled=anim is None)
-    export_btn = server.gui.add_button("Export BVH")
-    gltf_btn = server.gui.add_button("Export glTF")
+    ctl = IKController(mesh, anim, fps=o.fps)
+    server = new_server(o.port, o.host, o.environment_map)
     if gltf_path is None:
         bvh = Path(export_path)
         gltf_path = bvh.with_name(bvh.name.removesuffix(".gz").removesuffix(".bvh") + ".glb")
-
-    def draw_mesh() -> None:
-        h = server.scene.add_mesh_simple(
-            "/mesh", ctl.vertices.astype(np.float32), ctl.faces, color=(200, 170, 140)
-        )
-        h.on_click(on_mesh_click)
-
-    def draw_markers(gizmos: bool = True) -> None:
-        pts = ctl.marker_points().astype(np.float32)
-        if len(pts):
-            server.scene.add_point_cloud(
-                "/markers", pts, colors=(30, 90, 220), point_size=0.01 * size
-            )
-            server.scene.add_point_cloud(
-                "/targets",
-                ctl.targets.astype(np.float32),
-                colors=(220, 40, 40),
-                point_size=0.012 * size,
-            )
-        else:
-            server.scene.remove_by_name("/markers")
-            server.scene.remove_by_name("/targets")
-        if not gizmos:
-            return
-        for g in handles["gizmos"]:
-            g.remove()
-        handles["gizmos"] = []
-        for i, p in enumerate(ctl.targets):
-            g = server.scene.add_transform_controls(
-                f"/target_{i}", scale=gizmo_scale, disable_rotations=True, position=tuple(p)
-            )
-            g.on_update(lambda _e, i=i, g=g: on_drag(i, g))
-            handles["gizmos"].append(g)
-
-    @serialized(server)
-    def refresh(gizmos: bool = True) -> None:
-        draw_mesh()
-        draw_markers(gizmos)
-        gui_status.content = ctl.status()
-
-    def on_mesh_click(e) -> None:
-        try:
-            ctl.pick(e.ray_origin, e.ray_direction)
-        except FxspaceError as err:
-            ctl.message = str(err)
-        refresh()
-
-    def on_drag(i: int, g) -> None:
-        ctl.move_target(i, np.asarray(g.position))
-        refresh(gizmos=False)
-
-    @add_btn.on_click
-    def _(e) -> None:
-        try:
-            cam = e.client.camera if e.client is not None else None
-            view = None if cam is None else np.asarray(cam.look_at) - np.asarray(cam.position)
-            ctl.add_marker(int(str(tri_text.value).strip()), view_dir=view)
-        except (FxspaceError, ValueError) as err:
-            ctl.message = str(err)
-        refresh()
-
-    @move_btn.on_click
-    def _(_e) -> None:
-        try:
-            i = int(str(idx_text.value).strip())
-            xyz = [float(x) for x in str(tgt_text.value).replace(",", " ").split()]
-            if len(xyz) != 3:
-                raise ValueError(f"target needs three numbers 'x y z', got {tgt_text.value!r}")
-            ctl.move_target(i, xyz)
-        except (FxspaceError, ValueError) as err:
-            ctl.message = str(err)
-        refresh()
-
-    @rm_btn.on_click
-    def _(_e) -> None:
-        try:
-            ctl.remove_marker(int(str(idx_text.value).strip()))
-        except (FxspaceError, ValueError) as err:
-            ctl.message = str(err)
-        refresh()
-
-    @play_btn.on_click
-    def _(_e) -> None:
-        ctl.playing = not ctl.playing
-        if ctl.playing:
-            ctl.recorded = []
-        gui_status.content = ctl.status()
-
-    def exporter(write, path):
-        def _(_e) -> None:
-            try:
-                write(path)
-            except (FxspaceError, OSError) as err:
-                ctl.message = str(err)
-            gui_status.content = ctl.status()
-
-        return _
-
-    export_btn.on_click(exporter(ctl.export_bvh, export_path))
-    gltf_btn.on_click(exporter(ctl.export_gltf, gltf_path))
+    view = IKView(server, ctl, export_path, gltf_path)
+    server.fxspace_view = view
 
     @serialized(server)
     def tick() -> None:
         ctl.step()
-        refresh(gizmos=False)
+        view._redraw(gizmos=False)
 
-    refresh()
+    view.redraw()
     attach_stop(server, Player(tick, lambda: ctl.playing, ctl.fps))
-    url = f"http://{host}:{server.get_port()}"
+    url = f"http://{o.host}:{server.get_port()}"
     if open_browser:
         import webbrowser
 
         webbrowser.open(url)
-    if not block:
+    if not o.block:
         return server, ctl
-    run_until_interrupted(server, "IK studio", host)
+    run_until_interrupted(server, "IK studio", o.host)
     return server, ctl

@@ -4,7 +4,7 @@
 ``fxspace studio RUN_DIR`` (or a ``parametric_synthesis`` config) builds the set-up's two
 spaces and serves a viser page with:
 
-- the character playing, one :func:`fxspace.motion.synthesize_step` per frame (the clip
+- the character playing, one `fxspace.motion.synthesize_step` per frame (the clip
   loops when the lower clock reaches its end);
 - sliders for the joy/sad weight (the mood walk) and for α (eqs. 2–3);
 - draggable targets (transform gizmos): the foot (the lower parameter: final left-foot
@@ -14,8 +14,8 @@ spaces and serves a viser page with:
   upper samples re-placed (§3.2) around the character, moving when the foot target moves;
 - record → BVH.
 
-:class:`MotionController` holds the state and the actions (testable without a browser);
-:func:`serve_motion` draws it and wires the page to it; :func:`serve` builds it from a run
+`MotionController` holds the state and the actions (testable without a browser);
+`serve_motion` draws it and wires the page to it; `serve` builds it from a run
 folder or config.
 """
 
@@ -31,11 +31,15 @@ import numpy as np
 from fxspace import motion as M
 from fxspace.config import config_from_dict
 from fxspace.data import data_path
+from fxspace.errors import FxspaceError
 from fxspace.io import read_amc, read_bvh, write_bvh
 from fxspace.rotations import quat_rotate
 from fxspace.studio._server import (
     Player,
+    ServeOptions,
     attach_stop,
+    density_rgba,
+    frame_density,
     new_server,
     read_run_config,
     run_until_interrupted,
@@ -48,31 +52,49 @@ __all__ = ["MotionController", "load_setup", "serve_motion", "serve"]
 class MotionController:
     """State and actions of the live controller (no UI).
 
-    **Arguments:** ``setup`` (:class:`fxspace.motion.Setup`), ``alpha`` (eqs. 2–3),
-    ``loop`` (restart the clocks at the end of the lower reference clip).
+    **Arguments:** ``setup`` (`fxspace.motion.Setup`), ``alpha`` (eqs. 2–3), ``loop``
+    (continuous locomotion: the clocks wrap and the walker walks on, `locomotion_step`;
+    ``False`` stops at the end of the lower reference clip), ``smoothing_s`` (controls are
+    followed by two cascaded lags of half this time, as in `run_session`).
     """
 
-    def __init__(self, setup: M.Setup, alpha: float = 0.5, loop: bool = True):
+    def __init__(self, setup: M.Setup, alpha: float = 0.5, loop: bool = True,
+                 smoothing_s: float = 0.3):  # fmt: skip
         self.setup = setup
         self.sp = sp = setup.spaces
         self.skel = setup.skeleton
         self.alpha = float(alpha)
         self.loop = loop
+        self.smoothing_s = float(smoothing_s)
         self.parametric = sp.upper_joint >= 0
         self.joy = 0.5
-        self.lower_param = np.asarray(sp.lower_params[0], np.float64)
-        self.state = M.init_state(sp, jnp.asarray(self.lower_param))
+        try:
+            self.table = M.session_turn_table(setup)
+        except FxspaceError:  # examples that do not turn: no steering
+            self.table = None
+        self.turn = 0.0 if self.table is None else float(np.clip(0.0, self.table.low,
+                                                                 self.table.high))  # fmt: skip
+        self.lower_param = (
+            np.asarray(M.turn_to_lower_param(self.table, self.turn), np.float64)
+            if self.table is not None else np.asarray(sp.lower_params[0], np.float64)
+        )  # fmt: skip
         self.hand_param = np.asarray(sp.upper_params[0], np.float64) if self.parametric else None
+        self._lag = [np.concatenate([self.lower_param, self._upper_target()])] * 2
+        self.state = M.init_locomotion(sp, jnp.asarray(self.lower_param, sp.lam.dtype))
+        self.cycle_origin = (np.zeros(3), 0.0)
         self.recording: list[tuple[np.ndarray, np.ndarray]] | None = None
         self.frame = 0
         self.message = ""
         self.rotations, self.root = self._pose_now()
 
     # ------------------------------------------------------------------ parameters
-    def upper_param(self) -> jnp.ndarray:
+    def _upper_target(self) -> np.ndarray:
         if self.parametric:
-            return jnp.asarray(self.hand_param)
-        return jnp.asarray([self.joy, 1.0 - self.joy])
+            return np.asarray(self.hand_param, np.float64)
+        return np.asarray([self.joy, 1.0 - self.joy])
+
+    def upper_param(self) -> jnp.ndarray:
+        return jnp.asarray(self._lag[1][self.lower_param.size :])
 
     def set_joy(self, w: float) -> None:
         """Joy weight in [0, 1] (sad = 1 − joy); the mood walk's upper control."""
@@ -81,10 +103,40 @@ class MotionController:
     def set_alpha(self, a: float) -> None:
         self.alpha = float(np.clip(a, 0.0, 1.0))
 
+    def turn_range(self) -> tuple[float, float]:
+        """Turning rates the examples span (°/s, positive = left); ``(0, 0)`` without."""
+        return (0.0, 0.0) if self.table is None else (self.table.low, self.table.high)
+
+    def set_turn(self, deg_per_s: float) -> None:
+        """Steer: the turning rate (°/s, clamped to the examples' range) → lower parameter."""
+        if self.table is None:
+            return
+        self.turn = float(np.clip(deg_per_s, *self.turn_range()))
+        self.lower_param = np.asarray(M.turn_to_lower_param(self.table, self.turn), np.float64)
+
+    def nudge_turn(self, sign: int) -> None:
+        """Arrow keys / buttons: one tenth of the range to the left (+1) or right (−1)."""
+        lo, hi = self.turn_range()
+        self.set_turn(self.turn + sign * 0.1 * (hi - lo))
+
+    def _to_cycle_frame(self, world) -> np.ndarray:
+        pos, yaw = self.cycle_origin
+        rel = np.asarray(world, np.float64) - pos
+        c, s = np.cos(-yaw), np.sin(-yaw)
+        return np.asarray([c * rel[0] + s * rel[2], rel[1], -s * rel[0] + c * rel[2]])
+
+    def _from_cycle_frame(self, p: np.ndarray) -> np.ndarray:
+        pos, yaw = self.cycle_origin
+        c, s = np.cos(yaw), np.sin(yaw)
+        p = np.atleast_2d(p)
+        out = np.stack([c * p[:, 0] + s * p[:, 2], p[:, 1], -s * p[:, 0] + c * p[:, 2]], 1)
+        return out + pos
+
     def set_foot_target(self, world) -> None:
-        """The lower parameter from a world point (start-aligned clips: world = parameter
-        frame); only the parameter's dimensions (e.g. x, z) are taken."""
-        w = np.asarray(world, np.float64)
+        """The lower parameter from a world point, in the frame where the current cycle
+        started (start-aligned clips: at the start that is the world); only the parameter's
+        dimensions (e.g. x, z) are taken."""
+        w = self._to_cycle_frame(world)
         self.lower_param = w[np.asarray(self.sp.lower_dims)]
 
     def set_hand_target(self, world) -> None:
@@ -92,16 +144,15 @@ class MotionController:
         root frame (ground position and heading)."""
         if not self.parametric:
             return
-        q0 = jnp.asarray(self.rotations[0])
         X = self.joints()
         rel = np.asarray(world, np.float64) - np.asarray([X[0, 0], 0.0, X[0, 2]])
-        h = M.heading_quat(q0)
+        h = M.heading_quat(jnp.asarray(self.rotations[0]))
         self.hand_param = np.asarray(quat_rotate(M.quat_conj(h), jnp.asarray(rel)))
 
     def foot_target_world(self) -> np.ndarray:
         out = np.zeros(3)
         out[np.asarray(self.sp.lower_dims)] = self.lower_param
-        return out
+        return self._from_cycle_frame(out)[0]
 
     def hand_target_world(self) -> np.ndarray | None:
         if not self.parametric:
@@ -109,28 +160,45 @@ class MotionController:
         return self._from_root_frame(self.hand_param[None])[0]
 
     # ------------------------------------------------------------------ playing
+    def _params(self):
+        n = self.lower_param.size
+        c = self._lag[1]
+        dt = self.sp.lam.dtype
+        return jnp.asarray(c[n:], dt), jnp.asarray(c[:n], dt)
+
     def _pose_now(self):
-        _, pose = M.synthesize_step(
-            self.sp, self.state, self.upper_param(), jnp.asarray(self.lower_param), self.alpha, 0.0
-        )
+        up, low = self._params()
+        _, pose = M.locomotion_step(self.sp, self.state, up, low, self.alpha, 0.0)
         return np.asarray(pose.rotations), np.asarray(pose.root)
 
     def step(self) -> None:
-        """One animation frame: the synthesis step with the current controls."""
-        self.state, pose = M.synthesize_step(
-            self.sp, self.state, self.upper_param(), jnp.asarray(self.lower_param), self.alpha, 1.0
-        )
+        """One animation frame: the controls followed (lags), then `locomotion_step`."""
+        target = np.concatenate([self.lower_param, self._upper_target()])
+        dt_s, tau = 1.0 / float(self.skel.rate), self.smoothing_s / 2
+        a = M.smooth_controls(self._lag[0], target, dt_s, tau)
+        self._lag = [a, M.smooth_controls(self._lag[1], a, dt_s, tau)]
+        up, low = self._params()
+        cycles = float(self.state.cycles)
+        self.state, pose = M.locomotion_step(self.sp, self.state, up, low, self.alpha, 1.0)
+        if float(self.state.cycles) != cycles:  # a new cycle starts here
+            self.cycle_origin = (np.asarray(self.state.position, np.float64),
+                                 float(self.state.yaw))  # fmt: skip
         self.rotations, self.root = np.asarray(pose.rotations), np.asarray(pose.root)
         self.frame += 1
         if self.recording is not None:
             self.recording.append((self.rotations, self.root))
-        if self.loop and float(self.state.t_lower) >= self.sp.lam.shape[0] - 1 - 1e-6:
-            self.state = M.init_state(self.sp, jnp.asarray(self.lower_param))
+        if not self.loop and float(self.state.cycles) > 0:
+            self.state = M.init_locomotion(self.sp, low)
 
     def joints(self) -> np.ndarray:
         """World joint positions of the current pose, ``(J, 3)``."""
         X = M.fk_arrays(self.skel.parents, np.asarray(self.skel.offsets), self.root, self.rotations)
         return np.asarray(X[0])
+
+    def contacts(self, height: float = 0.04) -> list[bool]:
+        """Whether each foot (`Setup.feet`) touches the ground plane (within ``height``)."""
+        X = self.joints()
+        return [bool(X[j, 1] < height) for j in self.setup.feet]
 
     def _from_root_frame(self, p: np.ndarray) -> np.ndarray:
         X = self.joints()
@@ -142,13 +210,13 @@ class MotionController:
         """The re-placed upper samples (§3.2), drawn around the character (paper Fig. 2)."""
         if not self.parametric:
             return None
-        return self._from_root_frame(np.asarray(self.state.upper_params))
+        return self._from_root_frame(np.asarray(self.state.synth.upper_params))
 
     def lower_samples_world(self) -> np.ndarray:
         P = np.asarray(self.sp.lower_params)
         out = np.zeros((P.shape[0], 3))
         out[:, np.asarray(self.sp.lower_dims)] = P
-        return out
+        return self._from_cycle_frame(out)
 
     # ------------------------------------------------------------------ recording
     def start_recording(self) -> None:
@@ -169,15 +237,16 @@ class MotionController:
         return out
 
     def status(self) -> str:
-        s = self.state
+        s = self.state.synth
         up = (
             f"joy {self.joy:.2f}"
             if not self.parametric
             else "hand " + " ".join(f"{v:+.2f}" for v in self.hand_param)
         )
+        turn = f" · turn {self.turn:+.0f}°/s" if self.table is not None else ""
         return (
             f"**{self.setup.name}** · frame {self.frame} · T_L {float(s.t_lower):.1f} · "
-            f"T_U {float(s.t_upper):.1f} · α {self.alpha:.2f} · {up}  \n{self.message}"
+            f"T_U {float(s.t_upper):.1f} · α {self.alpha:.2f} · {up}{turn}  \n{self.message}"
         )
 
 
@@ -210,6 +279,164 @@ def _bones(parents) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(parents)[j], j
 
 
+def body_mesh(X: np.ndarray, parents, radius: float = 0.045, sides: int = 10):
+    """Shaded limbs: one cylinder per bone (``sides`` facets, radius ``radius``) from the
+    world joint positions ``X`` ``(J, 3)``; joints get spheres separately (`_SPHERE`).
+    Returns ``(vertices (V, 3) float32, faces (F, 3) uint32)``."""
+    pi, ji = _bones(parents)
+    a, b = X[pi], X[ji]
+    d = b - a
+    L = np.linalg.norm(d, axis=1)
+    keep = L > 1e-4
+    a, b, d, L = a[keep], b[keep], d[keep], L[keep]
+    u = d / L[:, None]
+    h = np.where(np.abs(u[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    e1 = np.cross(u, h)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(u, e1)
+    ang = 2 * np.pi * np.arange(sides) / sides
+    ring = radius * (
+        np.cos(ang)[None, :, None] * e1[:, None] + np.sin(ang)[None, :, None] * e2[:, None]
+    )
+    V = np.concatenate([a[:, None] + ring, b[:, None] + ring], axis=1)  # (B, 2·sides, 3)
+    k = np.arange(sides)
+    k1 = (k + 1) % sides
+    quad = np.concatenate(
+        [np.stack([k, k1, sides + k], 1), np.stack([k1, sides + k1, sides + k], 1)]
+    )
+    F = quad[None] + (2 * sides * np.arange(len(a)))[:, None, None]
+    return V.reshape(-1, 3).astype(np.float32), F.reshape(-1, 3).astype(np.uint32)
+
+
+def _sphere(n_lat: int = 6, n_lon: int = 10):
+    th = np.linspace(0, np.pi, n_lat + 1)
+    ph = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
+    v = np.stack([np.sin(th)[:, None] * np.cos(ph), np.cos(th)[:, None] * np.ones_like(ph),
+                  np.sin(th)[:, None] * np.sin(ph)], -1).reshape(-1, 3)  # fmt: skip
+    f = []
+    for i in range(n_lat):
+        for j in range(n_lon):
+            a, b = i * n_lon + j, i * n_lon + (j + 1) % n_lon
+            f += [[a, a + n_lon, b], [b, a + n_lon, b + n_lon]]
+    return v.astype(np.float32), np.asarray(f, np.uint32)
+
+
+_SPHERE = _sphere()
+
+
+def samples_image(P: np.ndarray, current: np.ndarray, size: int = 160) -> np.ndarray:
+    """The sample cloud ``P`` ``(S, 2)`` of a parameter space as an RGBA image, the
+    current parameter marked in red (the separate panel of the app)."""
+    dens = frame_density(np.concatenate([P, current[None]]), size)
+    img = density_rgba(dens.counts[::-1], (60, 60, 140))
+    img[..., 3] = np.maximum(img[..., 3], 30)
+    c = np.clip(((current - dens.lo) / (dens.hi - dens.lo) * size).astype(int), 2, size - 3)
+    img[size - 1 - c[1] - 2 : size - c[1] + 2, c[0] - 2 : c[0] + 3] = (220, 40, 40, 255)
+    return img
+
+
+def _follow_camera(server, target: np.ndarray) -> None:
+    for client in server.get_clients().values():
+        cam = client.camera
+        off = np.asarray(cam.position) - np.asarray(cam.look_at)
+        with client.atomic():
+            cam.look_at = tuple(target)
+            cam.position = tuple(target + off)
+
+
+def _scene(server):
+    """Ground plane, grid, light; Y up."""
+    server.scene.set_up_direction("+y")
+    g = 30.0
+    ground = server.scene.add_mesh_simple(
+        "/ground/plane", np.asarray([[-g, -0.002, -g], [g, -0.002, -g], [g, -0.002, g],
+                                     [-g, -0.002, g]], np.float32),
+        np.asarray([[0, 2, 1], [0, 3, 2]], np.uint32), color=(205, 200, 185),
+        side="double", receive_shadow=True,
+    )  # fmt: skip
+    grid = server.scene.add_grid("/ground/grid", width=2 * g, height=2 * g, plane="xz",
+                                 cell_size=1.0)  # fmt: skip
+    return ground, grid
+
+
+def _draw_body(server, ctl, show_samples: bool) -> None:
+    X = ctl.joints()
+    V, F = body_mesh(X, ctl.skel.parents)
+    server.scene.add_mesh_simple("/character/limbs", V, F, color=(70, 110, 170),
+                                 flat_shading=False)  # fmt: skip
+    server.scene.add_batched_meshes_simple(
+        "/character/joints", _SPHERE[0] * 0.05, _SPHERE[1],
+        batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(X), 1)), batched_positions=X.astype(np.float32),
+        batched_colors=(90, 130, 190),
+    )  # fmt: skip
+    feet = X[list(ctl.setup.feet)].astype(np.float32) * np.asarray([1, 0, 1], np.float32)
+    cols = np.asarray([(40, 200, 60) if c else (150, 150, 150) for c in ctl.contacts()], np.uint8)
+    server.scene.add_batched_meshes_simple(
+        "/ground/contacts", _SPHERE[0] * np.asarray([0.09, 0.004, 0.09], np.float32), _SPHERE[1],
+        batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(feet), 1)), batched_positions=feet,
+        batched_colors=cols,
+    )  # fmt: skip
+    if show_samples:
+        up = ctl.upper_samples_world()
+        if up is not None:
+            server.scene.add_point_cloud("/samples/upper", up.astype(np.float32),
+                                         (60, 170, 60), point_size=0.015)  # fmt: skip
+
+
+def _panel(server, ctl):
+    """The separate panel: the lower samples (and, parametric, the upper ones)."""
+    with server.gui.add_folder("Parameter spaces (samples)"):
+        P = np.asarray(ctl.sp.lower_params)[:, :2]
+        low = server.gui.add_image(samples_image(P, ctl.lower_param[:2]), label="Lower")
+        upp = None
+        if ctl.parametric:
+            U = np.asarray(ctl.state.synth.upper_params)[:, [0, 1]]
+            upp = server.gui.add_image(samples_image(U, ctl.hand_param[[0, 1]]), label="Upper")
+
+    def update() -> None:
+        low.image = samples_image(P, ctl.lower_param[:2])
+        if upp is not None:
+            U = np.asarray(ctl.state.synth.upper_params)[:, [0, 1]]
+            upp.image = samples_image(U, ctl.hand_param[[0, 1]])
+
+    return update
+
+
+def _controls(server, ctl, draw, export_path, playing: bool):
+    """The GUI controls, each wired to one controller method."""
+    g = server.gui
+    status = g.add_markdown(ctl.status())
+    play = g.add_checkbox("Playing", playing)
+    follow = g.add_checkbox("Follow camera", True)
+    lo, hi = ctl.turn_range()
+    turn = g.add_slider(
+        "Turn", min(lo, -1.0), max(hi, 1.0), 0.5, ctl.turn,
+        hint="turning rate, deg/s (+ left)", disabled=ctl.table is None,
+    )  # fmt: skip
+    left, right = g.add_button("◀ Left"), g.add_button("Right ▶")
+    joy = g.add_slider("Joy", 0.0, 1.0, 0.01, ctl.joy, disabled=ctl.parametric)
+    alpha = g.add_slider("Alpha", 0.0, 1.0, 0.01, ctl.alpha)
+    show = g.add_checkbox("Show samples", True)
+    rec, stop = g.add_button("Record"), g.add_button("Stop and write BVH")
+
+    def act(fn):
+        def cb(_e) -> None:
+            fn()
+            turn.value = ctl.turn
+            draw()
+
+        return cb
+
+    turn.on_update(lambda _e: (ctl.set_turn(turn.value), draw()))
+    left.on_click(act(lambda: ctl.nudge_turn(+1)))
+    right.on_click(act(lambda: ctl.nudge_turn(-1)))
+    joy.on_update(lambda _e: (ctl.set_joy(joy.value), draw()))
+    alpha.on_update(lambda _e: (ctl.set_alpha(alpha.value), draw()))
+    rec.on_click(act(ctl.start_recording))
+    stop.on_click(act(lambda: ctl.stop_recording(export_path)))
+    return status, play, follow, show
+
+
 def serve_motion(
     setup: M.Setup,
     port: int = 8080,
@@ -220,36 +447,28 @@ def serve_motion(
     fps: float = 30.0,
     export_path: str | Path = "recording.bvh",
     playing: bool = True,
+    options: ServeOptions | None = None,
 ):
-    """Serve the live controller for ``setup``; ``port=0`` picks a free port. With
+    """Serve the live controller for ``setup`` (``options`` or the old keywords; ``port=0``
+    picks a free port): a shaded body walking on a ground plane (feet shaded green in
+    contact), a camera that follows, steering (turn slider, ◀ / ▶), the upper control
+    (joy or the hand gizmo), α, the sample clouds on their own panel, record → BVH. With
     ``block=False`` returns ``(server, controller)`` at once (stop with ``server.stop()``)."""
-    server = new_server(port, host, environment_map)
+    o = options or ServeOptions(port, host, fps, block, environment_map)
+    server = new_server(o.port, o.host, o.environment_map)
     ctl = MotionController(setup)
-    pi, ji = _bones(ctl.skel.parents)
-    server.scene.add_grid("/ground", width=8.0, height=8.0, plane="xz")
-    gui_status = server.gui.add_markdown(ctl.status())
-    play = server.gui.add_checkbox("Playing", playing)
-    joy = server.gui.add_slider("Joy", 0.0, 1.0, 0.01, ctl.joy, disabled=ctl.parametric)
-    alpha = server.gui.add_slider("Alpha", 0.0, 1.0, 0.01, ctl.alpha)
-    show = server.gui.add_checkbox("Show samples", True)
-    rec = server.gui.add_button("Record")
-    stop = server.gui.add_button("Stop and write BVH")
+    ground, grid = _scene(server)
+    refresh_panel = _panel(server, ctl)
+    state: dict = {}
 
     @serialized(server)
     def draw() -> None:
-        X = ctl.joints()
-        seg = np.stack([X[pi], X[ji]], 1).astype(np.float32)
-        server.scene.add_line_segments("/character", seg, (30, 30, 30), thickness=0.02)
-        if show.value:
-            low = ctl.lower_samples_world().astype(np.float32)
-            server.scene.add_point_cloud("/samples/lower", low, (120, 120, 220), point_size=0.02)
-            up = ctl.upper_samples_world()
-            if up is not None:
-                server.scene.add_point_cloud(
-                    "/samples/upper", up.astype(np.float32), (60, 170, 60), point_size=0.015
-                )
-        gui_status.content = ctl.status()
+        _draw_body(server, ctl, bool(state["show"].value))
+        state["status"].content = ctl.status()
 
+    state["status"], state["play"], state["follow"], state["show"] = _controls(
+        server, ctl, draw, export_path, playing
+    )
     foot = server.scene.add_transform_controls(
         "/targets/foot", scale=0.25, position=tuple(ctl.foot_target_world()), disable_rotations=True
     )
@@ -261,35 +480,22 @@ def serve_motion(
         )  # fmt: skip
         hand.on_update(lambda _e: ctl.set_hand_target(np.asarray(hand.position)))
 
-    @joy.on_update
-    def _(_e) -> None:
-        ctl.set_joy(joy.value)
-        draw()
-
-    @alpha.on_update
-    def _(_e) -> None:
-        ctl.set_alpha(alpha.value)
-        draw()
-
-    @rec.on_click
-    def _(_e) -> None:
-        ctl.start_recording()
-        draw()
-
-    @stop.on_click
-    def _(_e) -> None:
-        ctl.stop_recording(export_path)
-        draw()
-
     @serialized(server)
     def tick() -> None:
         ctl.step()
         draw()
+        r = ctl.root * np.asarray([1.0, 0.0, 1.0])
+        snap = tuple(np.round(r / 10.0) * 10.0)
+        ground.position = grid.position = snap
+        if state["follow"].value:
+            _follow_camera(server, r + np.asarray([0.0, 0.9, 0.0]))
+        if ctl.frame % 15 == 0:
+            refresh_panel()
 
     draw()
-    attach_stop(server, Player(tick, lambda: bool(play.value), fps))
-    if block:
-        run_until_interrupted(server, "motion controller", host)
+    attach_stop(server, Player(tick, lambda: bool(state["play"].value), o.fps))
+    if o.block:
+        run_until_interrupted(server, "motion controller", o.host)
     return server, ctl
 
 

@@ -1,17 +1,22 @@
 """The navigator's state and actions (Kim & Jung §3.5–3.6), independent of any UI.
 
-The animator picks key centres at any level (a click anywhere on the 2-D pad picks the
-nearest centre of the shown level, through a grid index, so the finest level with
-thousands of centres stays responsive), jumps to any level, re-picks near the current
-route (the *candidates*; by default picks at a finer level are held to them), refines
-automatically, goes back (undo across levels), plays and exports the route.
+*Look, then choose*: a click anywhere on the 2-D pad *previews* the nearest centre of the
+shown level (its face is shown; nothing is committed), through a grid index, so the finest
+level with thousands of centres stays responsive. An explicit action then edits the key
+centres in place, at any level: `commit` (append the previewed centre), `insert_key`
+(between two keys), `replace_key`, `delete_key`; the route is recomputed and kept valid —
+consecutive keys linked, or bridged along the shortest chain of links with a note
+(`fxspace.navigation.bridge_keys`). The animator also jumps to any level (`level_up`,
+`level_down`), re-picks near the current route (the *candidates*; by default picks at a
+finer level are held to them), refines automatically, goes back (undo across levels),
+plays and exports the route.
 
 Changing level keeps the route: it becomes the *guide* whose candidates are shown at the
 new level, and the route picked there replaces it as the shown route.
 
-Past :data:`DENSITY_ABOVE` frames the pad shows the frames as a density image (a 2-D
+Past `DENSITY_ABOVE` frames the pad shows the frames as a density image (a 2-D
 histogram of the embedding, one texture) instead of one point per frame
-(:attr:`NavigatorController.pad_mode`); centres, links and the route are drawn on top.
+(`NavigatorController.pad_mode`); centres, links and the route are drawn on top.
 """
 
 from __future__ import annotations
@@ -23,15 +28,17 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from fxspace.navigation import GridIndex, navigation_space
-from fxspace.navigation._hierarchy import Hierarchy
-from fxspace.navigation._playback import playback, rigid_align
-from fxspace.navigation._routes import (
+from fxspace.navigation import (
+    GridIndex,
+    Hierarchy,
     NavigationError,
     Route,
+    bridge_keys,
     make_route,
     path_candidates,
+    playback,
     refine_route,
+    rigid_align,
 )
 from fxspace.studio._server import FrameDensity, frame_density, read_run_config
 
@@ -55,35 +62,36 @@ class NavData:
     threshold_source: str = ""
 
 
-def load_nav_data(target: str | Path, *, restarts: int = 0) -> NavData:
-    """Build :class:`NavData` from a navigation run folder (its ``config.toml``) or a config
-    file (``experiment = "navigation"``), through :func:`fxspace.navigation_space`."""
-    import jax
+def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData:
+    """`NavData` of a navigation run folder or config file (``experiment = "navigation"``).
+
+    A run folder's cached stages (``cache/sweep``, ``space``, ``hierarchy``; see
+    `fxspace.pipelines.navigation.load_space`) are read, not recomputed — what a finished
+    run holds opens in seconds; missing stages are computed and stored. A config file is
+    computed without a cache. `restarts` overrides ``[hierarchy] restarts``.
+    """
+    import dataclasses
 
     from fxspace.config import ConfigError, config_from_dict
-    from fxspace.datasets import FaceData, load_face
+    from fxspace.datasets import load_face
+    from fxspace.pipelines import navigation as nav
 
     cfg_path, raw = read_run_config(target, "navigation")
     seed = int(raw.get("seed", 0))
-    data = config_from_dict(FaceData, raw.get("data", {}))
-    graph = dict(raw.get("graph", {}))
-    hier = {k: v for k, v in raw.get("hierarchy", {}).items() if k != "compare_cold"}
-    hier["max_link_centres"] = hier.get("max_link_centres") or None
-    hier["restarts"] = restarts
-    face = load_face(data, seed)
+    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name")}
     try:
-        ns = navigation_space(
-            face.positions,
-            graph.get("threshold") or None,
-            threshold_factor=graph.get("threshold_factor", 1.25),
-            dtype=graph.get("dtype", "float32"),
-            key=jax.random.PRNGKey(seed),
-            hierarchy=hier,
+        cfg = config_from_dict(nav.Config, body)
+    except ConfigError as e:
+        raise ConfigError(f"{cfg_path}: {e}") from None
+    if restarts is not None:
+        cfg = dataclasses.replace(
+            cfg, hierarchy=dataclasses.replace(cfg.hierarchy, restarts=int(restarts))
         )
-    except TypeError as e:
-        raise ConfigError(f"{cfg_path}: [hierarchy] {e}") from e
+    face = load_face(cfg.data, seed)
+    run_dir = Path(target) if Path(target).is_dir() else None
+    ns = nav.load_space(cfg, face.positions, run_dir, seed)
     return NavData(
-        ns.hierarchy, ns.space.geodesics, np.asarray(face.positions),
+        ns.hierarchy, ns.geodesics, np.asarray(face.positions),
         tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source,
     )  # fmt: skip
 
@@ -106,7 +114,7 @@ class NavigatorController:
     finer-level picks to the candidates; ``loop`` replays the route; ``message`` the
     last status or error line. ``pad_mode`` says how the pad shows the frames:
     ``"points"`` (one per frame) up to ``density_above`` frames, else ``"density"`` (a
-    ``density_bins × density_bins`` histogram, :meth:`frame_density`).
+    ``density_bins × density_bins`` histogram, `frame_density`).
     """
 
     def __init__(
@@ -134,6 +142,8 @@ class NavigatorController:
         self.play_index = 0
         self.playing = False
         self.last_click: np.ndarray | None = None
+        self.preview: int | None = None  # the centre looked at, not committed
+        self.selected_key = 0  # the key position that insert/replace/delete act on
         self._play = None
         self._history: list[_State] = []
         self._index: dict[int, GridIndex] = {}
@@ -215,6 +225,7 @@ class NavigatorController:
             self.level = level
             self.picks = []
             self.anchors = None
+            self.preview = None
             self._rebuild()
             n = len(self.candidates())
             self.message = f"level {level}: pick key centres" + (
@@ -273,6 +284,151 @@ class NavigatorController:
             self.last_click = np.asarray(xy, np.float64)
             k = self.nearest_centre(xy)
             return k, self.pick(k)
+
+    # -- look, then choose -----------------------------------------------------------------
+    def preview_centre(self, centre: int) -> int:
+        """Show centre ``centre`` of the shown level (its face) without committing it."""
+        with self._lock:
+            lv = self.data.hierarchy.levels[self.level]
+            centre = int(centre)
+            if not 0 <= centre < lv.n_clusters:
+                raise NavigationError(
+                    f"centre {centre} does not exist at level {self.level} "
+                    f"(it has {lv.n_clusters} centres)"
+                )
+            self.preview = centre
+            self.selected_frame = int(lv.center_frames[centre])
+            self.message = (
+                f"previewing centre {centre} (frame {self.selected_frame}): Commit adds it "
+                "after the last key; Insert / Replace act at the selected key"
+            )
+            return centre
+
+    def preview_at(self, xy) -> int:
+        """A click (or hover) on the pad at expression-space point ``xy``: preview the
+        nearest centre of the shown level (held to the candidates while picks are)."""
+        with self._lock:
+            self.last_click = np.asarray(xy, np.float64)
+            return self.preview_centre(self.nearest_centre(xy))
+
+    def _edit(self, keys: list[int], what: str) -> bool:
+        """Replace the key centres by ``keys`` (bridged where not linked); False and a
+        message if no valid route results."""
+        h, geo = self.data.hierarchy, self.data.geodesics
+        try:
+            new, notes = bridge_keys(h, geo, self.level, keys)
+            if new:
+                make_route(h, geo, self.level, new, anchors=None)
+        except NavigationError as e:
+            self.message = f"not {what}: {e}"
+            return False
+        self._push()
+        self.picks = new
+        self.anchors = None
+        self._rebuild()
+        self.selected_key = min(self.selected_key, max(len(new) - 1, 0))
+        self.message = f"{what}; keys {' → '.join(map(str, new)) or 'none'}" + (
+            " (" + "; ".join(notes) + ")" if notes else ""
+        )
+        return True
+
+    def _target(self, centre: int | None) -> int | None:
+        c = self.preview if centre is None else int(centre)
+        if c is None:
+            self.message = "click a centre on the pad first (to preview it), then choose"
+            return None
+        if self._restricted() and c not in set(self.candidates().tolist()):
+            self.message = (
+                f"not used: centre {c} is not near the route of level {self.guide.level}; "  # type: ignore[union-attr]
+                "untick 'Restrict to candidates' to choose freely"
+            )
+            return None
+        return c
+
+    def _key_index(self, index: int | None, n: int) -> int | None:
+        i = self.selected_key if index is None else int(index)
+        if not 0 <= i < n:
+            self.message = f"key #{i} does not exist (keys 0 … {n - 1})" if n else "no keys yet"
+            return None
+        return i
+
+    def commit(self, centre: int | None = None) -> bool:
+        """Append the previewed centre (or ``centre``) after the last key."""
+        with self._lock:
+            c = self._target(centre)
+            if c is None:
+                return False
+            ok = self._edit([*self.picks, c], f"committed centre {c}")
+            if ok:
+                self.selected_key = len(self.picks) - 1
+            return ok
+
+    def insert_key(self, index: int | None = None, centre: int | None = None) -> bool:
+        """Insert the previewed centre (or ``centre``) before key ``index`` (default the
+        selected key; ``len(picks)`` appends)."""
+        with self._lock:
+            c = self._target(centre)
+            i = self.selected_key if index is None else int(index)
+            if c is None:
+                return False
+            if not 0 <= i <= len(self.picks):
+                self.message = f"cannot insert at #{i}: positions are 0 … {len(self.picks)}"
+                return False
+            return self._edit([*self.picks[:i], c, *self.picks[i:]],
+                              f"inserted centre {c} at #{i}")  # fmt: skip
+
+    def replace_key(self, index: int | None = None, centre: int | None = None) -> bool:
+        """Replace key ``index`` (default the selected key) by the previewed centre."""
+        with self._lock:
+            c = self._target(centre)
+            i = self._key_index(index, len(self.picks))
+            if c is None or i is None:
+                return False
+            old = self.picks[i]
+            return self._edit([*self.picks[:i], c, *self.picks[i + 1 :]],
+                              f"replaced key #{i} ({old}) by {c}")  # fmt: skip
+
+    def delete_key(self, index: int | None = None) -> bool:
+        """Delete key ``index`` (default the selected key); its neighbours are joined."""
+        with self._lock:
+            i = self._key_index(index, len(self.picks))
+            if i is None:
+                return False
+            old, before = self.picks[i], list(self.picks)
+            ok = self._edit([*self.picks[:i], *self.picks[i + 1 :]],
+                            f"deleted key #{i} ({old})")  # fmt: skip
+            if ok and self.picks == before:
+                self.message += f" — centre {old} is the only link between its neighbours"
+            return ok
+
+    def select_key(self, index: int) -> None:
+        """Choose the key position that insert / replace / delete act on."""
+        with self._lock:
+            i = int(index)
+            if not 0 <= i <= len(self.picks):
+                raise NavigationError(f"key # must lie in [0, {len(self.picks)}], got {i}")
+            self.selected_key = i
+            if i < len(self.picks):
+                lv = self.data.hierarchy.levels[self.level]
+                self.selected_frame = int(lv.center_frames[self.picks[i]])
+
+    def level_up(self) -> None:
+        """One level coarser (no-op at level 0)."""
+        if self.level > 0:
+            self.set_level(self.level - 1)
+
+    def level_down(self) -> None:
+        """One level finer (no-op at the finest)."""
+        if self.level + 1 < self.n_levels:
+            self.set_level(self.level + 1)
+
+    def toggle_play(self) -> bool:
+        """Play / pause the route (a message when there is none); returns ``playing``."""
+        with self._lock:
+            self.playing = not self.playing and self.route is not None
+            if self.route is None:
+                self.message = "pick key centres first"
+            return self.playing
 
     def undo(self) -> None:
         """Go back one action (a pick, a level change, a refinement, a clear)."""
@@ -393,6 +549,9 @@ class NavigatorController:
     def status(self) -> str:
         lv = self.data.hierarchy.levels[self.level]
         keys = " → ".join(map(str, self.picks)) if self.picks else "none"
+        prev = f"Preview: centre {self.preview}  \n" if self.preview is not None else ""
+        if self.picks:
+            prev += f"Selected key: #{self.selected_key}  \n"
         n = len(self.route.frames) if self.route is not None else 0
         rl = f" (level {self.route.level})" if self.route is not None else ""
         cand = self.candidates()
@@ -412,6 +571,7 @@ class NavigatorController:
             f"**Level {self.level}** of {self.n_levels - 1}: {lv.n_clusters} centres  \n"
             f"{dens}"
             f"Key centres: {keys}  \n"
+            f"{prev}"
             f"Route: {n} frames{rl}  \n"
             f"{guide}"
             f"Candidates at level {self.level + 1}: {_short(self.next_candidates()) or '—'}  \n"

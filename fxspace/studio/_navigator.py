@@ -1,21 +1,30 @@
-"""Interactive navigator in the browser (Kim & Jung §3.5–3.6; ``pip install -e ".[viewer]"``).
+"""Interactive navigator in the browser (Kim & Jung §4; ``pip install -e ".[viewer]"``).
 
-``fxspace studio RUN_DIR`` (or a navigation config) builds the expression space and its
-hierarchy and serves a viser page with:
+``fxspace studio configs/navigation.toml`` runs the navigation config first (the threshold
+sweep over its frames, the space and the hierarchy are cached stages, built with progress
+the first time and read afterwards) and serves a viser page with:
 
 - the 2-D expression pad: every frame (grey points; past ``density_above`` frames, their
-  density as one grey image), the shown level's centres (blue) and links
-  (thin blue) at every level, the route (red), the route kept from another level (orange)
-  with its candidate centres (green), and a moving cross; a click anywhere on the pad
-  picks the nearest centre of the shown level (a grid index, not a widget per centre);
-- a level slider (jump to any level), "Restrict to candidates", the key centres, buttons
-  to pick by number, undo (across levels), clear, refine, play/pause, loop, and export of
-  the route (GIF/MP4 + TRC of the path's frames);
-- the face of the selected / playing frame: a shaded dense surface driven by the markers
-  through the RBF transfer, beside the markers.
+  density as one grey image), the shown level's centres (blue) and links (thin blue), the
+  route (red), the route kept from another level (orange) with its candidate centres
+  (green), the previewed centre (yellow) and a moving cross;
+- *look, then choose*: a click anywhere on the pad previews the nearest centre of the
+  shown level — its face is shown, nothing is committed (viser reports clicks, not
+  hovering, on the scene); **Commit** (or Enter, or a shift-click) appends it to the key
+  centres; **Insert before key** / **Replace key** / **Delete key** edit the key at
+  "Key #" in place, at any level; the route is recomputed and kept valid (unlinked
+  neighbours are bridged along the shortest chain of links, with a note);
+- a level slider and Level up / down, "Restrict to candidates", undo (across levels),
+  clear, refine, play/pause, loop, and export of the route (GIF/MP4 + TRC);
+- keyboard shortcuts (`HOTKEYS`, viser command hotkeys; also in the command palette):
+  space play/pause, U undo, ↑/↓ level up/down, Enter commit, I insert, R replace,
+  Delete delete;
+- the face of the previewed / selected / playing frame: a smooth shaded head with eyes,
+  lips and a mouth opening (`fxspace.head_model`), driven only by the markers, beside
+  the markers.
 
-The state lives in :class:`NavigatorController` (``_nav_controller``, testable without a
-browser); :func:`serve_navigator` draws it and wires the page to it.
+The state lives in `NavigatorController` (``_nav_controller``, testable without a
+browser); `NavigatorView` draws it and `serve_navigator` wires the page to it.
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fxspace.navigation._playback import rigid_align
+from fxspace.navigation import rigid_align
 from fxspace.studio._nav_controller import (
     DENSITY_ABOVE,
     NavData,
@@ -35,6 +44,7 @@ from fxspace.studio._server import (
     DenseFace,
     PadFrame,
     Player,
+    ServeOptions,
     attach_stop,
     density_rgba,
     new_server,
@@ -50,6 +60,8 @@ __all__ = [
     "load_nav_data",
     "serve_navigator",
     "serve",
+    "NavigatorView",
+    "HOTKEYS",
 ]
 
 
@@ -76,6 +88,221 @@ def _draw_frames(server, ctl: NavigatorController, pf: PadFrame, pad: np.ndarray
     )  # fmt: skip
 
 
+class NavigatorView:
+    """The navigator's page: the pad, the face and the controls, drawn from a
+    `NavigatorController` (``server.fxspace_view``)."""
+
+    def __init__(self, server, ctl: NavigatorController, face_vertices: int = 6000):
+        self.server, self.ctl = server, ctl
+        data = ctl.data
+        h = data.hierarchy
+        self.pf = PadFrame(h.embedding)
+        self.pad = self.pf.to_pad(h.embedding)
+        # everything lies in the x–y plane, seen from +z: the pad left, the face right
+        server.initial_camera.position = (1.4, 0.0, 3.6)
+        server.initial_camera.look_at = (1.4, 0.0, 0.0)
+        server.initial_camera.up = (0.0, 1.0, 0.0)
+        _draw_frames(server, ctl, self.pf, self.pad)
+        # the face: markers aligned to the first frame, seen from the front, right of the pad
+        self.P = rigid_align(data.positions, data.positions[0])
+        self.face = DenseFace(self.P[0], face_vertices, names=data.marker_names or None)
+        self.R = self.face.axes
+        self.fc = self.P[0].mean(0)
+        self.F = (self.P - self.fc) @ self.R.T  # right, up, out
+        self.fscale = 1.3 / max(float(np.ptp(self.F[..., 1])), 1e-12)
+        self.gui_status = server.gui.add_markdown(ctl.status())
+
+    def draw_face(self, frame: int) -> None:
+        V = (self.face.vertices(self.P[frame]) - self.fc) @ self.R.T * self.fscale
+        V = (V + [2.6, 0.1, 0.0]).astype(np.float32)
+        for name, v, f, colour in self.face.meshes(V):
+            self.server.scene.add_mesh_simple(
+                "/face/surface" if name == "skin" else f"/face/{name}", v, f, color=colour,
+                side="double", flat_shading=False, cast_shadow=False, receive_shadow=False,
+            )  # fmt: skip
+        self.server.scene.add_point_cloud(
+            "/face/markers", (self.F[frame] * self.fscale * 0.45 + [3.45, -0.7, 0.0]).astype(
+                np.float32), colors=(220, 60, 60), point_size=0.025,
+        )  # fmt: skip
+
+    def draw_cross(self, q2: np.ndarray) -> None:
+        q = np.r_[q2[:2], 0.0]
+        d = 0.06
+        seg = np.array([[q - [d, 0, 0], q + [d, 0, 0]], [q - [0, d, 0], q + [0, d, 0]]])
+        self.server.scene.add_line_segments(
+            "/pad/cross", seg.astype(np.float32), colors=(0, 0, 0), thickness=0.01
+        )
+
+    def draw_level(self) -> None:
+        ctl, scene = self.ctl, self.server.scene
+        lv = ctl.data.hierarchy.levels[ctl.level]
+        cp = self.pad[lv.center_frames]
+        scene.remove_by_name("/pad/links")
+        if ctl.centres_by_density:  # the density image shows them; clicks still pick
+            scene.remove_by_name("/pad/centres")
+            return
+        if lv.links is not None:
+            i, j = np.nonzero(np.triu(lv.links, 1))
+            if len(i):
+                scene.add_line_segments(
+                    "/pad/links", _segments(cp, i, j), colors=(80, 120, 220),
+                    thickness=0.003 if lv.n_clusters <= 400 else 0.0015,
+                )  # fmt: skip
+        size = 0.035 if lv.n_clusters <= 40 else (0.025 if lv.n_clusters <= 400 else 0.014)
+        scene.add_point_cloud(
+            "/pad/centres", cp.astype(np.float32), colors=(40, 100, 200), point_size=size
+        )
+
+    def _polyline(self, name: str, frames, color, thickness: float) -> None:
+        if frames is not None and len(frames) > 1:
+            p = self.pad[np.asarray(frames)]
+            self.server.scene.add_line_segments(
+                name, np.stack([p[:-1], p[1:]], 1).astype(np.float32), colors=color,
+                thickness=thickness,
+            )  # fmt: skip
+
+    def _points(self, name: str, frames, color, size: float, z: float) -> None:
+        p = self.pad[np.asarray(frames, np.int64)] + [0, 0, z]
+        self.server.scene.add_point_cloud(name, p.astype(np.float32), colors=color,
+                                          point_size=size)  # fmt: skip
+
+    def draw_route(self) -> None:
+        ctl = self.ctl
+        for name in ("/pad/route", "/pad/keys", "/pad/guide", "/pad/candidates", "/pad/preview"):
+            self.server.scene.remove_by_name(name)
+        g, r = ctl.guide, ctl.route
+        if g is not None and g is not r:
+            self._polyline("/pad/guide", g.frames, (240, 150, 40), 0.006)
+        cf = ctl.data.hierarchy.levels[ctl.level].center_frames
+        cand = ctl.candidates()
+        if len(cand):
+            self._points("/pad/candidates", cf[cand], (40, 180, 80), 0.03, 0.01)
+        if r is not None:
+            self._polyline("/pad/route", r.frames, (220, 40, 40), 0.008)
+            self._points("/pad/keys", r.key_frames, (220, 40, 40), 0.04, 0.02)
+        if ctl.preview is not None:
+            self._points("/pad/preview", [cf[ctl.preview]], (250, 200, 0), 0.06, 0.03)
+
+    def refresh(self, full: bool = False) -> None:
+        with _lock(self.server):
+            if full:
+                self.draw_level()
+            self.draw_route()
+            self.draw_face(self.ctl.selected_frame)
+            self.draw_cross(self.pad[self.ctl.selected_frame])
+            self.gui_status.content = self.ctl.status()
+            for hook in getattr(self, "after_refresh", ()):
+                hook()
+
+
+def _lock(server):
+    return server._fxspace_draw_lock
+
+
+def _wire_controls(server, ctl: NavigatorController, view: NavigatorView, export_dir) -> None:
+    """The GUI controls, each wired to one controller method, then a redraw."""
+    gui = server.gui
+    level_slider = gui.add_slider(
+        "Level", min=0, max=max(ctl.n_levels - 1, 1), step=1, initial_value=0,
+        disabled=ctl.n_levels < 2,
+    )  # fmt: skip
+    restrict_box = gui.add_checkbox("Restrict to candidates", initial_value=ctl.restrict)
+    pick_text = gui.add_text("Centre", initial_value="0")
+    key_num = gui.add_number("Key #", initial_value=0, min=0, step=1)
+    buttons = {
+        name: gui.add_button(name)
+        for name in ("Preview centre", "Commit", "Insert before key", "Replace key",
+                     "Delete key", "Pick centre", "Level up (coarser)",
+                     "Level down (finer)", "Undo", "Clear", "Refine", "Play / Pause")
+    }  # fmt: skip
+    loop_box = gui.add_checkbox("Loop", initial_value=ctl.loop)
+    fmt = gui.add_dropdown("Export as", ("gif", "mp4", "none"), initial_value="gif")
+    export_btn = gui.add_button("Export route")
+
+    def sync() -> None:
+        if int(level_slider.value) != ctl.level:
+            level_slider.value = ctl.level
+
+    view.after_refresh = (sync,)
+
+    def centre_number() -> int | None:
+        try:
+            return int(str(pick_text.value).strip())
+        except ValueError:
+            ctl.message = f"not a centre number: {pick_text.value!r}"
+            return None
+
+    def keyed(fn):  # act at the key # of the box
+        def act():
+            ctl.select_key(min(max(int(key_num.value), 0), len(ctl.picks)))
+            fn()
+
+        return act
+
+    def preview() -> None:
+        k = centre_number()
+        if k is not None:
+            try:
+                ctl.preview_centre(k)
+            except Exception as e:  # shown to the user
+                ctl.message = str(e)
+
+    def pick() -> None:
+        k = centre_number()
+        if k is not None:
+            ctl.pick(k)
+
+    def export() -> None:
+        try:
+            ctl.export(export_dir, str(fmt.value))
+        except Exception as e:  # shown to the user, not raised into the server thread
+            ctl.message = f"export failed: {e}"
+
+    actions = {
+        "Preview centre": preview, "Commit": ctl.commit, "Pick centre": pick,
+        "Insert before key": keyed(ctl.insert_key), "Replace key": keyed(ctl.replace_key),
+        "Delete key": keyed(ctl.delete_key), "Level up (coarser)": ctl.level_up,
+        "Level down (finer)": ctl.level_down, "Undo": ctl.undo, "Clear": ctl.clear,
+        "Refine": ctl.refine, "Play / Pause": ctl.toggle_play,
+    }  # fmt: skip
+    for name, fn in actions.items():
+        buttons[name].on_click(_run_then_refresh(view, fn))
+    export_btn.on_click(_run_then_refresh(view, export))
+    level_slider.on_update(_run_then_refresh(view, lambda: ctl.set_level(int(level_slider.value))))
+    restrict_box.on_update(_run_then_refresh(view, lambda: ctl.set_restrict(restrict_box.value)))
+    loop_box.on_update(lambda _e: setattr(ctl, "loop", bool(loop_box.value)))
+    _wire_keys(server, ctl, view)
+
+
+def _run_then_refresh(view: NavigatorView, fn):
+    def handler(_event=None) -> None:
+        before = view.ctl.level
+        fn()
+        view.refresh(full=view.ctl.level != before)
+
+    return handler
+
+
+#: keyboard shortcuts (viser command-palette hotkeys): key → (label, controller method)
+HOTKEYS = {
+    "space": ("Play / pause", "toggle_play"),
+    "U": ("Undo", "undo"),
+    "enter": ("Commit the previewed centre", "commit"),
+    "I": ("Insert the previewed centre before the selected key", "insert_key"),
+    "R": ("Replace the selected key by the previewed centre", "replace_key"),
+    "delete": ("Delete the selected key", "delete_key"),
+    "arrowup": ("Level up (coarser)", "level_up"),
+    "arrowdown": ("Level down (finer)", "level_down"),
+}
+
+
+def _wire_keys(server, ctl: NavigatorController, view: NavigatorView) -> None:
+    """`HOTKEYS` as viser commands (each also in the command palette)."""
+    for key, (label, method) in HOTKEYS.items():
+        cmd = server.gui.add_command(label, hotkey=key)
+        cmd.on_trigger(_run_then_refresh(view, getattr(ctl, method)))
+
+
 def serve_navigator(
     data: NavData,
     port: int = 8080,
@@ -85,216 +312,62 @@ def serve_navigator(
     block: bool = True,
     fps: float = 30.0,
     export_dir: str | Path = "navigator_export",
-    face_vertices: int = 2500,
+    face_vertices: int = 6000,
     density_above: int = DENSITY_ABOVE,
+    options: ServeOptions | None = None,
 ):
     """Serve the navigator for ``data``; ``port=0`` picks a free port (read it with
-    ``server.get_port()``). With ``block=False`` returns ``(server, controller)`` at once
-    (stop with ``server.stop()``). Exports go to ``export_dir``. Past ``density_above``
-    frames the pad shows their density (one image) instead of one point per frame."""
-    from fxspace.plot._navigation import face_frame
+    ``server.get_port()``; or pass `options`, a `ServeOptions`, which wins over the
+    keywords). With ``block=False`` returns ``(server, controller)`` at once (stop with
+    ``server.stop()``; the page's `NavigatorView` is ``server.fxspace_view``). Exports go
+    to ``export_dir``. Past ``density_above`` frames the pad shows their density (one
+    image) instead of one point per frame.
 
-    server = new_server(port, host, environment_map)
+    A click on the pad previews the nearest centre (its face, nothing committed); a
+    shift-click commits it at once. Keyboard shortcuts: `HOTKEYS`."""
+    o = options or ServeOptions(port, host, fps, block, environment_map)
+    server = new_server(o.port, o.host, o.environment_map)
+    serialized(server)  # creates the drawing lock
     ctl = NavigatorController(data, density_above=density_above)
-    h = data.hierarchy
-    pf = PadFrame(h.embedding)
-    pad = pf.to_pad(h.embedding)
-    # everything lies in the x–y plane, seen from +z: the pad left, the face right
-    server.initial_camera.position = (1.4, 0.0, 3.6)
-    server.initial_camera.look_at = (1.4, 0.0, 0.0)
-    server.initial_camera.up = (0.0, 1.0, 0.0)
-    _draw_frames(server, ctl, pf, pad)
+    view = NavigatorView(server, ctl, face_vertices)
+    server.fxspace_view = view
+    _wire_controls(server, ctl, view, export_dir)
 
-    # the face: markers aligned to the first frame, seen from the front, right of the pad
-    P = rigid_align(data.positions, data.positions[0])
-    R = face_frame(P[0], data.marker_names or None)
-    fc = P[0].mean(0)
-    F = (P - fc) @ R.T  # right, up, out
-    fscale = 1.6 / max(float(np.ptp(F[..., :2])), 1e-12)
-    offset = np.array([2.6, 0.0, 0.0])
-    face = DenseFace(P[0], face_vertices)
-    marker_scale = 0.45  # the markers, smaller, below-right of the surface
-    moff = np.array([3.45, -0.7, 0.0])
+    def on_pad(commit: bool):
+        def handler(event) -> None:
+            hit = ray_plane_z0(event.ray_origin, event.ray_direction)
+            if hit is None or hit[0] > 1.3:  # the face side of the scene
+                return
+            ctl.preview_at(view.pf.to_space(hit[:2]))
+            if commit:
+                ctl.commit()
+            view.refresh()
 
-    gui_status = server.gui.add_markdown(ctl.status())
-    level_slider = server.gui.add_slider(
-        "Level", min=0, max=max(ctl.n_levels - 1, 1), step=1, initial_value=0,
-        disabled=ctl.n_levels < 2,
-    )  # fmt: skip
-    restrict_box = server.gui.add_checkbox("Restrict to candidates", initial_value=ctl.restrict)
-    pick_text = server.gui.add_text("Centre", initial_value="0")
-    pick_btn = server.gui.add_button("Pick centre")
-    undo_btn = server.gui.add_button("Undo")
-    clear_btn = server.gui.add_button("Clear")
-    refine_btn = server.gui.add_button("Refine")
-    play_btn = server.gui.add_button("Play / Pause")
-    loop_box = server.gui.add_checkbox("Loop", initial_value=ctl.loop)
-    fmt = server.gui.add_dropdown("Export as", ("gif", "mp4", "none"), initial_value="gif")
-    export_btn = server.gui.add_button("Export route")
+        return handler
 
-    def draw_face(frame: int) -> None:
-        V = (face.vertices(P[frame]) - fc) @ R.T * fscale + offset
-        server.scene.add_mesh_simple(
-            "/face/surface", V.astype(np.float32), face.faces, color=(230, 190, 170),
-            side="double", flat_shading=False,
-        )  # fmt: skip
-        server.scene.add_point_cloud(
-            "/face/markers", (F[frame] * fscale * marker_scale + moff).astype(np.float32),
-            colors=(220, 60, 60), point_size=0.025,
-        )  # fmt: skip
-
-    def draw_cross(q2: np.ndarray) -> None:
-        q = np.r_[q2[:2], 0.0]
-        d = 0.06
-        seg = np.array([[q - [d, 0, 0], q + [d, 0, 0]], [q - [0, d, 0], q + [0, d, 0]]])
-        server.scene.add_line_segments(
-            "/pad/cross", seg.astype(np.float32), colors=(0, 0, 0), thickness=0.01
-        )
-
-    def draw_level() -> None:
-        lv = h.levels[ctl.level]
-        cp = pad[lv.center_frames]
-        server.scene.remove_by_name("/pad/links")
-        if ctl.centres_by_density:  # the density image shows them; clicks still pick
-            server.scene.remove_by_name("/pad/centres")
-            return
-        if lv.links is not None:
-            i, j = np.nonzero(np.triu(lv.links, 1))
-            if len(i):
-                server.scene.add_line_segments(
-                    "/pad/links", _segments(cp, i, j), colors=(80, 120, 220),
-                    thickness=0.003 if lv.n_clusters <= 400 else 0.0015,
-                )  # fmt: skip
-        size = 0.035 if lv.n_clusters <= 40 else (0.025 if lv.n_clusters <= 400 else 0.014)
-        server.scene.add_point_cloud(
-            "/pad/centres", cp.astype(np.float32), colors=(40, 100, 200), point_size=size
-        )
-
-    def draw_route() -> None:
-        for name in ("/pad/route", "/pad/keys", "/pad/guide", "/pad/candidates"):
-            server.scene.remove_by_name(name)
-        g = ctl.guide
-        if g is not None and g is not ctl.route and len(g.frames) > 1:
-            p = pad[g.frames]
-            server.scene.add_line_segments(
-                "/pad/guide", np.stack([p[:-1], p[1:]], 1).astype(np.float32),
-                colors=(240, 150, 40), thickness=0.006,
-            )  # fmt: skip
-        cand = ctl.candidates()
-        if len(cand):
-            server.scene.add_point_cloud(
-                "/pad/candidates",
-                (pad[h.levels[ctl.level].center_frames[cand]] + [0, 0, 0.01]).astype(np.float32),
-                colors=(40, 180, 80), point_size=0.03,
-            )  # fmt: skip
-        r = ctl.route
-        if r is not None and len(r.frames) > 1:
-            p = pad[r.frames]
-            server.scene.add_line_segments(
-                "/pad/route", np.stack([p[:-1], p[1:]], 1).astype(np.float32),
-                colors=(220, 40, 40), thickness=0.008,
-            )  # fmt: skip
-        if r is not None:
-            server.scene.add_point_cloud(
-                "/pad/keys", (pad[r.key_frames] + [0, 0, 0.02]).astype(np.float32),
-                colors=(220, 40, 40), point_size=0.04,
-            )  # fmt: skip
-
-    @serialized(server)
-    def refresh(full: bool = False) -> None:
-        if full:
-            draw_level()
-        draw_route()
-        draw_face(ctl.selected_frame)
-        draw_cross(pad[ctl.selected_frame])
-        gui_status.content = ctl.status()
-        if int(level_slider.value) != ctl.level:
-            level_slider.value = ctl.level
-
-    @server.scene.on_click()
-    def _(event) -> None:
-        hit = ray_plane_z0(event.ray_origin, event.ray_direction)
-        if hit is None or hit[0] > 1.3:  # the face side of the scene
-            return
-        before = ctl.level
-        ctl.pick_at(pf.to_space(hit[:2]))
-        refresh(full=ctl.level != before)
-
-    @level_slider.on_update
-    def _(_e) -> None:
-        if int(level_slider.value) != ctl.level:
-            ctl.set_level(int(level_slider.value))
-            refresh(full=True)
-
-    @restrict_box.on_update
-    def _(_e) -> None:
-        ctl.set_restrict(bool(restrict_box.value))
-        refresh()
-
-    @loop_box.on_update
-    def _(_e) -> None:
-        ctl.loop = bool(loop_box.value)
-
-    @pick_btn.on_click
-    def _(_e) -> None:
-        try:
-            k = int(str(pick_text.value).strip())
-        except ValueError:
-            ctl.message = f"not a centre number: {pick_text.value!r}"
-        else:
-            ctl.pick(k)
-        refresh()
-
-    @undo_btn.on_click
-    def _(_e) -> None:
-        ctl.undo()
-        refresh(full=True)
-
-    @clear_btn.on_click
-    def _(_e) -> None:
-        ctl.clear()
-        refresh()
-
-    @refine_btn.on_click
-    def _(_e) -> None:
-        before = ctl.level
-        ctl.refine()
-        refresh(full=ctl.level != before)
-
-    @play_btn.on_click
-    def _(_e) -> None:
-        ctl.playing = not ctl.playing and ctl.route is not None
-        if ctl.route is None:
-            ctl.message = "pick key centres first"
-        refresh()
-
-    @export_btn.on_click
-    def _(_e) -> None:
-        try:
-            ctl.export(export_dir, str(fmt.value))
-        except Exception as e:  # shown to the user, not raised into the server thread
-            ctl.message = f"export failed: {e}"
-        refresh()
+    server.scene.on_click()(on_pad(False))
+    server.scene.on_click(modifier="shift")(on_pad(True))
 
     @serialized(server)
     def tick() -> None:
         ctl.step()
         pb = ctl.playback()
         if pb is not None:
-            draw_face(ctl.selected_frame)
-            draw_cross(pf.to_pad(pb.xy[ctl.play_index]))
-            gui_status.content = ctl.status()
+            view.draw_face(ctl.selected_frame)
+            view.draw_cross(view.pf.to_pad(pb.xy[ctl.play_index]))
+            view.gui_status.content = ctl.status()
 
-    refresh(full=True)
-    attach_stop(server, Player(tick, lambda: ctl.playing, fps))
-    if block:
-        run_until_interrupted(server, "navigator", host)
+    view.refresh(full=True)
+    attach_stop(server, Player(tick, lambda: ctl.playing, o.fps))
+    if o.block:
+        run_until_interrupted(server, "navigator", o.host)
     return server, ctl
 
 
 def serve(target: str | Path, port: int = 8080, **kwargs):
-    """``fxspace studio TARGET`` for a navigation run or config: build and serve."""
-    print(f"fxspace studio: building the expression space and hierarchy of {target} …")
+    """``fxspace studio TARGET`` for a navigation run folder (its cached stages are read)
+    or config (computed without a cache): load and serve."""
+    print(f"fxspace studio: loading the expression space and hierarchy of {target} …")
     p = Path(target)
     kwargs.setdefault("export_dir", (p if p.is_dir() else Path(".")) / "navigator_export")
     return serve_navigator(load_nav_data(target), port=port, **kwargs)

@@ -67,25 +67,48 @@ def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = True)
 
 
 class DenseFace:
-    """A dense triangulated face surface driven by markers through the RBF transfer
-    (:func:`fxspace.face_surface`, :func:`fxspace.rbf_transfer_matrix`):
-    ``v(t) = v(0) + A (m(t) − m(0))``; one ``(N × M)·(M × 3)`` product per frame."""
+    """The face the studio apps show: a smooth, closed, shaded head (`fxspace.head_model`:
+    a template head fitted to the neutral markers, with eyes, lips and a mouth opening)
+    driven only by the markers through the RBF transfer, ``v(t) = v(0) + A (m(t) − m(0))``;
+    one ``(N × M)·(M × 3)`` product per frame. The lips part when the jaw markers open.
 
-    def __init__(self, rest_markers: np.ndarray, n_vertices: int = 2500):
-        import jax.numpy as jnp
+    `parts` lists ``(name, colour)``; `meshes(V)` splits posed vertices into one compact
+    mesh per part (viser meshes take one colour each). `axes` rows are the face's right,
+    up and out directions (to show it from the front)."""
 
-        from fxspace.controlpoints import face_surface, rbf_transfer_matrix
+    def __init__(self, rest_markers: np.ndarray, n_vertices: int = 2500, names=None):
+        from fxspace.controlpoints import HEAD_COLOURS, head_model
 
-        m0 = np.asarray(rest_markers, dtype=np.float64)
-        surf = face_surface(m0, n_vertices)
-        self.rest_markers = m0
-        self.rest = np.asarray(surf.vertices, np.float64)
-        self.faces = np.asarray(surf.faces, np.int32)
-        self.A = np.asarray(rbf_transfer_matrix(jnp.asarray(self.rest), jnp.asarray(m0)))
+        res = max(24, int(np.sqrt(max(int(n_vertices), 1) / 1.5)))
+        m = head_model(np.asarray(rest_markers, np.float64), names, res)
+        self.model = m
+        self.rest_markers = m.rest_markers
+        self.rest = m.rest
+        self.faces = m.faces
+        self.A = m.transfer
+        self.axes = m.axes
+        self.colors = m.colors
+        self.parts = [(name, HEAD_COLOURS[name]) for name in m.parts]
+        self._split = []
+        for k, (name, colour) in enumerate(self.parts):
+            f = m.faces[m.part == k]
+            used, inv = np.unique(f, return_inverse=True)
+            if len(f):
+                self._split.append((name, colour, used, inv.reshape(f.shape).astype(np.int32)))
 
     def vertices(self, markers: np.ndarray) -> np.ndarray:
         """``(N, 3)`` surface for one frame of markers ``(M, 3)``."""
         return self.rest + self.A @ (np.asarray(markers, np.float64) - self.rest_markers)
+
+    def trimesh(self, V: np.ndarray):
+        """The posed head as one ``trimesh.Trimesh`` with smooth per-vertex colours."""
+        import trimesh
+
+        return trimesh.Trimesh(V, self.faces, vertex_colors=self.colors, process=False)
+
+    def meshes(self, V: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray, tuple]]:
+        """``(name, vertices, faces, colour)`` per part of the posed vertices ``V``."""
+        return [(name, V[used], f, colour) for name, colour, used, f in self._split]
 
 
 class PadFrame:

@@ -29,8 +29,9 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Float, Int
 
+from fxspace._validate import as_float_array, check_int, check_scalar
 from fxspace.errors import FxspaceError
-from fxspace.io._types import MarkerSequence
+from fxspace.io import MarkerSequence
 
 __all__ = [
     "SyntheticFace",
@@ -119,11 +120,7 @@ def face_layout(n_markers: int = 60) -> tuple[tuple[str, ...], Float[np.ndarray,
     farthest-point sampling of a grid (named ``<region>_<side>_<k>``, e.g.
     ``cheek_l_2``). Deterministic: the layout does not depend on any seed.
     """
-    n = int(n_markers)
-    if n != n_markers or not _MIN_MARKERS <= n <= _MAX_MARKERS:
-        raise FxspaceError(
-            f"n_markers must be an integer in [{_MIN_MARKERS}, {_MAX_MARKERS}], got {n_markers!r}"
-        )
+    n = check_int(n_markers, "n_markers", low=_MIN_MARKERS, high=_MAX_MARKERS)
     base = _LANDMARKS[: min(n, len(_LANDMARKS))]
     names = [b[0] for b in base]
     uv = np.array([[b[1], b[2]] for b in base], dtype=np.float64)
@@ -257,10 +254,14 @@ def expression_displacement(
     corners, ``eye_close`` lowers the upper lids, ``cheek_puff`` pushes the cheeks out.
     Zero at intensity 0; peak displacements 6–25 mm at intensity 1.
     """
-    if mode not in _MODES:
+    if not isinstance(mode, str) or mode not in _MODES:
         raise FxspaceError(f"unknown expression mode {mode!r}; available: {list(EXPRESSION_MODES)}")
-    neutral = np.asarray(neutral, dtype=np.float64)
-    s = np.atleast_1d(np.asarray(intensity, dtype=np.float64))
+    neutral = as_float_array(neutral, "neutral", shape=(None, 3), dtype=np.float64, xp="numpy")
+    s = np.atleast_1d(
+        as_float_array(intensity, "intensity", min_frames=0, dtype=np.float64, xp="numpy")
+    )
+    if s.ndim != 1:
+        raise FxspaceError(f"intensity must be a scalar or 1-D (frames,), got shape {s.shape}")
     return _MODES[mode](neutral, s)
 
 
@@ -341,9 +342,9 @@ def _head_motion(rng: np.random.Generator, n_frames: int, rate: float):
 
 # -- public generator --------------------------------------------------------------------
 class SyntheticFace(NamedTuple):
-    """Result of :func:`synthetic_face`.
+    """Result of `synthetic_face`.
 
-    - ``sequence``: the markers as a :class:`~fxspace.io.MarkerSequence` (mm), with head
+    - ``sequence``: the markers as a `MarkerSequence` (mm), with head
       motion, noise and missing markers (NaN) applied.
     - ``mode``: ``(T,)`` int, index into ``mode_names`` of the active expression, −1 on
       neutral frames (``intensity == 0``).
@@ -382,9 +383,9 @@ def synthetic_face(
 
     **Arguments:**
 
-    - ``n_markers``: markers on the face, 12–200 (see :func:`face_layout`).
+    - ``n_markers``: markers on the face, 12–200 (see `face_layout`).
     - ``n_frames``: frames; must leave at least 7 frames per played expression.
-    - ``modes``: expression modes to play (from :data:`EXPRESSION_MODES`), each
+    - ``modes``: expression modes to play (from `EXPRESSION_MODES`), each
       ``repetitions`` times in a seeded random order, one at a time: neutral gap →
       smooth (raised-cosine) ramp up → hold at the peak → ramp down → neutral.
     - ``seed``: seed of every random choice (timeline, peaks, head motion, noise,
@@ -397,9 +398,12 @@ def synthetic_face(
       (within ``[0, 1]``).
     - ``missing_fraction``: fraction of (frame, marker) entries set to NaN at random.
 
-    **Returns:** a :class:`SyntheticFace`.
+    **Returns:** a `SyntheticFace`.
     """
     names, neutral = face_layout(n_markers)
+    seed = check_int(seed, "seed", low=0, high=2**63 - 1)
+    if not isinstance(modes, str | list | tuple):
+        raise FxspaceError(f"modes must be a sequence of mode names, got {modes!r}")
     modes = (modes,) if isinstance(modes, str) else tuple(modes)
     unknown = [m for m in modes if m not in _MODES]
     if not modes or unknown:
@@ -408,25 +412,25 @@ def synthetic_face(
         )
     if len(set(modes)) != len(modes):
         raise FxspaceError(f"modes must not repeat a mode, got {list(modes)}")
-    if int(repetitions) != repetitions or repetitions < 1:
-        raise FxspaceError(f"repetitions must be an integer >= 1, got {repetitions!r}")
-    repetitions = int(repetitions)
+    repetitions = check_int(repetitions, "repetitions", low=1)
     need = 7 * len(modes) * repetitions + 2
-    if int(n_frames) != n_frames or n_frames < need:
+    n_frames = check_int(n_frames, "n_frames")
+    if n_frames < need:
         raise FxspaceError(
             f"n_frames must be an integer >= {need} for {len(modes)} modes x {repetitions} "
             f"repetitions, got {n_frames!r}; raise n_frames or lower repetitions"
         )
-    n_frames = int(n_frames)
-    lo, hi = (float(x) for x in peak_range)
-    if not 0.0 < lo <= hi <= 1.0:
-        raise FxspaceError(f"peak_range must satisfy 0 < low <= high <= 1, got {peak_range!r}")
-    if not np.isfinite(noise_mm) or noise_mm < 0:
-        raise FxspaceError(f"noise_mm must be >= 0, got {noise_mm!r}")
-    if not 0.0 <= missing_fraction < 1.0:
-        raise FxspaceError(f"missing_fraction must be in [0, 1), got {missing_fraction!r}")
-    if not np.isfinite(rate) or rate <= 0:
-        raise FxspaceError(f"rate must be > 0 (Hz), got {rate!r}")
+    if not isinstance(peak_range, list | tuple) or len(peak_range) != 2:
+        raise FxspaceError(f"peak_range must be a pair (low, high), got {peak_range!r}")
+    lo = check_scalar(peak_range[0], "peak_range[0]", low=0.0, low_open=True, high=1.0)
+    hi = check_scalar(peak_range[1], "peak_range[1]", low=lo, high=1.0)
+    noise_mm = check_scalar(noise_mm, "noise_mm", low=0.0)
+    missing_fraction = check_scalar(
+        missing_fraction, "missing_fraction", low=0.0, high=1.0, high_open=True
+    )
+    rate = check_scalar(rate, "rate", low=0.0, low_open=True)
+    if not isinstance(head_motion, bool | np.bool_):
+        raise FxspaceError(f"head_motion must be True or False, got {head_motion!r}")
 
     streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(4)]
     mode, intensity = _timeline(streams[0], n_frames, len(modes), repetitions, (lo, hi))

@@ -16,7 +16,11 @@ def test_kernel_kmeans_nan_point_is_named(points):
     X = points.copy()
     X[7, 1] = np.nan
     with pytest.raises(fx.FxspaceError, match=r"X holds NaN/inf.*\(7, 1\)"):
-        fx.kernel_kmeans(X, 2, 0.5)
+        fx.kernel_kmeans(X, 2, 0.5, throw=True)
+    res = fx.kernel_kmeans(X, 2, 0.5, n_init=2)  # throw=False: reported, not raised
+    assert res.result == fx.RESULTS.nonfinite_input
+    assert res.result != fx.RESULTS.successful and not bool(res.converged)
+    assert int(res.num_steps) == 0 and (np.asarray(res.labels) == -1).all()
 
 
 @pytest.mark.parametrize("gamma", [0.0, -1.0, float("nan"), float("inf")])
@@ -43,10 +47,13 @@ def test_kernel_kmeans_under_jit_reports_not_converged(points):
 def test_fuzzy_cmeans_nan_point(points):
     X = points.copy()
     X[0, 0] = np.nan
-    with pytest.raises(fx.FxspaceError, match="x holds NaN/inf"):
-        fx.fuzzy_cmeans(X, 2, key=jax.random.PRNGKey(0))
+    with pytest.raises(fx.FxspaceError, match=r"x holds NaN/inf.*\(0, 0\)"):
+        fx.fuzzy_cmeans(X, 2, key=jax.random.PRNGKey(0), throw=True)
+    res = fx.fuzzy_cmeans(X, 2, key=jax.random.PRNGKey(0))
+    assert res.result == fx.RESULTS.nonfinite_input and not bool(res.converged)
+    assert not np.isfinite(np.asarray(res.centers)).all()  # no plausible finite answer
     res = jax.jit(lambda x: fx.fuzzy_cmeans(x, 2, key=jax.random.PRNGKey(0)))(X)
-    assert not bool(res.converged)
+    assert not bool(res.converged) and res.result == fx.RESULTS.nonfinite_input
     ok = fx.fuzzy_cmeans(points, 2, key=jax.random.PRNGKey(0))
     assert bool(ok.converged)
 

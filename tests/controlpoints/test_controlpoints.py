@@ -133,6 +133,7 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
         "experiment": "reconstruction",
         "seed": 0,
         "n_vertices": 400,
+        "n_segments": 8,  # the paper's count, overriding the count chosen from the data
         "clusters": [20],
         "gammas": [0.5],
         "n_init": 2,
@@ -147,6 +148,10 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
     assert m["ratio"] < 0.11 and m["segmentation"]["n_segments"] == 8
     assert m["error_ratio_scene"] < 0.11 and len(m["error_ratio_segments"]) == 8
     assert max(m["error_ratio_segments"]) < 0.11 and m["scene_pipeline_time_s"] > 0
+    assert m["n_segments_chosen"] == 8 and "config" in m["n_segments_why"]
+    lo, hi = m["paper_segment"]["frames"]
+    assert m["error_ratio_paper_segment"] == m["error_ratio_segments"][m["paper_segment"]["index"]]
+    assert (run_dir / "character.glb").is_file()
     for name in (
         "reconstruction.png",
         "segmentation.png",

@@ -1,6 +1,8 @@
 """Key-framed control-point edits: interpolation against scipy's cubic Hermite, the region
 follows through the weights, continuity, last-key-wins history, JSON round trip, jit."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -87,3 +89,81 @@ def test_edit_control_keys_gradient_is_the_weights(rng):
 
     g = np.asarray(jax.grad(f)(jnp.zeros(3)))
     np.testing.assert_allclose(g, np.full(3, float(np.sum(m.weights[:, 1]))), rtol=1e-12)
+
+
+# --- keys anchored on the face (issue 21) ----------------------------------------------
+
+from fxspace.controlpoints import FaceKey  # noqa: E402
+
+
+def test_face_key_offsets_hold_across_a_boundary_and_match_hermite(rng):
+    """Two keys with one offset hold it across the boundary (frame 10); outside the keys it
+    eases to zero at the surrounding boundaries (scipy's zero-slope Hermite)."""
+    X, scene = _scene(rng)
+    o = np.array([1.0, -2.0, 0.5])
+    keys = [FaceKey(8, 0, tuple(o)), FaceKey(13, 0, tuple(o))]
+    path = fx.controlpoints.anchor_offsets(keys, scene.boundaries)[0]
+    ref = CubicHermiteSpline([0, 8, 13, 20.0], np.array([0 * o, o, o, 0 * o]), np.zeros((4, 3)))
+    np.testing.assert_allclose(path, ref(np.arange(21)), atol=1e-12)
+    np.testing.assert_allclose(path[8:14], np.tile(o, (6, 1)), atol=1e-12)  # held
+    base = np.asarray(fx.reconstruct_scene(scene))
+    ed = fx.controlpoints.edited_vertices(scene, keys)
+    np.testing.assert_allclose(ed[10, 0] - base[10, 0], o, atol=1e-9)  # the boundary frame too
+    # the anchor's region: vertices of its cluster in each segment (one-hot weights here)
+    k0, k1 = (int(np.argmax(np.asarray(m.weights)[0])) for m in scene.segments)
+    W0 = np.asarray(scene.segments[0].weights[:, k0])
+    np.testing.assert_allclose(ed[8] - base[8], W0[:, None] * o, atol=1e-9)
+    # a key at a boundary frame itself and at the scene's ends is valid
+    ed2 = fx.controlpoints.edited_vertices(
+        scene, [FaceKey(10, 5, (0, 0, 1.0)), FaceKey(0, 5, (1.0, 0, 0))]
+    )
+    np.testing.assert_allclose(ed2[10, 5] - base[10, 5], [0, 0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(ed2[0, 5] - base[0, 5], [1.0, 0, 0], atol=1e-9)
+
+
+def test_segment_blend_is_a_partition_and_cross_fades(rng):
+    A = fx.controlpoints.segment_blend([0, 10, 20], blend=4)
+    np.testing.assert_allclose(A.sum(1), 1.0)
+    np.testing.assert_allclose(A[10], [0.5, 0.5])
+    np.testing.assert_array_equal(A[:7, 0], 1.0)
+    np.testing.assert_array_equal(A[14:, 1], 1.0)
+    assert np.all(np.diff(A[:, 1]) >= 0)  # monotone hand-over
+
+
+def test_old_keys_convert_and_reproduce_the_old_edit(rng, tmp_path):
+    """A version-1 edits.json (per-segment keys) loads and converts to keys on the face that
+    give the old edit wherever the cross-fade does not reach (and at the anchor everywhere)."""
+    X, scene = _scene(rng)
+    k = int(scene.segments[1].labels[0])
+    old = [EditKey(1, k, 15, (1.0, 2.0, 0.0))]
+    p = fx.save_edits(tmp_path / "edits.json", old, boundaries=[0, 10, 20])
+    back, meta = fx.load_edits(p)
+    assert back == old
+    new = fx.controlpoints.convert_keys(scene, back)
+    v = new[0].vertex
+    assert isinstance(new[0], FaceKey) and int(scene.segments[1].labels[v]) == k
+    was = np.asarray(fx.reconstruct_scene(fx.apply_edits(scene, old)))
+    now = fx.controlpoints.edited_vertices(scene, new)
+    np.testing.assert_allclose(now[14:17], was[14:17], atol=1e-9)
+    np.testing.assert_allclose(now[:, v], was[:, v], atol=1e-9)
+    # round trip of face keys (version 2)
+    p2 = fx.save_edits(tmp_path / "e2.json", new)
+    assert fx.load_edits(p2)[0] == new and json.loads(p2.read_text())["version"] == 2
+
+
+def test_bad_edits_are_refused(rng, tmp_path):
+    X, scene = _scene(rng)
+    with pytest.raises(fx.FxspaceError, match="finite"):
+        fx.controlpoints.edited_vertices(scene, [FaceKey(3, 0, (np.nan, 0.0, 0.0))])
+    with pytest.raises(fx.FxspaceError, match="finite"):
+        fx.save_edits(tmp_path / "e.json", [FaceKey(3, 0, (0.0, np.inf, 0.0))])
+    with pytest.raises(fx.FxspaceError, match="frame"):
+        fx.controlpoints.edited_vertices(scene, [FaceKey(21, 0, (1.0, 0.0, 0.0))])
+    with pytest.raises(fx.FxspaceError, match="vertex"):
+        fx.controlpoints.edited_vertices(scene, [FaceKey(3, 36, (1.0, 0.0, 0.0))])
+    with pytest.raises(fx.FxspaceError, match="finite"):
+        fx.controlpoints.edit_control_keys(scene.segments[0], 0, [3], [[np.nan, 0, 0]])
+    for text in ("{not json", '{"keys": 3}', '{"keys": [{"frame": 1}]}', "[1, 2]"):
+        (tmp_path / "bad.json").write_text(text)
+        with pytest.raises(fx.errors.CorruptFileError, match="bad.json"):
+            fx.load_edits(tmp_path / "bad.json")

@@ -140,3 +140,23 @@ def test_boundary_errors():
         fx.fused_lasso(np.zeros((5, 3)), 0.0, np.ones(4))
     with pytest.raises(fx.FxspaceError, match="method"):
         fx.fused_lasso(np.zeros(5), 0.0, 1.0, method="admm")
+
+
+def test_default_path_is_one_jaxopt_prox_gradient_step_and_reports_results(rng):
+    """The default solve goes through jaxopt's ProximalGradient whose prox is the exact
+    FLSA prox: same answer as calling the prox directly; the result vocabulary is set,
+    NaN input is never 'successful' and raises with throw=True."""
+    from fxspace.controlpoints._fused_lasso import _condat_chunked, _soft
+
+    Y = rng.standard_normal((40, 5))
+    res = fx.fused_lasso_solve(Y, 0.1, 0.7)
+    x, _, _, _ = _condat_chunked(jnp.asarray(Y.T), jnp.full(5, 0.7), 4 * 40 * 40 + 64)
+    np.testing.assert_allclose(np.asarray(res.solution), np.asarray(_soft(x.T, 0.1)), atol=1e-12)
+    assert res.result == fx.RESULTS.successful and bool(res.converged)
+    assert int(res.stats["max_steps"]) == 4 * 40 * 40 + 64 and int(res.num_steps) > 0
+    bad = Y.copy()
+    bad[3, 1] = np.nan
+    out = jax.jit(lambda y: fx.fused_lasso_solve(y, 0.0, 1.0).result)(jnp.asarray(bad))
+    assert out != fx.RESULTS.successful
+    with pytest.raises(fx.FxspaceError, match="fused_lasso: the iteration limit"):
+        fx.fused_lasso_solve(Y, 0.0, 1.0, weights=np.ones(40), max_steps=1, throw=True)

@@ -54,3 +54,11 @@ def test_face_surface_on_real_markers(data_dir):
     assert d.max() < 5.0  # mm: within a grid spacing
     X = np.asarray(fx.rbf_deform(surf.vertices, P[0], P))
     assert X.shape == (5, surf.vertices.shape[0], 3) and np.all(np.isfinite(X))
+
+
+def test_coinciding_markers_are_refused_not_nan(rng):
+    m0 = rng.standard_normal((8, 3))
+    m0[5] = m0[2]
+    V = rng.standard_normal((20, 3))
+    with pytest.raises(fx.FxspaceError, match="same place"):
+        fx.rbf_deform(V, m0, np.repeat(m0[None], 3, 0))

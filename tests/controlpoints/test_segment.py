@@ -50,3 +50,26 @@ def test_plot_and_errors(rng):
         fx.segment_motion(X, 100)
     with pytest.raises(fx.FxspaceError, match="on must be"):
         fx.segment_motion(X, 3, on="speed")
+
+
+def test_count_chosen_from_the_data(rng):
+    """Three velocity changes: BIC and the elbow on the fused-lasso path both choose the 4
+    segments and the table says why; a non-integer count is refused."""
+    knots = [30, 55, 90]
+    X = _piecewise_linear(rng, knots) + 0.01 * rng.standard_normal((120, 12))
+    for crit in ("bic", "elbow"):
+        seg = fx.segment_motion(X, "auto", min_length=5, criterion=crit)
+        sel = seg.selection
+        assert sel["chosen"] == len(seg.boundaries) - 1 == 4, (crit, sel)
+        assert sel["criterion"] == crit and sel["why"]
+        np.testing.assert_allclose(seg.boundaries[1:-1], knots, atol=1)
+    # the BIC table is the refitted least-squares RSS: check one entry by hand
+    i = sel["counts"].index(1)
+    Z = np.asarray(seg.summary)
+    assert sel["rss"][i] == pytest.approx(float(np.sum((Z - Z.mean(0)) ** 2)))
+    with pytest.raises(fx.FxspaceError, match="n_segments"):
+        fx.segment_motion(X, 2.5)
+    with pytest.raises(fx.FxspaceError, match="n_segments"):
+        fx.fit_scene(X.reshape(120, 4, 3), 2, n_segments=2.5)
+    with pytest.raises(fx.FxspaceError, match="criterion"):
+        fx.segment_motion(X, "auto", criterion="aic")

@@ -2,7 +2,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.spatial.distance import cdist, pdist
+from scipy.spatial.distance import cdist, pdist, squareform
 from scipy.spatial.transform import Rotation
 
 import fxspace as fx
@@ -17,9 +17,36 @@ def _rigid(rng, X):
 def test_features_match_pdist(rng):
     X = rng.standard_normal((5, 7, 3))
     F = np.asarray(fx.distance_features(X))
-    assert F.shape == (5, 21)
+    G = np.asarray(fx.distance_features(X, full_matrix=False))
+    assert F.shape == G.shape == (5, 21)
     for t in range(5):
-        np.testing.assert_allclose(F[t], pdist(X[t]), rtol=1e-12)
+        np.testing.assert_allclose(G[t], pdist(X[t]), rtol=1e-6)
+        np.testing.assert_allclose(F[t], np.sqrt(2) * pdist(X[t]), rtol=1e-6)
+
+
+def test_state_distance_is_the_papers_full_matrix_distance(rng):
+    """Kim & Jung §2.2: the state is the whole M×M distance matrix laid out as a vector;
+    the straight-line distance between two states is the Frobenius distance."""
+    X = rng.standard_normal((9, 6, 3)) * 40
+    full = np.stack([squareform(pdist(x)) for x in X]).reshape(len(X), -1)
+    P = np.asarray(fx.pairwise_distances(fx.distance_features(X)))
+    np.testing.assert_allclose(P, cdist(full, full), rtol=1e-5, atol=1e-3)
+    with jax.enable_x64(True):
+        P64 = np.asarray(fx.pairwise_distances(fx.distance_features(X.astype(np.float64))))
+    np.testing.assert_allclose(P64, cdist(full, full), rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("scale", [1e19, 1e-25])
+def test_extreme_float32_coordinates(rng, scale):
+    """Differences are scaled before squaring: no inf at 1e19, no zeros at 1e-25."""
+    X = rng.standard_normal((5, 4, 3))
+    F = np.asarray(fx.distance_features((X * scale).astype(np.float32)))
+    ref = np.sqrt(2) * np.stack([pdist(x) for x in X]) * scale
+    assert F.dtype == np.float32 and np.isfinite(F).all() and (F > 0).all()
+    np.testing.assert_allclose(F, ref, rtol=1e-5)
+    P = np.asarray(fx.pairwise_distances(F))
+    assert np.isfinite(P).all()
+    np.testing.assert_allclose(P, cdist(ref, ref), rtol=1e-4, atol=1e-6 * ref.max())
 
 
 def test_features_rigid_invariant(rng):

@@ -48,6 +48,26 @@ def test_blocked_with_padding_and_float32(rng):
     np.testing.assert_allclose(D[fin], ref[fin], rtol=1e-5)
 
 
+@pytest.mark.parametrize("cols", [40, 1040, 4216])
+def test_tiled_minplus_update_equals_numpy(rng, cols):
+    """The phase-3 update (whole row blocks, or column tiles once a row block passes
+    1 MiB) is the plain ``min(D, C ⊗ R)``; `_col_pad` always gives a column count the
+    update can tile."""
+    from fxspace.expression._geodesic import _col_pad, _col_tiles, _minplus_update
+
+    D = rng.uniform(0, 4, (128, cols)).astype(np.float32)
+    C = rng.uniform(0, 2, (128, 8)).astype(np.float32)
+    R = rng.uniform(0, 2, (8, cols)).astype(np.float32)
+    D[3, 5] = np.inf
+    ref = np.minimum(D, np.min(C[:, :, None] + R[None, :, :], axis=1))
+    out = np.asarray(_minplus_update(jnp.asarray(D), jnp.asarray(C), jnp.asarray(R), 64))
+    np.testing.assert_array_equal(out, ref)
+    assert _col_tiles(2464, 56, 4) == 1 and _col_tiles(4800, 64, 4) > 1
+    for m in (40, 64, 2464, 4216, 4800, 9000):
+        mc, nc = _col_pad(m, 64, 4), _col_tiles(m, 64, 4)
+        assert m <= mc < m + 8 * nc and mc % nc == 0 and (mc // nc) % 8 == 0
+
+
 def test_directed_graph(rng):
     n = 40
     W = np.where(rng.random((n, n)) < 0.1, rng.random((n, n)) + 0.1, np.inf)

@@ -26,6 +26,35 @@ def test_landmark_geodesics_equal_scipy_dijkstra(rng):
         np.testing.assert_array_equal(np.asarray(geo.landmarks), lm)
 
 
+def test_farthest_point_rows_identical_to_scipy_on_the_same_landmarks(rng):
+    """The fast path (symmetric graph, scipy's directed search, one source a step) gives
+    bit-identical rows to scipy's undirected Dijkstra from all the landmarks at once."""
+    from fxspace.expression import to_scipy
+
+    X = rng.standard_normal((600, 3)).cumsum(axis=0) * 0.1
+    g = fx.neighbourhood_graph(jnp.asarray(X), k=6, reduce_dim=None)
+    geo = fx.farthest_point_landmarks(g, 12)
+    lm = np.asarray(geo.landmarks)
+    ref = dijkstra(to_scipy(g), directed=False, indices=lm)
+    np.testing.assert_array_equal(np.asarray(geo.distances), ref.astype(g.weights.dtype))
+    again = fx.landmark_geodesics(g, lm, method="dijkstra")
+    np.testing.assert_array_equal(np.asarray(again.distances), np.asarray(geo.distances))
+
+
+def test_asymmetric_graph_keeps_undirected_semantics(rng):
+    from fxspace.expression import NeighbourGraph, to_scipy
+    from fxspace.expression._sparse import dijkstra_csr
+
+    idx = jnp.asarray([[1, 0], [2, 1], [2, 2]], jnp.int32)  # 0-1, 1-2 given one way only
+    w = jnp.asarray([[1.0, jnp.inf], [2.5, jnp.inf], [jnp.inf, jnp.inf]])
+    g = NeighbourGraph(idx, w)
+    assert dijkstra_csr(g)[1] is False
+    geo = fx.landmark_geodesics(g, np.array([0, 2]), method="dijkstra")
+    ref = dijkstra(to_scipy(g), directed=False, indices=[0, 2])
+    np.testing.assert_array_equal(np.asarray(geo.distances), ref)
+    np.testing.assert_array_equal(ref, [[0.0, 1.0, 3.5], [3.5, 2.5, 0.0]])
+
+
 def test_relaxation_is_jittable_and_counts_sweeps(rng):
     from fxspace.expression._landmark import _relax
 

@@ -84,7 +84,8 @@ def test_int_positions_converted():
     X = np.arange(24).reshape(2, 4, 3)
     F = np.asarray(fx.distance_features(X))
     assert F.dtype.kind == "f"
-    np.testing.assert_allclose(F[0], cdist(X[0], X[0])[np.triu_indices(4, 1)], rtol=1e-6)
+    ref = np.sqrt(2) * cdist(X[0], X[0])[np.triu_indices(4, 1)]  # the full-matrix weight
+    np.testing.assert_allclose(F[0], ref, rtol=1e-6)
 
 
 # --- fill_gaps -------------------------------------------------------------------------

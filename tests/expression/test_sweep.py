@@ -31,7 +31,7 @@ def _reference_score(P, thr):
 
 def test_sweep_matches_scipy_reference(rng):
     P = _curve(rng)
-    th = fx.threshold_grid(P, num=6, upper_quantile=0.3)
+    th = fx.threshold_grid(P, num=6, upper_quantile=0.3, lower_factor=0.9)
     sw = fx.threshold_sweep(P, th)
     assert not bool(sw.connected[0])  # starts just below the connecting threshold
     assert np.isnan(sw.scores[0]) and int(sw.n_components[0]) >= 2
@@ -93,10 +93,34 @@ def test_all_disconnected_is_reported(rng):
 
 
 def test_bad_thresholds():
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(fx.FxspaceError, match="> 0"):
         fx.threshold_sweep(np.zeros((4, 4)), [-1.0])
-    with pytest.raises(ValueError, match="square"):
+    with pytest.raises(fx.FxspaceError, match="square"):
         fx.threshold_sweep(np.zeros((4, 3)), [1.0])
+    for bad in ("230", ["230"], [np.nan]):
+        with pytest.raises(fx.FxspaceError, match="thresholds"):
+            fx.threshold_sweep(np.ones((4, 4)) - np.eye(4), bad)
+    P = np.ones((4, 4)) - np.eye(4)
+    for num in (2.5, "8", 1):
+        with pytest.raises(fx.FxspaceError, match="num"):
+            fx.threshold_grid(P, num)
+    with pytest.raises(fx.FxspaceError, match="threshold"):
+        fx.expression_space(None, "230", pairwise=P)
+
+
+def test_grid_spans_connecting_to_largest_distance(rng):
+    """The default grid covers the whole meaningful range (Kim & Jung §2.2): from the
+    connecting threshold to the largest distance, where the graph is complete."""
+    P = _curve(rng, 90)
+    th = fx.threshold_grid(P, 7)
+    assert th[0] == pytest.approx(float(fx.connecting_threshold(P)))
+    assert th[-1] == P.max() and np.all(np.diff(th) > 0)
+    sw = fx.threshold_sweep(P, th)
+    assert bool(np.all(np.asarray(sw.connected)))
+    assert float(sw.mean_degree[-1]) == pytest.approx(89.0)  # complete graph
+    best = fx.choose_threshold(sw)  # max_r is the default (the paper's)
+    assert best["criterion"] == "max_r"
+    assert best["score"] == np.nanmax(np.asarray(sw.scores))
 
 
 def test_expression_space_on_synthetic_face():

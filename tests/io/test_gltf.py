@@ -140,7 +140,7 @@ def test_structure_and_reordering(toy):
     np.testing.assert_array_equal(toy.skin_joints[top, 0], 1)  # child, now index 1
     np.testing.assert_allclose(toy.skin_weights.sum(axis=1), 1.0)
     np.testing.assert_allclose(toy.inverse_bind[1][1, 3], -1.0)  # the child's IBM moved
-    np.testing.assert_allclose(toy.rest_vertices(), toy.vertices, atol=1e-6)
+    np.testing.assert_allclose(fx.mesh.rest_vertices(toy), toy.vertices, atol=1e-6)
 
 
 def test_animation_sampling_matches_keyframes(toy):
@@ -171,7 +171,7 @@ def test_animation_vertices_deform_as_specified(toy):
     # weighted fully to the child rotate about the child's origin (0, 1, 0)
     t = np.array([1.0])
     pose = toy.sample_animation("wave", t)
-    v = toy.animation_vertices("wave", t)[0]
+    v = fx.mesh.animation_vertices(toy, "wave", t)[0]
     r = Rotation.from_quat(pose.rotations[0, 1]).as_matrix()
     s = pose.scales[0, 1]
     top = toy.vertices[:, 1] > 1.0
@@ -179,7 +179,7 @@ def test_animation_vertices_deform_as_specified(toy):
     np.testing.assert_allclose(v[top], expect, atol=1e-6)
     bottom = toy.vertices[:, 1] < 1.0 - 1e-6
     np.testing.assert_allclose(v[bottom], toy.vertices[bottom], atol=1e-6)
-    assert toy.animation_vertices("wave", np.linspace(0, 2, 7)).shape == (7, 8, 3)
+    assert fx.mesh.animation_vertices(toy, "wave", np.linspace(0, 2, 7)).shape == (7, 8, 3)
 
 
 def test_refusals(tmp_path):
@@ -215,13 +215,13 @@ def test_real_meshes(data_dir, name, joints, verts, anims):
     assert np.all(m.parents < np.arange(joints))
     # the rest pose of these files is their bind pose
     scale = np.ptp(m.vertices, axis=0).max()
-    np.testing.assert_allclose(m.rest_vertices(), m.vertices, atol=1e-6 * scale)
+    np.testing.assert_allclose(fx.mesh.rest_vertices(m), m.vertices, atol=1e-6 * scale)
     # sampling at the keyframe times returns the keyframes
     ch = next(c for c in m.animations[anims[0]].channels if c.path == "rotation")
     got = m.sample_animation(anims[0], ch.times).rotations[:, ch.joint]
     np.testing.assert_allclose(np.abs(np.sum(got * ch.values, axis=1)), 1.0, atol=1e-6)
     # the animation moves the mesh and keeps it bounded (no exploded vertices)
-    v = m.animation_vertices(anims[0], np.linspace(*m.animation_range(anims[0]), 4))
+    v = fx.mesh.animation_vertices(m, anims[0], np.linspace(*m.animation_range(anims[0]), 4))
     assert np.isfinite(v).all() and np.abs(v - m.vertices).max() > 1e-3 * scale
     assert np.ptp(v, axis=1).max() < 3 * scale
 
@@ -234,7 +234,9 @@ def test_json_gltf_with_embedded_buffer_reads_the_same(tmp_path, toy):
     np.testing.assert_array_equal(m.vertices, toy.vertices)
     np.testing.assert_array_equal(m.faces, toy.faces)
     t = np.linspace(0, 2, 5)
-    np.testing.assert_allclose(m.animation_vertices("wave", t), toy.animation_vertices("wave", t))
+    np.testing.assert_allclose(
+        fx.mesh.animation_vertices(m, "wave", t), fx.mesh.animation_vertices(toy, "wave", t)
+    )
 
 
 def test_ik_poses_written_as_bvh_round_trip(data_dir, tmp_path):

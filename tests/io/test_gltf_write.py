@@ -76,7 +76,9 @@ def test_animation_round_trip(meshes, name, tmp_path):
     lo, hi = back.animation_range("fxspace")
     assert abs(lo - t[0]) < 1e-6 and abs(hi - t[-1]) < 1e-6
     np.testing.assert_allclose(
-        back.animation_vertices("fxspace", t), mesh.animation_vertices(anim, t), atol=1e-5 * size
+        fx.mesh.animation_vertices(back, "fxspace", t),
+        fx.mesh.animation_vertices(mesh, anim, t),
+        atol=1e-5 * size,
     )
 
 
@@ -109,7 +111,7 @@ def test_ik_round_trip(meshes, name, tmp_path):
         np.testing.assert_array_equal(back.parents, mesh.parents)
         np.testing.assert_allclose(back.base_transforms, mesh.base_transforms, atol=1e-12)
     assert back.animation_range("fxspace") == pytest.approx((0.0, 3 / 24.0))
-    got = back.animation_vertices("fxspace", np.arange(4) / 24.0)
+    got = fx.mesh.animation_vertices(back, "fxspace", np.arange(4) / 24.0)
     want = _ik_vertices(mesh, ang, tr)
     assert np.abs(want - mesh.vertices).max() > 0.05 * size  # the poses do move the mesh
     np.testing.assert_allclose(got, want, atol=1e-5 * size)
@@ -146,7 +148,9 @@ def test_mesh_without_poses(meshes, tmp_path):
     mesh = meshes["RiggedSimple"]
     back = fx.io.read_gltf(fx.io.write_gltf(tmp_path / "still.glb", mesh))
     assert back.animations == {}
-    np.testing.assert_allclose(back.rest_vertices(), mesh.rest_vertices(), atol=1e-6 * _size(mesh))
+    np.testing.assert_allclose(
+        fx.mesh.rest_vertices(back), fx.mesh.rest_vertices(mesh), atol=1e-6 * _size(mesh)
+    )
     # a repeated joint is merged (glTF: one weight per joint and vertex) ...
     w = mesh.skin_weights.copy()
     w[:, 0] /= 2
@@ -162,8 +166,8 @@ def test_mesh_without_poses(meshes, tmp_path):
     pose = mesh.sample_animation(0, 1.0)
     back = fx.io.read_gltf(fx.io.write_gltf(tmp_path / "one.glb", mesh, pose, animation="held"))
     np.testing.assert_allclose(
-        back.animation_vertices("held", [0.0, 5.0]),
-        np.repeat(mesh.animation_vertices(0, [1.0]), 2, axis=0),
+        fx.mesh.animation_vertices(back, "held", [0.0, 5.0]),
+        np.repeat(fx.mesh.animation_vertices(mesh, 0, [1.0]), 2, axis=0),
         atol=1e-5 * _size(mesh),
     )
 
@@ -245,7 +249,7 @@ def test_rotation_keys_take_the_short_arc(meshes, tmp_path):
         if ch.path == "rotation":
             assert np.all(np.sum(ch.values[1:] * ch.values[:-1], axis=-1) >= 0)
     np.testing.assert_allclose(
-        back.animation_vertices("fxspace", t),
-        mesh.animation_vertices(0, t),
+        fx.mesh.animation_vertices(back, "fxspace", t),
+        fx.mesh.animation_vertices(mesh, 0, t),
         atol=1e-5 * _size(mesh),
     )

@@ -7,6 +7,7 @@ import io
 import warnings
 
 import c3d
+import jax
 import numpy as np
 import pytest
 
@@ -81,9 +82,9 @@ def test_sequence_copies_input_and_completes_partial_nan(rng):
         ({"names": ("a", "a")}, "unique; duplicated: \\['a'\\]"),
         ({"names": ("a", "")}, "non-empty"),
         ({"names": "ab"}, "not one string"),
-        ({"rate": 0.0}, "rate must be finite and > 0"),
-        ({"rate": float("nan")}, "rate must be finite"),
-        ({"rate": "fast"}, "rate must be a number"),
+        ({"rate": 0.0}, "rate must be > 0"),
+        ({"rate": float("nan")}, "rate must be a finite number"),
+        ({"rate": "fast"}, "rate must be a real number"),
         ({"units": ""}, "units must be a non-empty string"),
     ],
 )
@@ -114,7 +115,10 @@ def test_select_slice_units_drop(rng):
     _same(m.to_units("cm").to_units("mm"), s, rtol=1e-12)
     assert s.to_units("mm") is s
     with pytest.raises(FxspaceError, match="units must be one of"):
-        s.to_units("inch")
+        s.to_units("furlong")
+    inch = s.to_units("inches")  # a spelling of a known unit
+    assert inch.units == "in"
+    np.testing.assert_allclose(inch.positions * 25.4, s.positions, rtol=1e-12)
     with pytest.raises(FxspaceError, match="unknown units"):
         MarkerSequence(s.positions, s.names, 60.0, "furlong").to_units("mm")
 
@@ -405,3 +409,74 @@ def test_real_trc_matches_independent_parser_and_round_trips(data_dir, tmp_path)
     _same(read_markers(write_trc(tmp_path / "p.trc.gz", part)), part)
     c = read_markers(write_c3d(tmp_path / "p.c3d", part))
     _same(c, part, rtol=1e-6)
+
+
+# -- units: a file in inches is converted to millimetres (issue 19) -------------------------
+def test_units_spellings_and_pytree(rng):
+    from fxspace.io._types import canonical_units
+
+    assert [canonical_units(u) for u in ("MM", " Inches ", "inch", "metres", "px")] == [
+        "mm",
+        "in",
+        "in",
+        "m",
+        "px",
+    ]
+    s = _seq(rng)
+    leaves, tree = jax.tree_util.tree_flatten(s)
+    assert len(leaves) == 1 and leaves[0] is s.positions
+    back = tree.unflatten(leaves)
+    assert isinstance(back, MarkerSequence) and back.names == s.names and back.units == "mm"
+    doubled = jax.tree_util.tree_map(lambda x: x * 2, s)
+    np.testing.assert_array_equal(np.asarray(doubled.positions), s.positions * 2)
+
+
+@pytest.mark.parametrize("ext", [".trc", ".trc.gz", ".c3d", ".npz"])
+def test_inch_files_are_converted_to_mm(rng, tmp_path, ext):
+    s = _seq(rng)
+    inch = MarkerSequence(s.positions / 25.4, s.names, s.rate, "in")
+    writer = {".trc": write_trc, ".trc.gz": write_trc, ".c3d": write_c3d, ".npz": write_npz}[ext]
+    r = read_markers(writer(tmp_path / f"t{ext}", inch))
+    assert r.units == "mm" and r.file_units == "in"
+    rtol = 1e-6 if ext == ".c3d" else 1e-12
+    np.testing.assert_allclose(r.positions, s.positions, rtol=rtol)
+    assert np.array_equal(r.missing_mask(), s.missing_mask())
+    m = read_markers(write_trc(tmp_path / "m.trc", s.to_units("m")))
+    assert m.units == "m" and m.file_units is None  # metric files keep their unit
+
+
+@pytest.mark.data
+def test_real_trc_header_rewritten_to_inches(data_dir, tmp_path):
+    """Cut the shared TRC to 40 frames and declare its unit as inches (temp file)."""
+    src = data_dir / "face" / "animface_eyebrows.trc.gz"
+    with gzip.open(src, "rt") as f:
+        lines = f.read().splitlines()
+    keys, vals = lines[1].split("\t"), lines[2].split("\t")
+    vals[keys.index("Units")] = "in"
+    vals[keys.index("NumFrames")] = "40"
+    lines[2] = "\t".join(vals)
+    p = tmp_path / "inch.trc"
+    p.write_text("\n".join(lines[:6] + lines[6:46]) + "\n")
+    ref = read_markers(src).slice(0, 40)
+    r = read_markers(p)
+    assert r.units == "mm" and r.file_units == "in" and ref.units == "mm"
+    np.testing.assert_allclose(r.positions, ref.positions * 25.4, rtol=1e-12)
+
+
+@pytest.mark.data
+def test_real_c3d_point_units_rewritten_to_inches(data_dir, tmp_path):
+    """Rewrite POINT:UNITS of the shared C3D ('mm  ' → 'in  ') in a temp copy."""
+    raw = (data_dir / "face" / "animface_jaw.c3d").read_bytes()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = c3d.Reader(io.BytesIO(raw))
+        assert reader.get("POINT:UNITS").string_value.strip() == "mm"
+        data_start = 512 * (reader.header.data_block - 1)
+    at = raw.find(b"mm  ", 512, data_start)
+    assert at > 0
+    p = tmp_path / "inch.c3d"
+    p.write_bytes(raw[:at] + b"in  " + raw[at + 4 :])
+    ref = read_markers(data_dir / "face" / "animface_jaw.c3d")
+    r = read_markers(p)
+    assert r.units == "mm" and r.file_units == "in"
+    np.testing.assert_allclose(r.positions, ref.positions * 25.4, rtol=1e-12)

@@ -1,6 +1,7 @@
 """Readers/writers for body motion: BVH round trip (channel order kept), ASF/AMC units,
 malformed files → errors naming the line, Euler conventions against scipy."""
 
+import dataclasses
 import gzip
 
 import numpy as np
@@ -339,3 +340,27 @@ def test_real_bandai_file(data_dir):
     # dropping the static root keeps the world positions of all other joints
     d = fx.motion.drop_root(m)
     np.testing.assert_allclose(fx.motion.forward_kinematics(d), ref[:, 1:], atol=1e-5)
+
+
+@pytest.mark.parametrize("scale", [0.0, -1.0, float("nan"), float("inf")])
+def test_bvh_scale_must_be_finite_positive(tmp_path, scale):
+    p = tmp_path / "a.bvh"
+    p.write_text(BVH)
+    with pytest.raises(fx.FxspaceError, match="scale"):
+        fx.io.read_bvh(p, scale=scale)
+    m = fx.io.read_bvh(p)
+    with pytest.raises(fx.FxspaceError, match="scale"):
+        fx.io.write_bvh(tmp_path / "b.bvh", m, scale=scale)
+
+
+@pytest.mark.parametrize("rate", [0.0, -30.0, float("nan")])
+def test_amc_rate_refused_and_no_raw_traceback_on_write(tmp_path, rate):
+    asf, amc = tmp_path / "s.asf", tmp_path / "s.amc"
+    asf.write_text(ASF)
+    amc.write_text(AMC)
+    with pytest.raises(fx.FxspaceError, match="rate"):
+        fx.io.read_amc(asf, amc, rate=rate)
+    # a Motion whose rate was set to 0 by hand: writing it is a clear error, not a traceback
+    m = dataclasses.replace(fx.io.read_amc(asf, amc), rate=rate)
+    with pytest.raises(fx.FxspaceError, match="rate"):
+        fx.io.write_bvh(tmp_path / "out.bvh", m)

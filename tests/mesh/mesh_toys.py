@@ -71,3 +71,12 @@ def _rel(a, b):
     return max(
         float(jnp.max(jnp.abs(x - y)) / jnp.max(jnp.abs(y))) for x, y in zip(a, b, strict=True)
     )
+
+
+def _flat(pose):
+    """A pose as one vector: the angles, then the translation."""
+    return jnp.concatenate([pose.angles.reshape(-1), pose.translation])
+
+
+def _unflat(x, nj):
+    return fx.Pose(x[: 3 * nj].reshape(nj, 3), x[3 * nj :])

@@ -7,13 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers import finite_difference_jvp
-from mesh_toys import _rel, both_views, branching_mesh, random_pose
+from mesh_toys import _flat, _rel, _unflat, both_views, branching_mesh, random_pose
 
 import fxspace as fx
 from fxspace.errors import FxspaceError
 from fxspace.io import SkinnedMesh
-from fxspace.mesh._ik import _flat, _unflat
-from fxspace.mesh._skinning import ancestor_table
+from fxspace.mesh import ancestor_table
 
 
 @pytest.fixture(scope="module")

@@ -23,11 +23,19 @@ def test_threshold_sources(pos, tmp_path):
     eps, tc, src = resolve_threshold(P, None, 1.5, with_source=True)
     assert eps == pytest.approx(1.5 * t_conn) and tc == pytest.approx(t_conn)
     assert src.startswith("factor 1.5")
-    # a criterion runs the sweep here and picks as choose_threshold does
-    eps_r, _, src_r = resolve_threshold(P, "max_r", with_source=True)
-    sw = fx.threshold_sweep(P, fx.threshold_grid(P, 24, 0.6, 0.9))
+    # a criterion runs the sweep here — over the whole range, connecting ε to the largest
+    # distance — and picks as choose_threshold does
+    eps_r, _, src_r = resolve_threshold(P, "max_r", with_source=True, num_thresholds=8)
+    sw = fx.threshold_sweep(P, fx.threshold_grid(P, 8))
+    assert float(sw.thresholds[-1]) == pytest.approx(float(np.max(np.asarray(P))))
     assert eps_r == pytest.approx(fx.choose_threshold(sw, "max_r")["threshold"])
-    assert src_r.startswith("criterion max_r")
+    assert src_r.startswith("criterion max_r") and "largest distance" in src_r
+    # bad values: a clear FxspaceError
+    for bad in ("230", -1.0, float("nan")):
+        with pytest.raises(fx.FxspaceError, match="threshold"):
+            resolve_threshold(P, bad)
+    with pytest.raises(fx.FxspaceError, match="num_thresholds"):
+        resolve_threshold(P, "max_r", num_thresholds=2.5)
     # a finished sweep run
     run = tmp_path / "sweep"
     run.mkdir()

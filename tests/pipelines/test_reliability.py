@@ -12,7 +12,7 @@ import fxspace as fx
 from fxspace.cli import main
 from fxspace.config import ConfigError
 from fxspace.pipelines import run_config, run_dict
-from fxspace.runs import read_status, run_key, write_json_atomic
+from fxspace.runs import read_status, run_key
 
 SMALL = {
     "experiment": "threshold_sweep",
@@ -65,12 +65,11 @@ def test_interrupted_run_with_changed_config_does_not_reuse_cache(tmp_path):
 
 def test_force_clears_the_cache(tmp_path):
     (d,) = run_dict(SMALL, tmp_path / "a")
-    entries = sorted((d / "cache").glob("sweep_*.json"))
+    entries = sorted(p for p in (d / "cache").iterdir() if p.name != "KEY")
     assert entries
-    poisoned = {"thresholds": [1.0], "scores": [0.5]}
-    write_json_atomic(entries[0], poisoned)
+    entries[0].write_bytes(b"poisoned")  # a stage that --force must not serve again
     run_dict(SMALL, tmp_path / "a", force=True)
-    assert json.loads(entries[0].read_text()) != poisoned
+    assert entries[0].read_bytes() != b"poisoned"
 
 
 def test_run_key_covers_config_data_and_code(tmp_path):
@@ -242,3 +241,197 @@ def test_cli_demo_real_has_its_own_folder(monkeypatch):
     main(["demo", "--real"])
     main(["demo"])
     assert seen == ["runs/demo_real", "runs/demo"]
+
+
+# --- a user's folders are theirs (issue 19): fxspace deletes only what it wrote ---------
+
+
+def test_user_file_in_cache_survives_a_rerun_of_another_config(tmp_path):
+    from fxspace.runs import MANIFEST, manifest_files
+
+    out = tmp_path / "r"
+    (out / "cache").mkdir(parents=True)
+    mine = out / "cache" / "my_notes.txt"
+    mine.write_text("keep me")
+    (out / "keep.csv").write_text("1,2")
+    (d,) = run_dict(SMALL, out)
+    listed = manifest_files(d)
+    assert (d / MANIFEST).is_file() and "metrics.json" in listed and "cache/KEY" in listed
+    assert any(r.startswith("cache/") and r != "cache/KEY" for r in listed)
+    assert "cache/my_notes.txt" not in listed and "keep.csv" not in listed
+    # a changed config with --force clears the cache: only fxspace's files go
+    run_dict(_with(data__synthetic_noise_mm=5.0), out, force=True)
+    assert mine.read_text() == "keep me" and (out / "keep.csv").read_text() == "1,2"
+    # the CLI path as the issue tried it
+    cfg = tmp_path / "c.toml"
+    from fxspace.config import dumps_toml
+
+    cfg.write_text(dumps_toml(_with(data__synthetic_noise_mm=2.0)))
+    assert main(["run", str(cfg), "--out", str(out), "--force"]) == 0
+    assert mine.read_text() == "keep me"
+
+
+def test_reset_cache_deletes_only_listed_files(tmp_path):
+    from fxspace.runs import cached, cached_arrays, reset_cache
+
+    reset_cache(tmp_path, "k1")
+    cached(tmp_path, "a", lambda: {"v": 1})
+    cached_arrays(tmp_path, "stage", lambda: {"x": np.arange(3)})
+    (tmp_path / "cache" / "user.bin").write_bytes(b"\x00")
+    (tmp_path / "cache" / "sub").mkdir()
+    (tmp_path / "cache" / "sub" / "deep.txt").write_text("x")
+    assert reset_cache(tmp_path, "k2")
+    left = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file())
+    assert "cache/user.bin" in left and "cache/sub/deep.txt" in left
+    assert "cache/a.json" not in left and "cache/stage.npz" not in left
+    assert (tmp_path / "cache" / "KEY").read_text().strip() == "k2"
+
+
+def test_force_into_another_experiment_removes_its_outputs(tmp_path):
+    from fxspace.runs import manifest_files
+
+    out = tmp_path / "r"
+    (d,) = run_dict(SMALL, out)
+    old_fig = d / "r_vs_threshold.png"
+    assert old_fig.is_file()
+    stale = d / "old_only.png"  # a figure only the old experiment wrote (via fxspace)
+    from fxspace.runs import record, write_bytes_atomic
+
+    write_bytes_atomic(stale, b"png")
+    record(d, stale)
+    (d / "user_plot.png").write_bytes(b"theirs")
+    run_dict(_with(dim=3), out, force=True)
+    assert not stale.exists()  # the old experiment's output is gone ...
+    assert (d / "user_plot.png").read_bytes() == b"theirs"  # ... the user's file stays
+    assert "old_only.png" not in manifest_files(d)
+    assert _metrics(d)["dim"] == 3
+
+
+@pytest.mark.slow  # three sweep runs
+def test_force_single_run_over_an_old_sweep(tmp_path):
+    out = tmp_path / "s"
+    raw = dict(SMALL, sweep={"graph.num_thresholds": [2, 3]})
+    dirs = run_dict(raw, out)
+    assert len(dirs) == 2 and all((x / "metrics.json").is_file() for x in dirs)
+    (dirs[0] / "notes.md").write_text("mine")
+    with pytest.raises(ConfigError, match="--force"):
+        run_dict(dict(SMALL), dirs[0])  # a finished sweep run of another config
+    run_dict(dict(SMALL), out, force=True)
+    assert not (dirs[1] / "metrics.json").exists() and not (dirs[0] / "metrics.json").exists()
+    assert (dirs[0] / "notes.md").read_text() == "mine"
+    assert (out / "metrics.json").is_file()
+
+
+def test_user_files_named_like_run_files_are_not_overwritten(tmp_path):
+    out = tmp_path / "u"
+    out.mkdir()
+    (out / "config.toml").write_text("# my own config\n")
+    with pytest.raises(ConfigError, match="did not write"):
+        run_dict(SMALL, out)
+    assert (out / "config.toml").read_text() == "# my own config\n"
+
+
+def test_demo_refuses_to_overwrite_another_finished_run(tmp_path, capsys):
+    out = str(tmp_path / "demo")
+    (d,) = run_dict(SMALL, out)
+    first = _metrics(d)
+    assert main(["demo", "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert "different config" in err and "--force" in err
+    assert _metrics(d) == first
+
+
+def test_demo_force_and_resume(tmp_path, monkeypatch):
+    import fxspace.cli as cli
+    import fxspace.runs as runs
+
+    monkeypatch.setattr(cli, "_DEMO", dict(SMALL))
+    monkeypatch.setattr(runs, "code_digest", lambda: "fixed")  # others may edit the tree
+    out = str(tmp_path / "demo")
+    assert main(["demo", "--out", out]) == 0
+    t = (tmp_path / "demo" / "metrics.json").stat().st_mtime_ns
+    assert main(["demo", "--out", out]) == 0  # same config: reused, not recomputed
+    assert (tmp_path / "demo" / "metrics.json").stat().st_mtime_ns == t
+    assert main(["demo", "--out", out, "--seed", "4"]) == 2  # another finished run
+    assert main(["demo", "--out", out, "--seed", "4", "--force"]) == 0
+    assert "seed = 4" in (tmp_path / "demo" / "config.toml").read_text()
+
+
+# --- the Pipeline protocol (issue 18, item 5) --------------------------------------------
+
+
+@pytest.mark.parametrize("name", __import__("fxspace.pipelines").pipelines.available())
+def test_every_pipeline_satisfies_the_protocol(name):
+    from fxspace.pipelines import check_pipeline, load_pipeline
+
+    mod = load_pipeline(name)
+    assert check_pipeline(mod) is mod
+    assert isinstance(mod.STAGES, tuple) and all(isinstance(s, str) for s in mod.STAGES)
+    cfg = mod.Config()
+    cfg.validate()  # the default config is valid
+
+
+def test_malformed_pipeline_is_refused():
+    import dataclasses
+    import types
+
+    from fxspace.pipelines import PipelineError, check_pipeline, register
+
+    bad = types.ModuleType("fxspace_bad_pipeline")
+    with pytest.raises(PipelineError, match=r"Config.*STAGES.*run\(cfg, run_dir, seed\)"):
+        check_pipeline(bad)
+
+    @dataclasses.dataclass
+    class Config:  # not frozen, no validate
+        a: int = 1
+
+    bad.Config = Config
+    bad.STAGES = ["x"]
+    bad.run = lambda cfg, run_dir: {}
+    with pytest.raises(PipelineError) as e:
+        register(bad, "bad_one")
+    msg = str(e.value)
+    assert "frozen" in msg and "validate" in msg and "STAGES" in msg and "run(" in msg
+    assert "bad_one" not in __import__("fxspace.pipelines").pipelines.available()
+
+
+def test_registered_pipeline_runs_and_validate_is_called(tmp_path):
+    import dataclasses
+    import types
+
+    from fxspace.pipelines import _REGISTERED, available, register
+
+    calls = []
+
+    @dataclasses.dataclass(frozen=True)
+    class Config:
+        n: int = 2
+
+        def validate(self):
+            calls.append(self.n)
+            if self.n < 1:
+                raise ConfigError("n must be >= 1")
+
+    mod = types.ModuleType("toy")
+    mod.Config, mod.STAGES = Config, ("square",)
+    mod.run = lambda cfg, run_dir, seed: {"sq": cfg.n**2}
+    try:
+        assert register(mod) == "toy" and "toy" in available()
+        (d,) = run_dict({"experiment": "toy", "n": 3}, tmp_path / "t")
+        assert _metrics(d)["sq"] == 9 and 3 in calls
+        with pytest.raises(ConfigError, match="n must be >= 1"):
+            run_dict({"experiment": "toy", "n": 0}, tmp_path / "t0")
+    finally:
+        _REGISTERED.pop("toy", None)
+
+
+def test_legacy_cache_without_manifest_is_set_aside_not_deleted(tmp_path):
+    from fxspace.runs import cached, reset_cache
+
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "KEY").write_text("old\n")
+    (tmp_path / "cache" / "stage.json").write_text('{"v": 1}')  # no manifest: unknown origin
+    assert reset_cache(tmp_path, "new")
+    aside = [p for p in tmp_path.iterdir() if p.name.startswith("cache.stale-")]
+    assert len(aside) == 1 and (aside[0] / "stage.json").read_text() == '{"v": 1}'
+    assert cached(tmp_path, "stage", lambda: {"v": 2}) == {"v": 2}  # never the stale entry

@@ -9,6 +9,16 @@ from fxspace.cli import main
 from fxspace.config import ConfigError
 from fxspace.pipelines import run_dict
 
+
+@pytest.fixture(autouse=True)
+def _fixed_code_digest(monkeypatch):
+    """Other work in the tree changes the code digest mid-test; the reuse logic is what
+    these tests check, so the digest is held fixed."""
+    import fxspace.runs
+
+    monkeypatch.setattr(fxspace.runs, "code_digest", lambda: "test-code")
+
+
 SMALL = {
     "experiment": "threshold_sweep",
     "seed": 3,
@@ -35,8 +45,44 @@ def test_synthetic_run_folder(tmp_path):
     assert 0.9 < m["r_at_best"] <= 1.0
     assert m["best_threshold"] >= m["connecting_threshold"]
     assert set(m["choices"]) == {"max_r", "bounded_degree", "elbow"}
+    # the paper's criterion by default, over the whole range up to the largest distance
+    assert m["criterion"] == "max_r" and m["best_threshold"] == m["choices"]["max_r"]["threshold"]
+    assert m["thresholds_reach_largest_distance"]
+    assert m["sweep"][-1]["threshold"] == pytest.approx(m["largest_distance"], rel=1e-6)
+    assert m["sweep"][0]["threshold"] == pytest.approx(m["connecting_threshold"], rel=1e-6)
+    rs = [e["r"] for e in m["sweep"] if e["r"] is not None]
+    assert m["choices"]["max_r"]["score"] == pytest.approx(max(rs))
     emb = np.load(d / "expression_space.npz")["embedding"]
     assert emb.shape == (240, 2) and np.isfinite(emb).all()
+
+
+def test_interrupted_after_the_sweep_resumes_without_resweeping(tmp_path, monkeypatch):
+    """Pipeline protocol: interrupt after the first costly stage (sweep), rerun: identical
+    metrics, the sweep not recomputed."""
+    import fxspace.pipelines.threshold_sweep as ts
+
+    assert ts.STAGES == ("sweep", "space")
+    (ref,) = run_dict(SMALL, tmp_path / "ref")
+    calls = []
+    real_sweep, real_space = ts.threshold_sweep, ts._space_arrays
+    monkeypatch.setattr(
+        ts, "threshold_sweep", lambda *a, **k: calls.append(1) or real_sweep(*a, **k)
+    )
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ts, "_space_arrays", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_dict(SMALL, tmp_path / "a")
+    assert (tmp_path / "a" / "cache" / "sweep.npz").is_file() and len(calls) == 2  # 6 / 3
+    monkeypatch.setattr(ts, "_space_arrays", real_space)
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    assert len(calls) == 2  # the sweep came from the cache
+    a, b = (json.loads((x / "metrics.json").read_text()) for x in (ref, d))
+    for m in (a, b):
+        m.pop("timings"), m.pop("wall_time_s", None)
+    assert a == b
 
 
 def test_rerun_is_reproducible_and_resumes(tmp_path, capsys):
@@ -101,4 +147,5 @@ def test_real_animface_subsample(tmp_path, data_dir):
     assert m["takes"] == ["animface_cheeks.c3d", "animface_jaw.c3d", "animface_eyebrows.trc.gz"]
     rs = [s["r"] for s in m["sweep"] if s["connected"]]
     assert rs and all(0.5 < r <= 1.0 for r in rs)
-    assert not m["sweep"][0]["connected"]  # grid starts below the connecting threshold
+    assert m["sweep"][0]["connected"]  # the grid starts at the connecting threshold
+    assert m["thresholds_reach_largest_distance"] and m["criterion"] == "max_r"

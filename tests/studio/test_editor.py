@@ -41,8 +41,6 @@ def test_edit_is_saved_and_replayed_after_a_restart(run_dir, scene_data):
     np.testing.assert_array_equal(ctl.sequence("original"), X.astype(np.float32))
     lin = np.asarray(fx.linear_scene(X.astype(np.float32), scene.boundaries))
     np.testing.assert_allclose(ctl.sequence("linear"), lin, rtol=1e-5, atol=1e-4)
-    ctl.set_frame(13)  # a boundary frame is a stored key frame: no edit there
-    assert not ctl.move_control(0, [0.0, 0.0, 0.0]) and "boundary" in ctl.message
     ctl.set_frame(5)
     seg, C = ctl.controls()
     assert seg == 0
@@ -50,16 +48,25 @@ def test_edit_is_saved_and_replayed_after_a_restart(run_dir, scene_data):
     preview = ctl.preview(1, target)
     assert ctl.move_control(1, target)
     assert (run_dir / "edits.json").is_file()
+    k = ctl.keys[-1]
+    assert k.frame == 5 and int(np.argmax(np.asarray(scene.segments[0].weights)[k.vertex])) == 1
     ed, model = ctl.sequence("edited"), ctl.sequence("control points")
     np.testing.assert_allclose(ctl.vertices(), preview, atol=1e-4)  # live view = the key
     W = np.asarray(scene.segments[0].weights[:, 1])
-    moved = np.abs(ed - model).max(axis=(0, 2)) > 1e-5
-    np.testing.assert_array_equal(moved, W > 0)  # the region follows through the weights
     np.testing.assert_allclose(ed[5] - model[5], W[:, None] * [4.0, -2.0, 1.0], atol=1e-4)
-    np.testing.assert_array_equal(ed[13:], model[13:])  # other segments and the boundary
+    np.testing.assert_array_equal(ed[13:], model[13:])  # eased out by the next boundary
     _, C2 = ctl.controls()
-    np.testing.assert_allclose(C2[1], target, atol=1e-9)
+    np.testing.assert_allclose(C2[1], target, atol=1e-6)
+    # a boundary frame is editable too (the key lives on the face, not on a segment)
+    ctl.set_frame(13)
+    _, Cb = ctl.controls()
     assert ctl.nudge_control(2, [0.0, 1.0, 0.0]) and len(ctl.keys) == 2
+    vb = ctl.keys[-1].vertex
+    np.testing.assert_allclose(
+        ctl.sequence("edited")[13, vb] - ctl.sequence("control points")[13, vb], [0, 1, 0],
+        atol=1e-4,
+    )  # fmt: skip
+    assert "13" in ctl.status() and "◆" in ctl.timeline()
     saved = ctl.sequence("edited").copy()
     # restart: a new controller on the run folder replays the same frames
     again = EditorController(load_editor_data(run_dir))
@@ -68,10 +75,23 @@ def test_edit_is_saved_and_replayed_after_a_restart(run_dir, scene_data):
     again.undo()
     again.undo()
     np.testing.assert_array_equal(again.sequence("edited"), again.sequence("control points"))
+    again.redo()
+    assert again.keys == ctl.keys[:1]
+    again.undo()
     assert EditorController(load_editor_data(run_dir)).keys == []
-    # an edits file for another segmentation is not replayed
-    fx.save_edits(run_dir / "edits.json", ctl.keys, boundaries=[0, 20, 39])
+    # an old per-segment edits.json is converted; one for another segmentation is not
+    old = [fx.EditKey(0, 1, 5, (4.0, -2.0, 1.0))]
+    fx.save_edits(run_dir / "edits.json", old, boundaries=scene.boundaries.tolist())
+    conv = EditorController(load_editor_data(run_dir))
+    assert "converted" in conv.message and conv.keys[0].frame == 5
+    np.testing.assert_allclose(conv.sequence("edited")[5], ed[5], atol=1e-4)
+    fx.save_edits(run_dir / "edits.json", old, boundaries=[0, 20, 39])
     assert "another segmentation" in EditorController(load_editor_data(run_dir)).message
+    # a damaged file is reported, not a traceback; NaN positions are refused
+    (run_dir / "edits.json").write_text("{damaged")
+    bad = EditorController(load_editor_data(run_dir))
+    assert "ignored" in bad.message and "edits.json" in bad.message and bad.keys == []
+    assert not bad.move_control(0, [np.nan, 0.0, 0.0]) and "finite" in bad.message
 
 
 def test_play_modes_export_and_refit(run_dir, tmp_path):
@@ -107,11 +127,19 @@ def test_play_modes_export_and_refit(run_dir, tmp_path):
     assert len(list((out / "ply").glob("*.ply"))) == 0
     ctl.export(out, "ply")
     assert len(list((out / "ply").glob("*.ply"))) == ctl.n_frames
-    ctl.refit(2, 3, 0.5)
-    assert len(ctl.data.scene.boundaries) == 3 and ctl.keys == []
+    keys = list(ctl.keys)
+    ctl.refit(2, 3, 0.5)  # the keys live on the face: they survive the re-fit
+    assert len(ctl.data.scene.boundaries) == 3 and ctl.keys == keys and "kept" in ctl.message
     assert (run_dir / "editor_scene.npz").is_file()
     assert len(load_editor_data(run_dir).scene.boundaries) == 3
-    assert json.loads((run_dir / "edits.json").read_text())["keys"] == []
+    assert len(json.loads((run_dir / "edits.json").read_text())["keys"]) == len(keys)
+    again = EditorController(load_editor_data(run_dir))
+    assert again.keys == keys
+    v = keys[0].vertex
+    np.testing.assert_allclose(
+        again.sequence("edited")[20, v] - again.sequence("control points")[20, v],
+        keys[0].offset, atol=1e-4,
+    )  # fmt: skip
 
 
 @pytest.mark.browser
@@ -138,11 +166,17 @@ def test_browser_editor_moves_a_control_point(run_dir, chromium):
         page.get_by_role("button", name="Move control point").click()
         page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
         k = ctl.keys[-1]
-        assert (k.segment, k.control, k.frame) == (0, 1, 5)
+        W = np.asarray(ctl.data.scene.segments[0].weights)
+        assert k.frame == 5 and int(np.argmax(W[k.vertex])) == 1  # control point 1's place
         after = ctl.sequence("edited")[5]
         assert np.abs(after - before).max() > 1e-3  # the face changed
         shown = page.get_by_text("Edited vs model here:", exact=False).inner_text()
         assert float(re.search(r"Edited vs model here: ([0-9.]+)", shown)[1]) > 0
+        page.get_by_role("button", name="Undo edit").click()
+        page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
+        page.get_by_role("button", name="Redo edit").click()
+        page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
+        page.get_by_text("Keys at frames: 5").wait_for(timeout=60_000)  # the timeline
         page.get_by_role("button", name="Undo edit").click()
         page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
     assert json.loads((run_dir / "edits.json").read_text())["keys"] == []
@@ -162,6 +196,94 @@ def test_studio_dispatches_on_the_experiment(tmp_path, capsys):
     for cmd in ("studio", "view"):  # view is kept as an alias
         assert main([cmd, str(cfg)]) == 2
         err = capsys.readouterr().err
-        assert "no studio app for experiment 'no_such_app'" in err and "reconstruction" in err
+        # the config is run first (fxspace studio CONFIG), which names the known experiments
+        assert "no_such_app" in err and "reconstruction" in err and "Traceback" not in err
     with pytest.raises(fx.FxspaceError, match="run the reconstruction"):
         load_editor_data(tmp_path)
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_browser_done_when_drag_across_a_boundary_then_refit(tmp_path, chromium, monkeypatch):
+    """Issue 21's done-when: `fxspace studio CONFIG` on a clean folder (the config is run
+    first, then the editor opens on its run folder); a control point is dragged two frames
+    before a segment boundary and keyed again three frames after; the edited face differs
+    from the model by that offset at the boundary frame, without a jump; a re-fit keeps it.
+
+    The drags go through the page's gizmo callback (`EditorView.on_gizmo`, what the
+    transform-controls' ``on_update`` calls with ``phase="end"``): a pointer drag of a
+    three.js gizmo on a headless canvas is not reliable. Frames, undo-free re-fit and
+    the checks go through the page."""
+    from fxspace.cli import studio_target
+    from fxspace.config import dumps_toml
+    from fxspace.controlpoints import control_positions
+    from fxspace.studio import serve_editor
+    from fxspace.studio._server import ServeOptions
+
+    small = {
+        "experiment": "reconstruction", "seed": 0, "file": "synthetic", "start": 0,
+        "n_frames": 120, "thin": 2, "n_vertices": 250, "clusters": [6], "gammas": [0.5],
+        "n_init": 2, "fit_steps": 10, "timing_repeats": 1, "character_vertices": 150,
+        "gltf_mesh": "",
+    }  # fmt: skip
+    cfg = tmp_path / "reconstruction.toml"
+    cfg.write_text(dumps_toml(small))
+    run_dir = studio_target(cfg, tmp_path / "run")  # what `fxspace studio CFG` does first
+    opts = ServeOptions(port=0, block=False, environment_map=False)
+    server, ctl = serve_editor(load_editor_data(run_dir), options=opts)
+    view = server.fxspace_view
+    scene = ctl.data.scene
+    model = ctl.sequence("control points").astype(np.float64)
+    steps = np.linalg.norm(np.diff(model, axis=0), axis=2).max(axis=1)
+    median_step = float(np.median(steps))
+    bs = scene.boundaries
+    inner = [
+        int(bs[i]) for i in range(1, len(bs) - 1) if bs[i - 1] < bs[i] - 2 and bs[i] + 3 < bs[i + 1]
+    ]
+    b = min(inner, key=lambda f: max(steps[f - 1], steps[f]))  # the calmest boundary
+    o = np.array([2.0, 1.0, 0.0]) * median_step / np.sqrt(5.0) * 2.0  # |o| = 2 median steps
+
+    def goto(page, f):
+        frame = chromium.field(page, "Frame").last
+        frame.fill(str(f))
+        frame.press("Enter")
+        page.get_by_text(f"Frame {f}", exact=True).wait_for(timeout=60_000)
+
+    with chromium.page(server, viewport={"width": 1200, "height": 800}) as page:
+        page.get_by_text("Edit keys: 1").wait_for(timeout=120_000)  # the run's smirk key
+        page.get_by_role("button", name="Clear edits").click(timeout=120_000)
+        page.get_by_text("Edit keys: 0").wait_for(timeout=60_000)
+        goto(page, b - 2)
+        k = 0
+        _, C = control_positions(scene, b - 2)
+        view.on_gizmo(k, "update", view.to_scene(C[k] + o))  # dragging: live preview
+        view.on_gizmo(k, "end", view.to_scene(C[k] + o))  # released: the key
+        page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
+        anchor = ctl.keys[-1].vertex
+        goto(page, b + 3)
+        s1 = int(np.searchsorted(scene.boundaries, b + 3, side="right") - 1)
+        k2 = int(np.argmax(np.asarray(scene.segments[s1].weights)[anchor]))
+        _, C = control_positions(scene, b + 3)
+        view.on_gizmo(k2, "end", view.to_scene(C[k2] + o))
+        page.get_by_text("Edit keys: 2").wait_for(timeout=60_000)
+        page.get_by_text(f"Keys at frames: {b - 2}, {b + 3}").wait_for(timeout=60_000)
+        assert ctl.keys[-1].vertex == anchor  # keyed again on the same place of the face
+        ed = ctl.sequence("edited").astype(np.float64)
+        np.testing.assert_allclose(
+            ed[b, anchor] - model[b, anchor], o, atol=1e-3 * (1 + abs(o).max())
+        )
+        e_steps = np.linalg.norm(np.diff(ed, axis=0), axis=2).max(axis=1)
+        assert max(e_steps[b - 1], e_steps[b]) <= 2.0 * median_step, (
+            e_steps[b - 1 : b + 1],
+            median_step,
+        )
+        # re-fit with other knobs: the keys stay, the offset is still there at the boundary
+        page.get_by_role("button", name="Re-fit").click()
+        page.get_by_text("edit keys kept", exact=False).wait_for(timeout=240_000)
+        assert len(ctl.keys) == 2
+        ed2 = ctl.sequence("edited").astype(np.float64)
+        m2 = ctl.sequence("control points").astype(np.float64)
+        np.testing.assert_allclose(
+            ed2[b, anchor] - m2[b, anchor], o, atol=1e-3 * (1 + abs(o).max())
+        )
+    assert len(json.loads((run_dir / "edits.json").read_text())["keys"]) == 2

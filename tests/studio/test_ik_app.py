@@ -59,8 +59,37 @@ def test_controller_markers_drag_and_track(mesh, tmp_path):
     # ... and as glTF: the re-read animation's last frame is the mesh on screen
     back = fx.io.read_gltf(ctl.export_gltf(tmp_path / "track.glb"))
     assert back.animation_range("fxspace") == pytest.approx((0.0, 1.0 / ctl.fps))
-    last = back.animation_vertices("fxspace", [1.0 / ctl.fps])[0]
+    last = fx.mesh.animation_vertices(back, "fxspace", [1.0 / ctl.fps])[0]
     np.testing.assert_allclose(last, ctl.vertices, atol=1e-4 * size)
+
+
+def test_controller_floor_and_normal_constraints(mesh):
+    """A floor constraint puts its marker on the floor plane while a dragged target pulls
+    the others; a normal constraint keeps its marker's surface normal; removing a marker
+    renumbers the constraints."""
+    ctl = IKController(mesh, None)
+    tris = _front_triangles(ctl, 3, seed=1)
+    for t in tris:
+        ctl.add_marker(int(t), view_dir=(0.0, 0.0, -1.0))
+    size = float(np.ptp(mesh.vertices, axis=0).max())
+    ctl.floor_height = float(ctl.marker_points()[0, 1]) - 0.05 * size
+    ctl.add_constraint(0, "floor")
+    assert "Constraints: 0: floor" in ctl.status()
+    y0 = float(ctl.marker_points()[0, 1])
+    assert abs(y0 - ctl.floor_height) < 1e-3 * size
+    n_before = ctl._current_normals()[1]
+    ctl.add_constraint(1, "normal")
+    ctl.move_target(2, ctl.marker_points()[2] + np.array([0.05 * size, 0.0, 0.0]))
+    assert abs(float(ctl.marker_points()[0, 1]) - ctl.floor_height) < 1e-3 * size
+    assert float(np.dot(ctl._current_normals()[1], n_before)) > 0.99
+    cons, tn = ctl.ik_constraints()
+    assert cons.contact is not None and cons.normal is not None and tn.shape == (1, 3)
+    ctl.remove_marker(0)
+    assert ctl.constraints == {0: "normal"}
+    ctl.add_constraint(0, "none")
+    assert ctl.ik_constraints() == (None, None)
+    with pytest.raises(fx.FxspaceError, match="kind must be"):
+        ctl.add_constraint(0, "ceiling")
 
 
 @pytest.mark.browser
@@ -109,5 +138,5 @@ def test_browser_ik_studio(mesh, tmp_path, chromium):
     assert (tmp_path / "pose.bvh").is_file()
     back = fx.io.read_gltf(tmp_path / "pose.glb")  # the pose on screen, as an animated glTF
     np.testing.assert_allclose(
-        back.animation_vertices("fxspace", [0.0])[0], ctl.vertices, atol=1e-4 * size
+        fx.mesh.animation_vertices(back, "fxspace", [0.0])[0], ctl.vertices, atol=1e-4 * size
     )

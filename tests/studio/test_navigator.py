@@ -48,6 +48,63 @@ def test_controller_pick_refine_play(data):
         ctl.set_level(99)
 
 
+def _all_linked(lv, keys):
+    return all(bool(lv.links[a, b]) for a, b in zip(keys[:-1], keys[1:], strict=False))
+
+
+def test_preview_does_not_commit_and_edits_keep_the_route_valid(data):
+    """Look, then choose: a preview shows a centre's face without touching the keys;
+    insert / replace / delete edit in place, at any level; unlinked neighbours are
+    bridged along links with a note; undo restores the keys."""
+    ctl = NavigatorController(data, restrict=False)
+    h = data.hierarchy
+    lv = h.levels[0]
+    a, b, c = _linked_and_unlinked(lv)
+    ctl.preview_at(h.embedding[lv.center_frames[c]] + 1e-9)
+    assert ctl.preview == c and ctl.picks == [] and ctl.route is None
+    assert ctl.selected_frame == lv.center_frames[c] and "Preview: centre" in ctl.status()
+    assert ctl.commit(a) and ctl.commit(b) and ctl.picks == [a, b]
+    assert ctl.commit(c)  # not linked to b: bridged
+    assert _all_linked(lv, ctl.picks) and ctl.picks[-1] == c and ctl.picks[:2] == [a, b]
+    assert "bridged" in ctl.message and len(ctl.picks) > 3  # c is not linked to b
+    keys = list(ctl.picks)
+    ctl.preview_centre(c)
+    assert ctl.insert_key(1) and ctl.picks[0] == a and c in ctl.picks[1:]
+    assert _all_linked(lv, ctl.picks)
+    assert ctl.replace_key(0, centre=b) and ctl.picks[0] == b and _all_linked(lv, ctl.picks)
+    n = len(ctl.picks)
+    assert ctl.delete_key(0) and _all_linked(lv, ctl.picks) and ctl.picks[0] != b
+    assert ctl.route.centres == tuple(ctl.picks) and len(ctl.picks) >= n - 1
+    for _ in range(3):
+        ctl.undo()
+    assert ctl.picks == keys
+    assert not ctl.delete_key(99) and "does not exist" in ctl.message
+    assert not ctl.insert_key(99) and "cannot insert" in ctl.message
+    # at a finer level too
+    ctl.level_down()
+    assert ctl.level == 1
+    lv1 = h.levels[1]
+    ctl.preview_centre(0)
+    assert ctl.commit() and ctl.commit(int(lv1.neighbours(0)[0]))
+    far = int(np.argmax(data.geodesics.distances[lv1.center_frames[0], lv1.center_frames]))
+    assert ctl.insert_key(1, centre=far) and _all_linked(lv1, ctl.picks)
+    ctl.level_up()
+    assert ctl.level == 0
+    with pytest.raises(fx.FxspaceError):
+        ctl.preview_centre(10_000)
+
+
+def test_toggle_play_and_hotkeys(data):
+    from fxspace.studio._navigator import HOTKEYS
+
+    ctl = NavigatorController(data)
+    assert not ctl.toggle_play() and "pick key centres" in ctl.message
+    assert ctl.commit(0) and ctl.toggle_play() and not ctl.toggle_play()
+    for _label, method in HOTKEYS.values():
+        assert callable(getattr(ctl, method))
+    assert {"space", "U", "arrowup", "arrowdown"} <= set(HOTKEYS)
+
+
 def test_click_picks_the_nearest_centre_at_every_level(data, rng):
     ctl = NavigatorController(data, restrict=False)
     h = data.hierarchy
@@ -279,7 +336,7 @@ def test_load_nav_data_from_config(tmp_path):
 
 
 @pytest.mark.browser
-def test_browser_click_on_the_pad_picks_the_nearest_centre(data, chromium):
+def test_browser_click_on_the_pad_previews_the_nearest_centre(data, chromium):
     from fxspace.studio import serve_navigator
 
     server, ctl = serve_navigator(data, port=0, environment_map=False, block=False)
@@ -293,13 +350,16 @@ def test_browser_click_on_the_pad_picks_the_nearest_centre(data, chromium):
         for _ in range(40):  # the scene accepts clicks once the camera is set
             page.mouse.click(box["x"] + 0.3 * box["width"], box["y"] + 0.5 * box["height"])
             page.wait_for_timeout(250)
-            if ctl.picks:
+            if ctl.preview is not None:
                 break
-        assert ctl.picks, ctl.message
-        k = ctl.picks[0]
+        assert ctl.preview is not None, ctl.message
+        k = ctl.preview
         assert k == ctl.index(last).nearest(ctl.last_click)
+        page.get_by_text(f"Preview: centre {k}", exact=False).wait_for(timeout=60_000)
+        assert ctl.picks == [] and ctl.route is None  # a click looks, it does not commit
+        page.get_by_role("button", name="Commit").click()
         page.get_by_text(f"Key centres: {k}", exact=False).wait_for(timeout=60_000)
-        assert ctl.route is not None and ctl.route.level == last
+        assert ctl.picks == [k] and ctl.route is not None and ctl.route.level == last
 
 
 @pytest.mark.slow
@@ -343,3 +403,125 @@ def test_animface_2400_click_finest_and_refine_across_three_levels(data_dir):
     for _ in range(2):
         ctl.undo()
     assert ctl.level == 3 and ctl.route is r3
+
+
+def _studio_scenario(page, ctl, chromium, lvl0) -> None:
+    """Preview a centre without committing it, build a route of four keys, insert one,
+    replace one, delete one, undo — through the page's controls only."""
+
+    def until(cond, what):
+        for _ in range(600):
+            if cond():
+                return
+            page.wait_for_timeout(100)
+        raise AssertionError(f"timed out waiting for {what}: {ctl.message}")
+
+    def press(name):
+        page.get_by_role("button", name=name).click()
+
+    def preview(k):
+        chromium.field(page, "Centre").fill(str(k))
+        press("Preview centre")
+        until(lambda: ctl.preview == k, f"preview of {k}")
+
+    def key_no(i):
+        chromium.field(page, "Key #").fill(str(i))
+        chromium.field(page, "Key #").press("Enter")
+        page.wait_for_timeout(300)
+
+    from fxspace.pipelines.navigation import auto_key_centres
+
+    page.get_by_text("Key centres: none").wait_for(timeout=120_000)
+    route4 = auto_key_centres(ctl.data.hierarchy, ctl.data.geodesics, 4)
+    assert len(route4) == 4
+    other = next(k for k in range(lvl0.n_clusters) if k not in route4)
+    preview(other)  # look first: nothing is committed
+    page.get_by_text(f"Preview: centre {other}", exact=False).wait_for(timeout=30_000)
+    assert ctl.picks == [] and ctl.route is None
+    assert ctl.selected_frame == int(lvl0.center_frames[other])
+    for n, k in enumerate(route4, 1):  # a route of four keys
+        preview(k)
+        press("Commit")
+        until(lambda n=n: len(ctl.picks) == n, f"key {n}")
+    assert ctl.picks == route4
+    page.get_by_text("Key centres: " + " → ".join(map(str, route4))).wait_for(timeout=30_000)
+    key_no(2)  # insert before key #2
+    preview(other)
+    press("Insert before key")
+    until(lambda: other in ctl.picks, "insert")
+    replacement = next(k for k in range(lvl0.n_clusters) if k not in ctl.picks)
+    key_no(0)  # replace key #0
+    preview(replacement)
+    press("Replace key")
+    until(lambda: ctl.picks[0] == replacement, "replace")
+    after_replace = list(ctl.picks)
+    # delete a key whose neighbours are linked (else it would be bridged straight back)
+    i = next(
+        (
+            j
+            for j in range(1, len(after_replace) - 1)
+            if lvl0.links[after_replace[j - 1], after_replace[j + 1]]
+        ),
+        len(after_replace) - 1,
+    )
+    key_no(i)
+    press("Delete key")
+    until(lambda: "deleted key" in ctl.message, "delete")
+    assert len(ctl.picks) == len(after_replace) - 1
+    press("Undo")
+    until(lambda: ctl.picks == after_replace, "undo")
+    final = ctl.route
+    assert final is not None and list(final.centres) == after_replace
+    for a, b in zip(final.centres[:-1], final.centres[1:], strict=True):
+        assert lvl0.links[a, b], (a, b)
+
+
+@pytest.mark.browser
+def test_browser_studio_from_a_config_preview_and_edit(tmp_path, chromium, monkeypatch):
+    """The done-when scenario on a small synthetic config, through the same path as
+    ``fxspace studio CONFIG``: `fxspace.cli.studio_target` runs the config (sweep, space,
+    hierarchy cached), the studio's serve opens the run on a free port."""
+    from fxspace.cli import studio_target
+    from fxspace.studio import serve
+
+    cfg = tmp_path / "nav.toml"
+    cfg.write_text(
+        'experiment = "navigation"\nseed = 0\n[data]\nsource = "synthetic"\n'
+        'synthetic_frames = 120\nsynthetic_markers = 24\n[graph]\nthreshold = "max_r"\n'
+        "num_thresholds = 4\n[hierarchy]\nc0 = 8\nrestarts = 0\ncompare_cold = false\n"
+        '[navigation]\nanimation = "none"\nlevel_figures = false\n'
+    )
+    run_dir = studio_target(cfg, tmp_path / "run")
+    assert (run_dir / "cache" / "hierarchy.npz").is_file()
+    server, ctl = serve(run_dir, port=0, block=False, environment_map=False)
+    with chromium.page(server) as page:
+        _studio_scenario(page, ctl, chromium, ctl.data.hierarchy.levels[0])
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+@pytest.mark.timeout(3600)  # the first launch builds the sweep, space and hierarchy
+def test_browser_studio_navigation_toml_from_a_clean_checkout(
+    tmp_path, chromium, data_dir, monkeypatch
+):
+    """Done when (issue 20): `fxspace studio configs/navigation.toml` alone — the sweep,
+    space and hierarchy built (cached), the page opened — previews a centre without
+    committing it, builds a route of four keys, inserts, replaces, deletes, undoes, and
+    every consecutive pair of the final route is linked. A second launch reads the
+    cached stages."""
+    import time
+    from pathlib import Path
+
+    from fxspace.cli import studio_target
+    from fxspace.studio import serve
+
+    root = Path(__file__).resolve().parents[2]
+    run_dir = studio_target(root / "configs" / "navigation.toml", tmp_path / "run")
+    server, ctl = serve(run_dir, port=0, block=False, environment_map=False)
+    with chromium.page(server) as page:
+        _studio_scenario(page, ctl, chromium, ctl.data.hierarchy.levels[0])
+    t0 = time.perf_counter()
+    again = studio_target(root / "configs" / "navigation.toml", tmp_path / "run")
+    server, ctl2 = serve(again, port=0, block=False, environment_map=False)
+    server.stop()
+    assert time.perf_counter() - t0 < 120 and ctl2.data.hierarchy.sizes == ctl.data.hierarchy.sizes

@@ -195,16 +195,24 @@ def test_nose_protrudes_and_jaw_opens_down():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"n_markers": 5}, "n_markers must be an integer in"),
+        ({"n_markers": 5}, "n_markers must lie in"),
         ({"modes": ("smile", "laugh")}, "modes must be a non-empty sequence"),
         ({"modes": ()}, "modes must be a non-empty sequence"),
         ({"modes": ("smile", "smile")}, "must not repeat"),
         ({"n_frames": 20}, "n_frames must be an integer >= 72"),
-        ({"repetitions": 0}, "repetitions must be an integer >= 1"),
+        ({"repetitions": 0}, "repetitions must be >= 1"),
         ({"peak_range": (0.5, 1.5)}, "peak_range"),
         ({"noise_mm": -1.0}, "noise_mm"),
         ({"missing_fraction": 1.0}, "missing_fraction"),
         ({"rate": 0.0}, "rate must be > 0"),
+        ({"n_markers": 20.5}, "n_markers must be an integer, got 20.5"),
+        ({"repetitions": 1.5}, "repetitions must be an integer"),
+        ({"seed": -1}, "seed must lie in"),
+        ({"seed": 1.5}, "seed must be an integer"),
+        ({"noise_mm": float("nan")}, "noise_mm must be a finite number"),
+        ({"rate": "60"}, "rate must be a real number"),
+        ({"head_motion": "yes"}, "head_motion must be True or False"),
+        ({"modes": 3}, "modes must be a sequence"),
     ],
 )
 def test_invalid_arguments(kwargs, match):

@@ -1,0 +1,292 @@
+"""Studio benchmark (issue 24): time from ``fxspace studio CONFIG`` to the first rendered frame.
+
+For every app config (``configs/navigation.toml``, ``reconstruction.toml``,
+``parametric_synthesis.toml``, ``mesh_ik.toml`` by default) it launches the real command,
+``python -m fxspace.cli studio CONFIG --port P --out RUN``, in a new process, opens the page in
+headless Chromium (playwright) and waits until the 3-D canvas shows the app's scene: a
+canvas screenshot that differs from the one of an empty viser scene. Timed from the launch:
+
+- ``server``: the page answers (the config checked or run, the app built);
+- ``frame``: the first rendered frame of the app's scene.
+
+Each app is opened twice: **cold** (an empty JAX compilation cache: every kernel compiled, as
+on a first install) and **cached** (the same cache again: what every later launch costs).
+A config whose run folder is not complete is run first (its time, shown as ``prepare``, is
+not part of the cold figure), and so are the configs it reads (``--needs``: the threshold
+sweep the navigation takes its ε from). Apps are independent processes, so the figures are the
+user's; the machine may be shared (times are noisy). Usage:
+``python experiments/bench_studio.py [CONFIG | RUN_DIR ...] [--runs runs] [--timeout 600]
+[--json out]`` (a finished run folder is opened as it is: ``fxspace studio RUN_DIR``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+APPS = ("navigation", "reconstruction", "parametric_synthesis", "mesh_ik")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync"]
+VIEWPORT = {"width": 960, "height": 640}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _chromium() -> str:
+    exe = os.environ.get("FXSPACE_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+    if not Path(exe).exists():
+        raise SystemExit("Chromium not found: apt-get install chromium, or set FXSPACE_CHROMIUM")
+    return exe
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.int16)
+
+
+def _differs(a: np.ndarray, b: np.ndarray | None, frac: float = 0.002) -> bool:
+    """More than `frac` of the pixels changed by more than 12 levels (any channel)."""
+    if b is None or a.shape != b.shape:
+        return True
+    return float(np.mean(np.abs(a - b).max(axis=-1) > 12)) > frac
+
+
+def _canvas_png(page) -> bytes | None:
+    canvas = page.locator("canvas").first
+    try:
+        canvas.wait_for(timeout=1000)
+        return canvas.screenshot(timeout=5000)
+    except Exception:  # not attached yet, or mid-reload
+        return None
+
+
+def _wait_http(port: int, proc: subprocess.Popen, deadline: float) -> None:
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"fxspace studio exited with code {proc.returncode}")
+        try:
+            urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=1).read(16)
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise TimeoutError("the studio server did not answer in time")
+
+
+def empty_scene(pw, exe: str) -> np.ndarray:
+    """A canvas screenshot of an empty viser scene (what 'nothing rendered yet' looks like)."""
+    import viser
+
+    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    try:
+        browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.goto(f"http://127.0.0.1:{server.get_port()}")
+            png = None
+            for _ in range(120):
+                png = _canvas_png(page)
+                if png is not None:
+                    break
+                time.sleep(0.25)
+            page.wait_for_timeout(1500)  # let the empty scene settle
+            png = _canvas_png(page) or png
+            if png is None:
+                raise RuntimeError("viser's canvas never appeared")
+            return _pixels(png)
+        finally:
+            browser.close()
+    finally:
+        server.stop()
+
+
+def browser_floor(pw, exe: str, base: np.ndarray) -> float:
+    """Seconds from the browser's launch to the first frame of a bare viser scene holding one
+    box: what any app costs on this machine beyond its own work (headless Chromium renders
+    in software)."""
+    import viser
+
+    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server.scene.add_box("/box", dimensions=(1.0, 1.0, 1.0), color=(255, 0, 0))
+    try:
+        t0 = time.monotonic()
+        browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.goto(f"http://127.0.0.1:{server.get_port()}")
+            while time.monotonic() - t0 < 300:
+                png = _canvas_png(page)
+                if png is not None and _differs(_pixels(png), base):
+                    return time.monotonic() - t0
+                time.sleep(0.1)
+            return float("nan")
+        finally:
+            browser.close()
+    finally:
+        server.stop()
+
+
+def launch(config: Path, run_dir: Path, cache: Path, pw, exe: str, base, timeout: float) -> dict:
+    """Launch ``fxspace studio CONFIG`` and time it to the app's first rendered frame."""
+    port = _free_port()
+    env = {**os.environ, "FXSPACE_COMPILE_CACHE": str(cache), "FXSPACE_QUIET": "1"}
+    cmd = [sys.executable, "-m", "fxspace.cli", "studio", str(config), "--port", str(port)]
+    cmd += ["--out", str(run_dir)]
+    log = tempfile.TemporaryFile()
+    t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)  # fmt: skip
+    out: dict = {}
+    try:
+        deadline = t0 + timeout
+        _wait_http(port, proc, deadline)
+        out["server_s"] = time.monotonic() - t0
+        browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.goto(f"http://127.0.0.1:{port}")
+            while time.monotonic() < deadline:
+                png = _canvas_png(page)
+                if png is not None and _differs(_pixels(png), base):
+                    out["frame_s"] = time.monotonic() - t0
+                    break
+                time.sleep(0.1)
+            else:
+                raise TimeoutError("no rendered frame before the timeout")
+        finally:
+            browser.close()
+    except Exception as e:  # reported in the table; the other apps still run
+        log.seek(0)
+        tail = log.read().decode(errors="replace").strip().splitlines()[-3:]
+        out["error"] = f"{type(e).__name__}: {e} | {' / '.join(tail)}"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        log.close()
+    return out
+
+
+def _complete(run_dir: Path) -> bool:
+    import json
+
+    try:
+        return json.loads((run_dir / "status.json").read_text()).get("status") == "complete"
+    except (OSError, ValueError):
+        return False
+
+
+def _prepare(config: Path, run_dir: Path, cache: Path) -> float:
+    """Run the config once (``fxspace run``) so the app opens a complete run folder."""
+    env = {**os.environ, "FXSPACE_COMPILE_CACHE": str(cache), "FXSPACE_QUIET": "1"}
+    t = time.monotonic()
+    subprocess.run(
+        [sys.executable, "-m", "fxspace.cli", "run", str(config), "--out", str(run_dir)],
+        cwd=ROOT, env=env, check=True, stdout=subprocess.DEVNULL,
+    )  # fmt: skip
+    return time.monotonic() - t
+
+
+def _fmt(r: dict, key: str) -> str:
+    return f"{r[key]:>8.1f}" if key in r else f"{'—':>8}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "configs", nargs="*", help="config files (default: the four apps') or run folders"
+    )
+    ap.add_argument("--runs", default=str(ROOT / "runs"), help="run folders: RUNS/<stem>")
+    ap.add_argument("--timeout", type=float, default=600.0, help="seconds per launch")
+    ap.add_argument("--json", default=None)
+    ap.add_argument(
+        "--needs",
+        nargs="*",
+        default=[str(ROOT / "configs" / "threshold_sweep.toml")],
+        help="configs run first into RUNS/<stem> (the navigation reads runs/threshold_sweep)",
+    )
+    a = ap.parse_args(argv)
+    configs = [Path(c) for c in a.configs] or [ROOT / "configs" / f"{n}.toml" for n in APPS]
+    from playwright.sync_api import sync_playwright
+
+    exe = _chromium()
+    rows = []
+    with (
+        tempfile.TemporaryDirectory(prefix="fxspace-bench-studio-") as tmp,
+        sync_playwright() as pw,
+    ):
+        base = empty_scene(pw, exe)
+        floor = browser_floor(pw, exe, base)
+        print(f"floor: browser launch to the first frame of a bare viser scene {floor:.1f} s")
+        for need in map(Path, a.needs):
+            if not _complete(Path(a.runs) / need.stem):
+                try:
+                    t = _prepare(need, Path(a.runs) / need.stem, Path(tmp) / "warm-cache")
+                    print(f"ran {need.name} first ({t:.0f} s)", flush=True)
+                except subprocess.CalledProcessError as e:
+                    print(f"running {need.name} first failed ({e.returncode})", flush=True)
+        print(
+            f"time to first rendered frame of `fxspace studio CONFIG` (s from launch); cold = "
+            f"empty JAX compilation cache, cached = second launch; {os.cpu_count()} CPUs, "
+            "machine may be shared (noisy)",
+            flush=True,
+        )
+        print(f"{'app':<22} {'prepare':>8} {'cold srv':>8} {'cold':>8} {'cached srv':>10} "
+              f"{'cached':>8}")  # fmt: skip
+        for config in configs:
+            run_dir = config if config.is_dir() else Path(a.runs) / config.stem
+            warm = Path(tmp) / "warm-cache"  # runs the config if needed, compiles its stages
+            row: dict = {"config": str(config), "run_dir": str(run_dir)}
+            try:
+                if not _complete(run_dir):
+                    row["prepare_s"] = _prepare(config, run_dir, warm)
+            except subprocess.CalledProcessError as e:
+                row["error"] = f"fxspace run failed ({e.returncode})"
+            if "error" not in row:
+                cache = Path(tmp) / f"cache-{config.stem}"  # empty: a cold launch
+                cold = launch(config, run_dir, cache, pw, exe, base, a.timeout)
+                cached = launch(config, run_dir, cache, pw, exe, base, a.timeout)
+                row.update({f"cold_{k}": v for k, v in cold.items()})
+                row.update({f"cached_{k}": v for k, v in cached.items()})
+            rows.append(row)
+            print(
+                f"{config.stem:<22} {_fmt(row, 'prepare_s')} {_fmt(row, 'cold_server_s')} "
+                f"{_fmt(row, 'cold_frame_s')} {_fmt(row, 'cached_server_s'):>10} "
+                f"{_fmt(row, 'cached_frame_s')}",
+                flush=True,
+            )
+            for k in ("error", "cold_error", "cached_error"):
+                if k in row:
+                    print(f"  {k}: {row[k]}", flush=True)
+    if a.json:
+        sys.path.insert(0, str(ROOT))
+        from fxspace.runs import write_json_atomic
+
+        write_json_atomic(a.json, {"rows": rows, "browser_floor_s": floor})
+    bad = [r for r in rows if any(k.endswith("error") for k in r)]
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

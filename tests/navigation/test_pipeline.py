@@ -1,0 +1,92 @@
+"""The navigation pipeline: its own threshold sweep (the paper's rule, on the navigated
+frames), cached stages and resume (Pipeline protocol)."""
+
+import json
+
+import numpy as np
+import pytest
+
+import fxspace.pipelines.navigation as nav
+import fxspace.pipelines.threshold_sweep as ts
+from fxspace.pipelines import run_dict
+
+SMALL = {
+    "experiment": "navigation",
+    "seed": 0,
+    "data": {"source": "synthetic", "synthetic_frames": 80, "synthetic_markers": 20},
+    "graph": {"threshold": "max_r", "num_thresholds": 4},
+    "hierarchy": {"c0": 8, "restarts": 0, "compare_cold": False},
+    "navigation": {"animation": "none", "level_figures": False},
+}
+
+
+@pytest.fixture(autouse=True)
+def _fixed_code_digest(monkeypatch):
+    import fxspace.runs
+
+    monkeypatch.setattr(fxspace.runs, "code_digest", lambda: "test-code")
+
+
+def _metrics(d):
+    m = json.loads((d / "metrics.json").read_text())
+    m.pop("timings"), m.pop("wall_time_s", None)
+    for lv in m["levels"]:
+        lv.pop("fcm_time_s")  # wall time
+    return m
+
+
+def test_threshold_from_its_own_sweep_by_the_papers_rule(tmp_path):
+    (d,) = run_dict(SMALL, tmp_path / "run")
+    m = _metrics(d)
+    assert m["criterion"] == "max_r" and "criterion max_r" in m["threshold_source"]
+    assert len(m["sweep"]) == 4
+    rs = [s["r"] for s in m["sweep"] if s["r"] is not None]
+    best = max(m["sweep"], key=lambda s: -np.inf if s["r"] is None else s["r"])
+    assert m["threshold"] == pytest.approx(best["threshold"]) and max(rs) == best["r"]
+    assert (
+        m["sweep"][-1]["threshold"]
+        > m["sweep"][0]["threshold"]
+        == pytest.approx(m["connecting_threshold"], rel=1e-6)
+    )
+    for name in nav.STAGES:
+        assert (d / "cache" / f"{name}.npz").is_file(), name
+    assert m["path_is_graph_walk"] is True
+
+
+def test_interrupted_after_the_sweep_resumes(tmp_path, monkeypatch):
+    """Interrupt after the first costly stage (sweep), rerun: identical metrics, the sweep
+    not recomputed; the hierarchy stage round-trips exactly."""
+    assert nav.STAGES == ("sweep", "space", "hierarchy")
+    (ref,) = run_dict(SMALL, tmp_path / "ref")
+    calls = []
+    real_sweep, real_space = ts.threshold_sweep, nav._space
+    monkeypatch.setattr(
+        ts, "threshold_sweep", lambda *a, **k: calls.append(1) or real_sweep(*a, **k)
+    )
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(nav, "_space", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_dict(SMALL, tmp_path / "a")
+    assert (tmp_path / "a" / "cache" / "sweep.npz").is_file() and len(calls) == 4
+    monkeypatch.setattr(nav, "_space", real_space)
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    assert len(calls) == 4  # the sweep came from the cache
+    assert _metrics(d) == _metrics(ref)
+
+
+def test_config_validate_names_the_key():
+    from fxspace.config import ConfigError
+
+    for bad, key in [
+        (nav.GraphConfig(threshold="best"), "graph.threshold"),
+        (nav.GraphConfig(threshold=-1.0), "graph.threshold"),
+        (nav.GraphConfig(num_thresholds=1), "num_thresholds"),
+        (nav.NavConfig(fps=0.0), "fps"),
+        (nav.NavConfig(duration=-1.0), "duration"),
+        (nav.HierarchyConfig(rho_scale=0.0), "rho_scale"),
+    ]:
+        with pytest.raises(ConfigError, match=key):
+            bad.validate()
