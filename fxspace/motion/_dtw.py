@@ -232,6 +232,8 @@ def dtw(
     `dtw_padded`). A NaN/inf frame gives ``cost = nan``, an empty path and ``.result ==
     RESULTS.nonfinite_input`` (``throw=True`` raises `FxspaceError` instead).
     """
+    if any(getattr(x, "shape", (1,))[:1] == (0,) for x in (a, b)):
+        raise FxspaceError("a and b must have at least one frame each")
     a = as_float_array(a, "a", finite="allow")
     b = as_float_array(b, "b", finite="allow")
     with_path = check_bool(with_path, "with_path")
