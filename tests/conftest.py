@@ -26,6 +26,13 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
 from fxspace.data import data_root  # noqa: E402
+from fxspace._compile_cache import configure_compile_cache  # noqa: E402
+
+# ... but not in this long-lived process: it compiles well over a thousand programs, and
+# jaxlib 0.10's CPU `executable.serialize()` (called to write each cache entry) segfaulted
+# once in a full slow-set run (CI, stop 25). The subprocesses the tests start (CLI, apps)
+# are short and keep the cache; tests/test_compile_cache.py checks it in subprocesses.
+configure_compile_cache("off")
 
 
 @pytest.fixture
