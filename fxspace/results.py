@@ -72,8 +72,7 @@ class RESULTS(eqx.Enumeration):
         "line search or damping step failed); loosen the tolerance or start elsewhere"
     )
     disconnected = (
-        "the neighbourhood graph is disconnected; raise the threshold or drop the "
-        "isolated frames"
+        "the neighbourhood graph is disconnected; raise the threshold or drop the isolated frames"
     )
 
 

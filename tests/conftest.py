@@ -25,14 +25,37 @@ matplotlib.use("Agg")
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
-from fxspace.data import data_root  # noqa: E402
 from fxspace._compile_cache import configure_compile_cache  # noqa: E402
+from fxspace.data import data_root  # noqa: E402
 
-# ... but not in this long-lived process: it compiles well over a thousand programs, and
-# jaxlib 0.10's CPU `executable.serialize()` (called to write each cache entry) segfaulted
-# once in a full slow-set run (CI, stop 25). The subprocesses the tests start (CLI, apps)
-# are short and keep the cache; tests/test_compile_cache.py checks it in subprocesses.
+# ... but not in this long-lived process, which compiles a few thousand programs: writing
+# each one costs a serialisation, and the subprocesses the tests start (CLI, apps) are the
+# ones that gain from it (tests/test_compile_cache.py checks the cache in subprocesses).
 configure_compile_cache("off")
+
+
+def _memory_maps() -> int:
+    try:
+        with open("/proc/self/maps") as f:
+            return sum(1 for _ in f)
+    except OSError:  # not Linux
+        return 0
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop the compiled programs of each test module when it ends.
+
+    XLA:CPU maps about 19 memory regions per loaded executable and never frees them while
+    the executable is cached; one process that keeps a few thousand programs reaches the
+    kernel's ``vm.max_map_count`` (65530) and the next compilation segfaults inside LLVM (CI,
+    stop 25: the slow set, 180 tests in, in `backend_compile_and_load`). Clearing JAX's
+    caches between modules unmaps them; a module that alone gets near the limit fails here
+    with the count rather than crashing the run."""
+    yield
+    jax.clear_caches()
+    n = _memory_maps()
+    assert n < 40000, f"{n} memory maps after clearing JAX's caches (limit 65530): a leak"
 
 
 @pytest.fixture

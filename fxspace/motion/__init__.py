@@ -64,7 +64,9 @@ from fxspace.motion._space import find_key_times as find_key_times
 from fxspace.motion._space import stack_examples as stack_examples
 from fxspace.motion._splice import align_start as align_start
 from fxspace.motion._splice import heading_quat as heading_quat
+from fxspace.motion._splice import heck_splice as heck_splice
 from fxspace.motion._splice import splice_pose as splice_pose
+from fxspace.motion._splice import torso_joints as torso_joints
 from fxspace.motion._splice import upper_body_mask as upper_body_mask
 from fxspace.motion._synthesis import Pose as Pose
 from fxspace.motion._synthesis import SynthesisSpaces as SynthesisSpaces
@@ -74,6 +76,7 @@ from fxspace.motion._synthesis import exact_upper_params as exact_upper_params
 from fxspace.motion._synthesis import init_state as init_state
 from fxspace.motion._synthesis import lower_param_of as lower_param_of
 from fxspace.motion._synthesis import replace_samples as replace_samples
+from fxspace.motion._synthesis import splice_frame as splice_frame
 from fxspace.motion._synthesis import synthesize as synthesize
 from fxspace.motion._synthesis import synthesize_step as synthesize_step
 from fxspace.motion._synthesis import upper_param_of as upper_param_of
@@ -137,6 +140,9 @@ __all__ = [
     "align_start",
     "heading_quat",
     "splice_pose",
+    "heck_splice",
+    "splice_frame",
+    "torso_joints",
     "upper_body_mask",
     "foot_sliding",
     "ground_speed",

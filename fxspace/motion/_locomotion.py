@@ -25,7 +25,6 @@ from fxspace._validate import check_scalar
 from fxspace.errors import FxspaceError
 from fxspace.motion._blend import blend_pose, blend_quaternions, pose_at, warp_times
 from fxspace.motion._fk import fk_arrays
-from fxspace.motion._splice import splice_pose
 from fxspace.motion._synthesis import (
     Pose,
     SynthesisSpaces,
@@ -35,6 +34,7 @@ from fxspace.motion._synthesis import (
     _lower_weights,
     check_step_controls,
     init_state,
+    splice_frame,
 )
 from fxspace.rotations import (
     quat_conj,
@@ -114,7 +114,7 @@ def _spliced_local(sp: SynthesisSpaces, wL, wU, t_lower, t_upper):
     """`_lower_local` under the upper blend, spliced (root = the blend's tilt)."""
     qL, rL = _lower_local(sp, wL, t_lower)
     qU, _ = blend_pose(sp.upper, wU, t_upper)
-    return splice_pose(qL, qU, jnp.asarray(sp.mask), sp.spine, sp.posture_transfer), rL
+    return splice_frame(sp, qL, qU), rL
 
 
 def _delta(sp: SynthesisSpaces, w, ta, tb):

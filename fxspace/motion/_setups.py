@@ -88,6 +88,7 @@ class SetupSpace:
     concentration: float = 0.5
     max_active: int = 3
     posture_transfer: float = 1.0
+    splice: str = "heck"  # "heck": spatial alignment + posture transfer; "heading"
     min_slope: float = 0.05
 
 
@@ -267,6 +268,7 @@ def prepare_setup(
         knn_k=space.knn_k,
         k_replace=space.k_replace,
         posture_transfer=space.posture_transfer,
+        splice=space.splice,
         concentration=space.concentration,
         max_active=space.max_active,
         min_slope=space.min_slope,

@@ -24,7 +24,7 @@ from fxspace._validate import check_scalar
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._horn import absolute_orientation, apply_rigid
-from fxspace.motion._splice import heading_quat, splice_pose
+from fxspace.motion._splice import heading_quat, heck_splice, splice_pose, torso_joints
 from fxspace.motion._timewarp import advance_clock, align_clocks, interp_curve, invert_curve
 from fxspace.rotations import quat_conj, quat_rotate
 
@@ -55,7 +55,9 @@ class SynthesisSpaces:
     where each parameter is measured), ``posture_transfer``. Static: ``parents``, ``mask``
     (upper-body joints), ``spine`` (splice joint), ``lower_joint``/``lower_dims``,
     ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
-    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``.
+    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``splice`` (``"heck"``:
+    `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
+    ``torso`` (`torso_joints`, used by ``"heck"``).
     """
 
     lower: ExampleSet
@@ -79,6 +81,8 @@ class SynthesisSpaces:
     k_replace: int
     knn_k: int
     min_slope: float
+    splice: str = "heck"
+    torso: tuple[int, ...] = ()
 
 
 jax.tree_util.register_dataclass(
@@ -89,7 +93,7 @@ jax.tree_util.register_dataclass(
     ],
     meta_fields=[
         "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
-        "knn_k", "min_slope",
+        "knn_k", "min_slope", "splice", "torso",
     ],
 )  # fmt: skip
 
@@ -111,6 +115,17 @@ class Pose(NamedTuple):
 
     rotations: Float[Array, "J 4"]
     root: Float[Array, " 3"]
+
+
+def splice_frame(sp: SynthesisSpaces, qL: Float[Array, "J 4"], qU: Float[Array, "J 4"]):
+    """The upper body of ``qU`` spliced on the lower body of ``qL`` with the spaces' splice
+    (``sp.splice``: ``"heck"`` → `heck_splice`, ``"heading"`` → `splice_pose`)."""
+    mask = jnp.asarray(sp.mask)
+    if sp.splice == "heck":
+        return heck_splice(
+            qL, qU, sp.parents, sp.offsets, mask, sp.spine, sp.torso, sp.posture_transfer
+        )
+    return splice_pose(qL, qU, mask, sp.spine, sp.posture_transfer)
 
 
 def _fk1(sp: SynthesisSpaces, root, q):
@@ -140,7 +155,7 @@ def upper_param_of(
     t_l = invert_curve(sp.lam, sp.upper_time)
     qL, rL = blend_pose(sp.lower, w_lower, t_l)
     qU, _ = blend_pose(sp.upper, w_upper, sp.upper_time)
-    q = splice_pose(qL, qU, jnp.asarray(sp.mask), sp.spine, sp.posture_transfer)
+    q = splice_frame(sp, qL, qU)
     X = _fk1(sp, rL, q)
     return _to_root_frame(X[sp.upper_joint], X[0], q[0])
 
@@ -203,7 +218,7 @@ def _spliced(sp: SynthesisSpaces, wL, wU, t_lower, t_upper):
     """Step 4: both blends at their clocks (every example at ``C_i(T)``), spliced."""
     qL, rL = blend_pose(sp.lower, wL, t_lower)
     qU, _ = blend_pose(sp.upper, wU, t_upper)
-    return splice_pose(qL, qU, jnp.asarray(sp.mask), sp.spine, sp.posture_transfer), rL
+    return splice_frame(sp, qL, qU), rL
 
 
 def _advance(sp: SynthesisSpaces, state: SynthState, wL, wU, alpha, dt, wrap: bool):
@@ -347,6 +362,7 @@ def build_spaces(
     knn_k: int = 6,
     k_replace: int = 10,
     posture_transfer: float = 1.0,
+    splice: str = "heck",
     concentration: float = 0.5,
     max_active: int = 3,
     min_slope: float = 0.05,
@@ -361,6 +377,8 @@ def build_spaces(
     EL, EU = lower.warps.shape[0], upper.warps.shape[0]
     WL = sample_blend_weights(kL, EL, max(n_samples, EL), concentration, max_active)
     WU = sample_blend_weights(kU, EU, max(n_samples, EU), concentration, max_active)
+    if splice not in ("heck", "heading"):
+        raise ValueError(f"splice must be 'heck' or 'heading', got {splice!r}")
     if upper_joint >= 0 and not 3 <= k_replace <= WU.shape[0]:
         raise ValueError(f"k_replace must lie in [3, {WU.shape[0]}], got {k_replace}")
     dtype = jnp.result_type(float)
@@ -387,6 +405,8 @@ def build_spaces(
         k_replace=int(k_replace),
         knn_k=int(knn_k),
         min_slope=float(min_slope),
+        splice=splice,
+        torso=torso_joints(tuple(int(p) for p in parents), mask, int(spine)),
     )
     return _sample_params(sp)
 

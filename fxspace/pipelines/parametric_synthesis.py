@@ -75,6 +75,13 @@ class Config:
             raise ConfigError("synth.alpha and synth.alphas must lie in [0, 1]")
         if not 3 <= self.space.k_replace <= self.space.n_samples:
             raise ConfigError("space.k_replace must be between 3 and space.n_samples")
+        if self.space.splice not in ("heck", "heading"):
+            raise ConfigError(
+                f"space.splice must be 'heck' (spatial alignment + posture transfer, Heck et "
+                f"al. 2006) or 'heading' (heading-relative spine copy), got {self.space.splice!r}"
+            )
+        if not 0.0 <= self.space.posture_transfer <= 1.0:
+            raise ConfigError("space.posture_transfer must lie in [0, 1]")
         if self.space.knn_k < 2:
             raise ConfigError("space.knn_k must be at least 2 (k-NN interpolation)")
         if self.synth.n_queries < 2:
@@ -227,6 +234,8 @@ _SP_META = (
     "k_replace",
     "knn_k",
     "min_slope",
+    "splice",
+    "torso",
 )
 
 
@@ -347,6 +356,8 @@ def _stage_targets(st: M.Setup, cfg: Config, qL, wq_u) -> dict:
     if rows:
         r = np.asarray(rows)
         m.update(
+            splice=sp.splice,
+            posture_transfer=float(sp.posture_transfer),
             k_replace=sp.k_replace,
             upper_target_error_replaced_mean_m=float(r[:, 0].mean()),
             upper_target_error_stale_mean_m=float(r[:, 1].mean()),

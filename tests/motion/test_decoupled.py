@@ -67,9 +67,12 @@ def test_replacement_matches_exact_resampling(sp):
     assert e_repl.max() < 0.025 and e_repl.mean() < 0.1 * e_stale.mean()
     # for the initial lower blend the stored ṗ are exact and Horn returns the identity
     np.testing.assert_allclose(_replace(sp, sp.lower_w0), stale, atol=1e-5)
-    # posture transfer 1: the upper body keeps its heading-relative orientation, so a new
-    # lower body moves every sample by one translation — Horn recovers it (float32 round-off)
-    s1 = dataclasses.replace(sp, posture_transfer=jnp.ones_like(sp.posture_transfer))
+    # the heading-relative splice at posture transfer 1: the upper body keeps its
+    # heading-relative orientation, so a new lower body moves every sample by one
+    # translation — Horn recovers it (float32 round-off)
+    s1 = dataclasses.replace(
+        sp, posture_transfer=jnp.ones_like(sp.posture_transfer), splice="heading"
+    )
     s1 = dataclasses.replace(s1, upper_params=_exact(s1, s1.lower_w0))
     np.testing.assert_allclose(_replace(s1, w_new), _exact(s1, w_new), atol=2e-5)
 
