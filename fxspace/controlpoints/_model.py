@@ -26,6 +26,7 @@ weight — outside the cluster and its blending border — do not move.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -237,22 +238,80 @@ def fit_control_points(
     n_init = check_int(n_init, "n_init", low=1)
     if not 1 <= n_clusters <= N:
         raise FxspaceError(f"n_clusters must be in [1, {N}] (vertices); got {n_clusters}")
-    R = residual_trajectories(X)[1:-1]  # (T-2, N, 3)
-    feats = jnp.moveaxis(R, 1, 0).reshape(N, -1)
-    scale = jnp.sqrt(jnp.mean(jnp.sum(feats**2, axis=1)))
-    feats = feats / jnp.where(scale > 0, scale, 1.0)
+    # Segments of every length would each compile their own programs: the frames are padded
+    # to a size bucket (copies of the last frame, whose residuals are exactly zero), which
+    # leaves every distance between the vertices' features — and so the clustering — as is.
+    Xn = np.asarray(X)
+    Xp = _pad_frames(Xn, frame_bucket(T))
+    T_ = jnp.asarray(T, jnp.int32)
     if max_points is not None and N > max_points:
         idx = np.linspace(0, N - 1, max_points).round().astype(np.int64)
-        sub = feats[idx]
+        sub = _subset_features(Xp, T_, jnp.asarray(idx))
         km = kernel_kmeans(sub, n_clusters, gamma, key=key, n_init=n_init, max_steps=max_steps)
-        H = jax.nn.one_hot(km.labels, n_clusters, dtype=feats.dtype)
-        C0 = (H.T @ sub) / jnp.maximum(jnp.sum(H, axis=0), 1.0)[:, None]
-        labels, _ = _lloyd_jit(feats, C0, int(refine_steps))
+        labels = _refine_labels(Xp, T_, sub, km.labels, n_clusters, int(refine_steps))
     else:
+        feats = _features(Xp, T_)
         km = kernel_kmeans(feats, n_clusters, gamma, key=key, n_init=n_init, max_steps=max_steps)
         labels = km.labels
-    W = blend_weights(X[0], labels, n_clusters, blend_radius) if blend_radius > 0 else None
-    return control_point_model(X, labels, n_clusters, W), km
+    first, last = jnp.asarray(Xn[0]), jnp.asarray(Xn[-1])
+    W = blend_weights(first, labels, n_clusters, blend_radius) if blend_radius > 0 else None
+    C = np.asarray(_cluster_means(Xp, labels, n_clusters))[:, :T]  # sliced on the host
+    W = jax.nn.one_hot(labels, n_clusters, dtype=X.dtype) if W is None else W
+    return ControlPointModel(first, last, jnp.asarray(C), W, labels), km
+
+
+def frame_bucket(n: int) -> int:
+    """The padded length of an ``n``-frame segment: a multiple of a quarter of the power of
+    two below ``n`` (at least 8), so at most 25 % padding and four sizes per octave."""
+    n = int(n)
+    step = max(8, (1 << max(n.bit_length() - 1, 0)) // 4)
+    return -(-n // step) * step
+
+
+def _pad_frames(Xn: np.ndarray, Tb: int) -> Array:
+    """``Xn`` with copies of its last frame up to ``Tb`` frames (on the host: no program per
+    length)."""
+    if Tb > Xn.shape[0]:
+        Xn = np.concatenate([Xn, np.repeat(Xn[-1:], Tb - Xn.shape[0], axis=0)])
+    return jnp.asarray(Xn)
+
+
+def _features_of(Xp: Array, T: Array) -> Array:
+    """The scaled residual trajectories of the first ``T`` frames of padded ``Xp``, one row
+    per vertex ``(N, 3·Tb)``: the ends and the padding are exact zeros."""
+    Tb, N, _ = Xp.shape
+    t = jnp.arange(Tb)
+    s = jnp.clip(t.astype(Xp.dtype) / (T - 1).astype(Xp.dtype), 0.0, 1.0)[:, None, None]
+    last = jax.lax.dynamic_index_in_dim(Xp, T - 1, keepdims=False)
+    R = Xp - ((1.0 - s) * Xp[0][None] + s * last[None])
+    R = jnp.where(((t > 0) & (t < T - 1))[:, None, None], R, 0.0)
+    feats = jnp.moveaxis(R, 1, 0).reshape(N, -1)
+    scale = jnp.sqrt(jnp.mean(jnp.sum(feats**2, axis=1)))
+    return feats / jnp.where(scale > 0, scale, 1.0)
+
+
+_features = jax.jit(_features_of)
+
+
+@jax.jit
+def _subset_features(Xp: Array, T: Array, idx: Array) -> Array:
+    return _features_of(Xp, T)[idx]
+
+
+@partial(jax.jit, static_argnums=(4, 5))
+def _refine_labels(Xp, T, sub, sub_labels, n_clusters: int, steps: int) -> Array:
+    """Every vertex assigned by ``steps`` Lloyd steps from the subset's cluster means."""
+    feats = _features_of(Xp, T)
+    H = jax.nn.one_hot(sub_labels, n_clusters, dtype=feats.dtype)
+    C0 = (H.T @ sub) / jnp.maximum(jnp.sum(H, axis=0), 1.0)[:, None]
+    return _lloyd(feats, C0, steps)[0]
+
+
+@partial(jax.jit, static_argnums=2)
+def _cluster_means(X: Array, labels: Array, n_clusters: int) -> Array:
+    """Mean trajectory of each cluster ``(c, T, 3)`` (0 for an empty cluster)."""
+    H = jax.nn.one_hot(labels, n_clusters, dtype=X.dtype)
+    return jnp.einsum("nk,tnd->ktd", H, X) / jnp.maximum(jnp.sum(H, axis=0), 1.0)[:, None, None]
 
 
 def _control_residuals(controls: Float[Array, "c T 3"]) -> Float[Array, "c T 3"]:
@@ -261,8 +320,10 @@ def _control_residuals(controls: Float[Array, "c T 3"]) -> Float[Array, "c T 3"]
     return controls - ((1.0 - s) * controls[:, :1] + s * controls[:, -1:])
 
 
+@jax.jit
 def reconstruct(model: ControlPointModel) -> Float[Array, "T N 3"]:
-    """Rebuild the segment: ``x̂_i(t) = L_i(t) + Σ_k w_ik R_k(t)``. O(T·N·c)."""
+    """Rebuild the segment: ``x̂_i(t) = L_i(t) + Σ_k w_ik R_k(t)``. O(T·N·c); one program
+    per segment length (jitted)."""
     T = model.controls.shape[1]
     L = linear_interpolation(model.first, model.last, T)
     return L + jnp.einsum("nk,ktd->tnd", model.weights, _control_residuals(model.controls))

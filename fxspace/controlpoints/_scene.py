@@ -33,9 +33,7 @@ from fxspace.controlpoints._fitting import refine_control_points
 from fxspace.controlpoints._model import (
     ControlPointModel,
     fit_control_points,
-    linear_interpolation,
     reconstruct,
-    reconstruction_error,
     storage_size,
 )
 from fxspace.controlpoints._segment import (
@@ -173,6 +171,7 @@ def fit_scene(
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 3:
         raise FxspaceError(f"X must be (frames >= 3, vertices, 3); got {X.shape}")
     T, N, _ = X.shape
+    Xn = np.asarray(X)  # segments are cut on the host: no slicing program per length
     n_clusters = check_int(n_clusters, "n_clusters", low=1)
     n_init = check_int(n_init, "n_init", low=1)
     fit_steps = check_int(fit_steps, "fit_steps", low=0)
@@ -189,7 +188,7 @@ def fit_scene(
     spans = segments_from_boundaries(b)
     it = progress(spans, desc="control points per segment") if show_progress else spans
     for i, (a, e) in enumerate(it):
-        S = X[a : e + 1]
+        S = jnp.asarray(Xn[a : e + 1])
         model, km = fit_control_points(
             S, min(int(n_clusters), N), gamma=gamma, key=keys[i], n_init=n_init,
             max_points=max_points, refine_steps=refine_steps,
@@ -220,11 +219,16 @@ def reconstruct_scene(scene: SceneModel) -> Float[Array, "T N 3"]:
 
 def linear_scene(X: Float[ArrayLike, "T N 3"], boundaries: Int[ArrayLike, " s1"]) -> Array:
     """The baseline: linear interpolation between the key frames ``X[boundaries]``."""
-    X = jnp.asarray(X)
-    b = _check_boundaries(boundaries, X.shape[0])
-    return _stitch(
-        [linear_interpolation(X[a], X[e], e - a + 1) for a, e in segments_from_boundaries(b)]
-    )
+    Xn = np.asarray(X)  # on the host: no program per segment length
+    b = _check_boundaries(boundaries, Xn.shape[0])
+    parts = [_linear_np(Xn[a], Xn[e], e - a + 1) for a, e in segments_from_boundaries(b)]
+    return jnp.asarray(np.concatenate([parts[0]] + [p[1:] for p in parts[1:]], axis=0))
+
+
+def _linear_np(first: np.ndarray, last: np.ndarray, n: int) -> np.ndarray:
+    """`linear_interpolation` on the host (same formula, both key frames exact)."""
+    s = np.linspace(0.0, 1.0, n).reshape((n,) + (1,) * first.ndim)
+    return (1.0 - s) * first[None] + s * last[None]
 
 
 def scene_errors(X: Float[ArrayLike, "T N 3"], scene: SceneModel) -> SceneErrors:
@@ -235,11 +239,12 @@ def scene_errors(X: Float[ArrayLike, "T N 3"], scene: SceneModel) -> SceneErrors
             f"X {X.shape} does not match the scene ({scene.n_frames} frames, "
             f"{scene.n_vertices} vertices)"
         )
+    Xn = np.asarray(X)  # on the host: no program per segment length
     lin, mod = [], []
     for (a, e), m in zip(segments_from_boundaries(scene.boundaries), scene.segments, strict=True):
-        S = X[a : e + 1]
-        lin.append(float(reconstruction_error(S, linear_interpolation(S[0], S[-1], len(S)))))
-        mod.append(float(reconstruction_error(S, reconstruct(m))))
+        S = Xn[a : e + 1]
+        lin.append(float(np.sum((S - _linear_np(S[0], S[-1], len(S))) ** 2)))
+        mod.append(float(np.sum((S - np.asarray(reconstruct(m))) ** 2)))
     lin_a, mod_a = np.asarray(lin), np.asarray(mod)
     ratio = np.where(lin_a > 0, mod_a / np.where(lin_a > 0, lin_a, 1.0), 0.0)
     ls, ms = float(lin_a.sum()), float(mod_a.sum())

@@ -217,7 +217,7 @@ def _bic(err: float, n: int, k: int) -> float:
 def _sweep(S, cfg: Config, key) -> list[dict]:
     rows = []
     n = int(np.prod(S.shape))
-    lin = float(reconstruction_error(S, linear_interpolation(S[0], S[-1], S.shape[0])))
+    lin = _lin_error(S)
     grid = [(c, g) for c in cfg.clusters for g in cfg.gammas]
     for c, g in progress(grid, desc="(clusters, γ) sweep"):
         model, km = fit_control_points(
@@ -329,7 +329,11 @@ def _gltf_source(cfg: Config, key) -> dict:
 
 
 def _lin_error(S) -> float:
-    return float(reconstruction_error(S, linear_interpolation(S[0], S[-1], S.shape[0])))
+    """Eq. (1) of linear interpolation over segment ``S`` (on the host: no program per
+    segment length)."""
+    S = np.asarray(S)
+    s = np.linspace(0.0, 1.0, S.shape[0]).reshape((-1,) + (1,) * (S.ndim - 1))
+    return float(np.sum((S - ((1.0 - s) * S[0] + s * S[-1])) ** 2))
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:
