@@ -61,6 +61,23 @@ def absolute_orientation(
     sc = jnp.maximum(jnp.max(jnp.abs(src - sbar[None])), jnp.max(jnp.abs(dst - dbar[None])))
     sc = jnp.where(sc > 0, sc, 1.0)
     S = jnp.einsum("k,ka,kb->ab", w, (src - sbar[None]) / sc, (dst - dbar[None]) / sc)
+    N = horn_matrix(S)
+    _, vecs = jnp.linalg.eigh(N)
+    q = vecs[:, -1]
+    R = quat_to_matrix(q)
+    return RigidTransform(R, dbar - R @ sbar)
+
+
+def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    """``R x + t`` for points ``x`` (any leading shape)."""
+    x = jnp.asarray(x)
+    return jnp.einsum("ab,...b->...a", tf.R, x) + tf.t.reshape((1,) * (x.ndim - 1) + (3,))
+
+
+def horn_matrix(S: Float[Array, "3 3"]) -> Float[Array, "4 4"]:
+    """Horn's symmetric 4×4 matrix ``N`` of a cross-covariance ``S = Σ w src dstᵀ`` (Horn 1987,
+    §4): the best rotation is the unit quaternion (w, x, y, z) eigenvector of its largest
+    eigenvalue."""
     sxx, sxy, sxz = S[0, 0], S[0, 1], S[0, 2]
     syx, syy, syz = S[1, 0], S[1, 1], S[1, 2]
     szx, szy, szz = S[2, 0], S[2, 1], S[2, 2]
@@ -72,13 +89,4 @@ def absolute_orientation(
             jnp.stack([sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz]),
         ]
     )
-    _, vecs = jnp.linalg.eigh(N)
-    q = vecs[:, -1]
-    R = quat_to_matrix(q)
-    return RigidTransform(R, dbar - R @ sbar)
-
-
-def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """``R x + t`` for points ``x`` (any leading shape)."""
-    x = jnp.asarray(x)
-    return jnp.einsum("ab,...b->...a", tf.R, x) + tf.t.reshape((1,) * (x.ndim - 1) + (3,))
+    return N

@@ -11,8 +11,7 @@ from jaxtyping import Array, Bool, Float
 
 from fxspace._validate import _is_tracer, as_float_array, check_index, check_scalar
 from fxspace.errors import FxspaceError
-from fxspace.motion._fk import fk_arrays
-from fxspace.motion._horn import absolute_orientation
+from fxspace.motion._horn import horn_matrix
 from fxspace.rotations import (
     _xp,
     matrix_to_quat,
@@ -176,9 +175,30 @@ def torso_joints(parents: tuple[int, ...], mask, spine_root: int) -> tuple[int, 
 
 
 def _rotation_about_origin(src, dst):
-    """Rotation ``R`` minimising ``Σ ||R src_k − dst_k||²`` (no translation: Horn on the
-    clouds and their point reflections, whose centroids are the origin)."""
-    return absolute_orientation(jnp.concatenate([src, -src]), jnp.concatenate([dst, -dst])).R
+    """Rotation matrix ``R`` minimising ``Σ ||R src_k − dst_k||²`` (no translation): Horn's
+    quaternion, the top eigenvector of `horn_matrix` of ``Σ src dstᵀ``."""
+    S = src.T @ dst
+    sc = jnp.max(jnp.abs(S))
+    _, vecs = jnp.linalg.eigh(horn_matrix(S / jnp.where(sc > 0, sc, 1.0)))
+    return quat_to_matrix(vecs[:, -1])
+
+
+def _torso_frames(q, parents, offsets, chain, torso):
+    """World rotation of each joint of ``chain`` (root → splice joint, root translation 0) and
+    the torso joints' positions relative to the splice joint in its own frame, by unrolled
+    forward kinematics over those joints only (static ``chain``/``torso``)."""
+    R = {}
+    for j in chain:
+        Rj = quat_to_matrix(q[j])
+        R[j] = Rj if parents[j] < 0 else R[parents[j]] @ Rj
+    s = chain[-1]
+    loc = {s: (jnp.eye(3, dtype=q.dtype), jnp.zeros(3, q.dtype))}
+    for j in torso:
+        if j == s:
+            continue
+        Rp, pp = loc[parents[j]]
+        loc[j] = (Rp @ quat_to_matrix(q[j]), pp + Rp @ offsets[j])
+    return R, jnp.stack([loc[j][1] for j in torso])
 
 
 def _shortest_arc(a, b, amount):
@@ -243,13 +263,19 @@ def heck_splice(
     if not _is_tracer(posture_transfer):
         posture_transfer = check_scalar(posture_transfer, "posture_transfer", low=0.0, high=1.0)
     offsets = jnp.asarray(offsets, upper_q.dtype)
-    zero = jnp.zeros(3, upper_q.dtype)
-    XL, RL = fk_arrays(parents, offsets, zero, lower_q)
-    XU, RU = fk_arrays(parents, offsets, zero, upper_q)
-    idx = jnp.asarray(torso)
     s = spine_root
-    src = (XU[idx] - XU[s][None]) @ RU[s]  # the action's torso in the splice joint's frame
-    dst = XL[idx] - XL[s][None]  # the locomotion's torso (world, root at the origin)
+    chain = [s]
+    while parents[chain[-1]] >= 0:
+        chain.append(parents[chain[-1]])
+    chain = chain[::-1]  # root → … → splice joint
+    seen = {s}
+    for j in torso:  # the torso hangs below the splice joint, parents first
+        if j != s and parents[j] not in seen:
+            raise FxspaceError(f"torso joint {j} must hang below spine_root {s} (torso_joints)")
+        seen.add(j)
+    RL, dL = _torso_frames(lower_q, parents, offsets, chain, torso)
+    RU, src = _torso_frames(upper_q, parents, offsets, chain, torso)
+    dst = dL @ RL[s].T  # the locomotion's torso (world, relative to the splice joint)
     W1 = _rotation_about_origin(src, dst)  # step 1: the splice joint's world rotation
     up = jnp.mean(src, axis=0)  # the torso's long axis (splice-joint frame)
     H = quat_to_matrix(quat_mul(heading_quat(lower_q[0]), quat_conj(heading_quat(upper_q[0]))))
