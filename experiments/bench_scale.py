@@ -7,7 +7,10 @@ every 20 ms while the stage runs; the process baseline is printed apart).
 
 ours:   features → sparse neighbourhood graph → max-min landmarks + landmark geodesics →
         landmark MDS → landmark score, then the navigation at scale: FCM levels
-        (10, 20, 40, … centres), links on the sparse graph and a route between centres.
+        (10, 20, 40, … centres), links on the sparse graph and a route between centres;
+        then the finest level (every frame a centre, links on the graph's edges; skip
+        with ``--no-finest``) and a route query: 4 key centres of the coarsest level
+        refined level by level down to frames (`fxspace.navigation.sparse_navigate`).
 peers:  the route a user would otherwise take in the same run — scipy Dijkstra from the
         same landmarks on the same graph, scikit-learn's k-NN graph, and scikit-learn
         ``Isomap`` end to end (its own landmark-free graph) where it fits in memory.
@@ -18,7 +21,8 @@ quality (where the exact method fits, ``--exact-max``): exact all-pairs geodesic
 
 Exits non-zero if any stage fails. Usage:
 ``python experiments/bench_scale.py --frames 2400 [--source animface] [--landmarks 256]
-[--k 10] [--levels 4] [--exact-max 5000] [--isomap-max 10000] [--json out.json]``.
+[--k 10] [--levels 4] [--exact-max 5000] [--isomap-max 10000] [--no-finest]
+[--json out.json]``.
 """
 
 from __future__ import annotations
@@ -67,6 +71,7 @@ class Stage:
         self.peak = max(self.peak, _rss_mb())
         ok = exc_type is None
         row = {"stage": self.name, "group": self.group, "s": dt, "peak_mb": self.peak, "ok": ok}
+        print(f"  [{self.name}: {dt:.1f} s, peak {self.peak:.0f} MB]", file=sys.stderr, flush=True)
         Stage.rows.append(row)
         if not ok:
             Stage.failed.append(self.name)
@@ -137,6 +142,11 @@ def main(argv=None) -> int:
     ap.add_argument("--exact-max", type=int, default=5000)
     ap.add_argument("--isomap-max", type=int, default=10000)
     ap.add_argument("--no-navigation", action="store_true")
+    ap.add_argument(
+        "--no-finest",
+        action="store_true",
+        help="skip the finest level (T centres) and the route refined down to it",
+    )
     ap.add_argument("--no-peers", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None)
@@ -188,17 +198,41 @@ def main(argv=None) -> int:
     out["chain_peak_mb"] = max(r["peak_mb"] for r in chain)
 
     if not a.no_navigation and mds is not None:
-        from fxspace.navigation._scale import sparse_hierarchy, sparse_route
+        from fxspace.navigation import (
+            finest_level,
+            sparse_bridge_keys,
+            sparse_hierarchy,
+            sparse_navigate,
+            sparse_route,
+        )
 
         h = None
         with Stage("hierarchy + links"):
             h = sparse_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed))
             out["levels"] = [int(lv.n_clusters) for lv in h]
-            out["links"] = [int(np.triu(lv.links, 1).sum()) for lv in h]
+            out["links"] = [int(lv.links.nnz // 2) for lv in h]
         with Stage("route"):
             lv = h[-1]
             keys = lv.center_frames[np.linspace(0, lv.n_clusters - 1, 4).astype(int)]
             out["route_frames"] = int(len(sparse_route(g, keys)))
+        if not a.no_finest and h is not None:
+            fine = None
+            with Stage("finest level (all frames) + links"):
+                fine = finest_level(mds.embedding, g)
+                out["links_finest"] = int(fine.links.nnz // 2)
+                out["links_finest_bridges"] = int(fine.bridges.nnz // 2)
+            with Stage("route: 4 keys, coarsest → frames"):
+                hl = [*h, fine]
+                picks = np.linspace(0, h[0].n_clusters - 1, 4).astype(int).tolist()
+                keys, _ = sparse_bridge_keys(hl, g, 0, picks)
+                routes = sparse_navigate(hl, mds.embedding, g, keys)
+                fr = routes[-1].frames
+                csr = to_scipy(g)
+                out["route_levels_centres"] = [len(r.centres) for r in routes]
+                out["route_finest_frames"] = int(len(fr))
+                out["route_is_graph_walk"] = bool(
+                    np.all(fr[1:] != fr[:-1]) and np.all(csr[fr[:-1], fr[1:]] > 0)
+                )
 
     if not a.no_peers and g is not None and geo is not None:
         from scipy.sparse.csgraph import dijkstra

@@ -7,7 +7,10 @@ headless Chromium (playwright) and waits until the 3-D canvas shows the app's sc
 canvas screenshot that differs from the one of an empty viser scene. Timed from the launch:
 
 - ``server``: the page answers (the config checked or run, the app built);
-- ``frame``: the first rendered frame of the app's scene.
+- ``frame``: the first rendered frame of the app's scene (an app may open its page with
+  the scene and a progress line before its controller is built, as the motion app does);
+- ``ready``: the app fully built (its controls and content in place: it prints
+  "Ctrl-C to stop") and a frame rendered after that.
 
 Each app is opened twice: **cold** (an empty JAX compilation cache: every kernel compiled, as
 on a first install) and **cached** (the same cache again: what every later launch costs).
@@ -91,10 +94,11 @@ def _wait_http(port: int, proc: subprocess.Popen, deadline: float) -> None:
 
 
 def empty_scene(pw, exe: str) -> np.ndarray:
-    """A canvas screenshot of an empty viser scene (what 'nothing rendered yet' looks like)."""
-    import viser
+    """A canvas screenshot of an empty viser scene, lit as the apps' (`new_server`): what
+    'nothing rendered yet' looks like."""
+    from fxspace.studio._server import new_server
 
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server = new_server(0)
     try:
         browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
         try:
@@ -121,9 +125,9 @@ def browser_floor(pw, exe: str, base: np.ndarray) -> float:
     """Seconds from the browser's launch to the first frame of a bare viser scene holding one
     box: what any app costs on this machine beyond its own work (headless Chromium renders
     in software)."""
-    import viser
+    from fxspace.studio._server import new_server
 
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server = new_server(0)
     server.scene.add_box("/box", dimensions=(1.0, 1.0, 1.0), color=(255, 0, 0))
     try:
         t0 = time.monotonic()
@@ -147,6 +151,7 @@ def launch(config: Path, run_dir: Path, cache: Path, pw, exe: str, base, timeout
     """Launch ``fxspace studio CONFIG`` and time it to the app's first rendered frame."""
     port = _free_port()
     env = {**os.environ, "FXSPACE_COMPILE_CACHE": str(cache), "FXSPACE_QUIET": "1"}
+    env["PYTHONUNBUFFERED"] = "1"  # the "Ctrl-C to stop" line reaches the log at once
     cmd = [sys.executable, "-m", "fxspace.cli", "studio", str(config), "--port", str(port)]
     cmd += ["--out", str(run_dir)]
     log = tempfile.TemporaryFile()
@@ -170,6 +175,17 @@ def launch(config: Path, run_dir: Path, cache: Path, pw, exe: str, base, timeout
                 time.sleep(0.1)
             else:
                 raise TimeoutError("no rendered frame before the timeout")
+            # ready: the app fully built (it prints its address with "Ctrl-C to stop" once
+            # every control and the scene are in place) and a frame rendered after that
+            while time.monotonic() < deadline:
+                log.seek(0)
+                if b"Ctrl-C to stop" in log.read():
+                    if _canvas_png(page) is not None:
+                        out["ready_s"] = max(time.monotonic() - t0, out["frame_s"])
+                        break
+                time.sleep(0.1)
+            else:
+                raise TimeoutError("the app did not finish building before the timeout")
         finally:
             browser.close()
     except Exception as e:  # reported in the table; the other apps still run
@@ -252,8 +268,8 @@ def main(argv=None) -> int:
             "machine may be shared (noisy)",
             flush=True,
         )
-        print(f"{'app':<22} {'prepare':>8} {'cold srv':>8} {'cold':>8} {'cached srv':>10} "
-              f"{'cached':>8}")  # fmt: skip
+        print(f"{'app':<22} {'prepare':>8} {'cold srv':>8} {'cold':>8} {'ready':>8} "
+              f"{'cached srv':>10} {'cached':>8} {'ready':>8}")  # fmt: skip
         for config in configs:
             run_dir = config if config.is_dir() else Path(a.runs) / config.stem
             warm = Path(tmp) / "warm-cache"  # runs the config if needed, compiles its stages
@@ -272,8 +288,9 @@ def main(argv=None) -> int:
             rows.append(row)
             print(
                 f"{config.stem:<22} {_fmt(row, 'prepare_s')} {_fmt(row, 'cold_server_s')} "
-                f"{_fmt(row, 'cold_frame_s')} {_fmt(row, 'cached_server_s'):>10} "
-                f"{_fmt(row, 'cached_frame_s')}",
+                f"{_fmt(row, 'cold_frame_s')} {_fmt(row, 'cold_ready_s')} "
+                f"{_fmt(row, 'cached_server_s'):>10} {_fmt(row, 'cached_frame_s')} "
+                f"{_fmt(row, 'cached_ready_s')}",
                 flush=True,
             )
             for k in ("error", "cold_error", "cached_error"):

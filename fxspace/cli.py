@@ -66,7 +66,9 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from fxspace.studio import serve
 
     try:
-        serve(studio_target(args.target, getattr(args, "out", None)), port=args.port)
+        target = studio_target(args.target, getattr(args, "out", None))
+        env_map = bool(getattr(args, "environment_map", False))
+        serve(target, port=args.port, environment_map=env_map)
     except ImportError as e:
         print(
             f"fxspace studio needs the optional viewer extra: pip install -e '.[viewer]' ({e})",
@@ -160,6 +162,11 @@ def build_parser() -> argparse.ArgumentParser:
         v.add_argument("target", help="a run folder, or a config file (run first where not cached)")
         v.add_argument("--port", type=int, default=8080)
         v.add_argument("--out", default=None, help="run folder for a config (default runs/<stem>)")
+        v.add_argument(
+            "--environment-map",
+            action="store_true",
+            help="viser's image-based lighting (slow to first frame without a GPU)",
+        )
         v.set_defaults(func=_cmd_view)
 
     b = sub.add_parser("bench", help="run experiments/bench_NAME.py (alone: list them)")

@@ -27,9 +27,16 @@ from fxspace.navigation._routes import navigate as navigate
 from fxspace.navigation._routes import path_candidates as path_candidates
 from fxspace.navigation._routes import refine_route as refine_route
 from fxspace.navigation._scale import SparseLevel as SparseLevel
+from fxspace.navigation._scale import finest_level as finest_level
+from fxspace.navigation._scale import frame_links as frame_links
 from fxspace.navigation._scale import sparse_hierarchy as sparse_hierarchy
 from fxspace.navigation._scale import sparse_links as sparse_links
 from fxspace.navigation._scale import sparse_route as sparse_route
+from fxspace.navigation._scale_routes import sparse_bridge_keys as sparse_bridge_keys
+from fxspace.navigation._scale_routes import sparse_make_route as sparse_make_route
+from fxspace.navigation._scale_routes import sparse_navigate as sparse_navigate
+from fxspace.navigation._scale_routes import sparse_path_candidates as sparse_path_candidates
+from fxspace.navigation._scale_routes import sparse_refine_route as sparse_refine_route
 from fxspace.navigation._space import SWEEP_THRESHOLDS as SWEEP_THRESHOLDS
 from fxspace.navigation._space import THRESHOLD_CRITERIA as THRESHOLD_CRITERIA
 from fxspace.navigation._space import NavigationSpace as NavigationSpace
@@ -72,4 +79,11 @@ __all__ = [
     "sparse_hierarchy",
     "sparse_links",
     "sparse_route",
+    "frame_links",
+    "finest_level",
+    "sparse_make_route",
+    "sparse_bridge_keys",
+    "sparse_path_candidates",
+    "sparse_refine_route",
+    "sparse_navigate",
 ]

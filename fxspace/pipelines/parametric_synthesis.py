@@ -30,7 +30,7 @@ from fxspace._progress import progress
 from fxspace.config import ConfigError, config_from_dict, load_toml
 from fxspace.data import data_path
 from fxspace.io import Motion, read_amc, read_bvh, write_bvh
-from fxspace.runs import cached, cached_arrays, save_figure_atomic, write_json_atomic
+from fxspace.runs import cached, cached_arrays, run_key, save_figure_atomic, write_json_atomic
 
 STAGES: tuple[str, ...] = ("setup", "targets", "timewarp", "session")
 
@@ -112,7 +112,12 @@ _SETUPS: dict = {}
 def load_setup(config: str | Path, setup: str | None = None) -> M.Setup:
     """The built set-up of a ``parametric_synthesis`` config file (or a run folder holding
     ``config.toml``), the same spaces `run` builds; ``setup`` picks one of its ``setups``
-    (default the first). Kept in memory per file and modification time."""
+    (default the first). Kept in memory per file and modification time.
+
+    A finished run folder's stored ``setup`` stage is read instead of rebuilt when the
+    folder's cache is bound to this config, data and code (its ``cache/KEY`` equals the
+    run key `fxspace run` would compute now): the studio opens in seconds, never on
+    another config's spaces."""
     p = Path(config)
     cfg_p = p / "config.toml" if p.is_dir() else p
     if not cfg_p.is_file():
@@ -129,6 +134,10 @@ def load_setup(config: str | Path, setup: str | None = None) -> M.Setup:
         raise ConfigError(f"setup {name!r} is not among the config's setups {list(cfg.setups)}")
     seed = int(raw.get("seed", 0))
     ck = (str(cfg_p.resolve()), cfg_p.stat().st_mtime_ns, name)
+    if ck not in _SETUPS and p.is_dir():
+        stored = _stored_setup(p, name, cfg)
+        if stored is not None:
+            _SETUPS[ck] = stored
     if ck not in _SETUPS:
         key = jax.random.fold_in(
             jax.random.fold_in(jax.random.PRNGKey(seed), cfg.setups.index(name)), 0
@@ -289,6 +298,26 @@ def _setup_from_arrays(a: dict) -> M.Setup:
         meta["upper_names"],
         meta["info"],
     )
+
+
+def _stored_setup(run_dir: Path, name: str, cfg: Config) -> M.Setup | None:
+    """``run_dir``'s stored ``setup`` stage if its cache is bound to the folder's own config,
+    data and code (``cache/KEY`` = the run key computed now), else None."""
+    import sys
+
+    from fxspace.pipelines import _data_files
+
+    kp, sp = run_dir / "cache" / "KEY", run_dir / "cache" / f"{name}_setup.npz"
+    if not (kp.is_file() and sp.is_file()):
+        return None
+    text = (run_dir / "config.toml").read_text()
+    if kp.read_text().strip() != run_key(text, _data_files(sys.modules[__name__], cfg)):
+        return None
+    try:
+        with np.load(sp, allow_pickle=False) as z:
+            return _setup_from_arrays({k: z[k] for k in z.files})
+    except (OSError, ValueError, EOFError, KeyError):
+        return None  # damaged: rebuilt
 
 
 def _stage_setup(name: str, cfg: Config, run_dir: Path, key) -> M.Setup:

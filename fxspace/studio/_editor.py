@@ -248,7 +248,7 @@ def serve_editor(
     port: int = 8080,
     *,
     host: str = "127.0.0.1",
-    environment_map: bool = True,
+    environment_map: bool = False,
     block: bool = True,
     fps: float = 15.0,
     export_dir: str | Path | None = None,

@@ -471,7 +471,7 @@ def serve_ik(
     open_browser: bool = False,
     host: str = "127.0.0.1",
     block: bool = True,
-    environment_map: bool = True,
+    environment_map: bool = False,
     export_path: str | Path = "ik_pose.bvh",
     gltf_path: str | Path | None = None,
     options: ServeOptions | None = None,
@@ -497,7 +497,7 @@ def serve_ik(
         view._redraw(gizmos=False)
 
     view.redraw()
-    attach_stop(server, Player(tick, lambda: ctl.playing, ctl.fps))
+    attach_stop(server, Player(tick, lambda: ctl.playing and bool(server.get_clients()), ctl.fps))
     url = f"http://{o.host}:{server.get_port()}"
     if open_browser:
         import webbrowser

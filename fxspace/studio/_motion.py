@@ -24,15 +24,12 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from fxspace import motion as M
-from fxspace.config import config_from_dict
-from fxspace.data import data_path
 from fxspace.errors import FxspaceError
-from fxspace.io import read_amc, read_bvh, write_bvh
+from fxspace.io import write_bvh
 from fxspace.rotations import quat_rotate
 from fxspace.studio._server import (
     Player,
@@ -250,28 +247,15 @@ class MotionController:
         )
 
 
-def _load_take(take: str, stride: int):
-    if take.startswith("dataset-"):
-        return M.drop_root(read_bvh(data_path("body", "bandai", f"{take}.bvh.gz"), scale=0.01))
-    subj = take.split("_")[0]
-    m = read_amc(
-        data_path("body", "cmu", subj, f"{subj}.asf"),
-        data_path("body", "cmu", subj, f"{take}.amc.gz"),
-    )
-    return m.frames(slice(None, None, stride))
-
-
 def load_setup(target: str | Path, setup: str | None = None) -> M.Setup:
     """Build the set-up of a ``parametric_synthesis`` run folder (its ``config.toml``) or
-    config file; ``setup`` picks one of the config's ``setups`` (default the first)."""
-    _, raw = read_run_config(target, "parametric_synthesis")
-    names = list(raw.get("setups", ["mood_walk"]))
-    name = setup or names[0]
-    data = config_from_dict(M.SetupData, dict(raw.get("data", {})))
-    space = config_from_dict(M.SetupSpace, dict(raw.get("space", {})))
-    stride = int(raw.get("stride", 4))
-    key = jax.random.fold_in(jax.random.PRNGKey(int(raw.get("seed", 0))), names.index(name))
-    return M.prepare_setup(name, lambda t: _load_take(t, stride), data, space, key)
+    config file; ``setup`` picks one of the config's ``setups`` (default the first). A
+    finished run folder's stored set-up is read, not rebuilt (see
+    `fxspace.pipelines.parametric_synthesis.load_setup`)."""
+    from fxspace.pipelines import parametric_synthesis as ps
+
+    read_run_config(target, "parametric_synthesis")  # a clear error for another experiment
+    return ps.load_setup(target, setup)
 
 
 def _bones(parents) -> tuple[np.ndarray, np.ndarray]:
@@ -359,28 +343,87 @@ def _scene(server):
     return ground, grid
 
 
-def _draw_body(server, ctl, show_samples: bool) -> None:
-    X = ctl.joints()
-    V, F = body_mesh(X, ctl.skel.parents)
-    server.scene.add_mesh_simple("/character/limbs", V, F, color=(70, 110, 170),
-                                 flat_shading=False)  # fmt: skip
-    server.scene.add_batched_meshes_simple(
-        "/character/joints", _SPHERE[0] * 0.05, _SPHERE[1],
-        batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(X), 1)), batched_positions=X.astype(np.float32),
-        batched_colors=(90, 130, 190),
-    )  # fmt: skip
-    feet = X[list(ctl.setup.feet)].astype(np.float32) * np.asarray([1, 0, 1], np.float32)
-    cols = np.asarray([(40, 200, 60) if c else (150, 150, 150) for c in ctl.contacts()], np.uint8)
-    server.scene.add_batched_meshes_simple(
-        "/ground/contacts", _SPHERE[0] * np.asarray([0.09, 0.004, 0.09], np.float32), _SPHERE[1],
-        batched_wxyzs=np.tile([1.0, 0, 0, 0], (len(feet), 1)), batched_positions=feet,
-        batched_colors=cols,
-    )  # fmt: skip
-    if show_samples:
-        up = ctl.upper_samples_world()
-        if up is not None:
-            server.scene.add_point_cloud("/samples/upper", up.astype(np.float32),
-                                         (60, 170, 60), point_size=0.015)  # fmt: skip
+def bone_instances(X: np.ndarray, parents, radius: float = 0.045):
+    """The limbs as instances of one unit cylinder (radius 1, from z = 0 to z = 1), one per
+    bone: ``(wxyzs (B, 4), positions (B, 3), scales (B, 3))`` float32, the rotation taking
+    +z to the bone, the position at the parent joint, the scale ``(r, r, length)``.
+
+    What the app sends per frame instead of a new mesh (`body_mesh`): three small arrays
+    that viser updates in place, so a software-rendered page keeps up."""
+    pi, ji = _bones(parents)
+    a = np.asarray(X, np.float64)[pi]
+    d = np.asarray(X, np.float64)[ji] - a
+    L = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(L, 1e-12)[:, None]
+    # shortest-arc quaternion from +z to u: (1 + u_z, −u_y, u_x, 0), normalised
+    q = np.stack([1.0 + u[:, 2], -u[:, 1], u[:, 0], np.zeros_like(L)], axis=1)
+    flip = q[:, 0] < 1e-9  # u ≈ −z (or a zero-length bone pointing nowhere): 180° about x
+    q[flip] = (0.0, 1.0, 0.0, 0.0)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    scales = np.stack([np.full_like(L, radius), np.full_like(L, radius), L], axis=1)
+    return q.astype(np.float32), a.astype(np.float32), scales.astype(np.float32)
+
+
+def _unit_cylinder(sides: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    ang = 2 * np.pi * np.arange(sides) / sides
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros(sides)], 1)
+    V = np.concatenate([ring, ring + [0.0, 0.0, 1.0]]).astype(np.float32)
+    k = np.arange(sides)
+    k1 = (k + 1) % sides
+    F = np.concatenate([np.stack([k, k1, sides + k], 1), np.stack([k1, sides + k1, sides + k], 1)])
+    return V, F.astype(np.uint32)
+
+
+class _Body:
+    """The character's scene nodes, made once and then updated in place (only the changed
+    arrays travel to the page each frame)."""
+
+    def __init__(self, server, ctl):
+        self.server, self.ctl = server, ctl
+        X = ctl.joints()
+        q, p, s = bone_instances(X, ctl.skel.parents)
+        cyl = _unit_cylinder()
+        sc = server.scene
+        self.limbs = sc.add_batched_meshes_simple(
+            "/character/limbs", cyl[0], cyl[1], batched_wxyzs=q, batched_positions=p,
+            batched_scales=s, batched_colors=(70, 110, 170), lod="off",
+        )  # fmt: skip
+        self.joints = sc.add_batched_meshes_simple(
+            "/character/joints", _SPHERE[0] * 0.05, _SPHERE[1],
+            batched_wxyzs=np.tile(np.float32([1, 0, 0, 0]), (len(X), 1)),
+            batched_positions=X.astype(np.float32), batched_colors=(90, 130, 190), lod="off",
+        )  # fmt: skip
+        feet, cols = self._feet(X)
+        self.contacts = sc.add_batched_meshes_simple(
+            "/ground/contacts", _SPHERE[0] * np.asarray([0.09, 0.004, 0.09], np.float32),
+            _SPHERE[1], batched_wxyzs=np.tile(np.float32([1, 0, 0, 0]), (len(feet), 1)),
+            batched_positions=feet, batched_colors=cols, lod="off",
+        )  # fmt: skip
+        self.samples = None
+
+    def _feet(self, X):
+        feet = X[list(self.ctl.setup.feet)].astype(np.float32) * np.float32([1, 0, 1])
+        on = [(40, 200, 60) if c else (150, 150, 150) for c in self.ctl.contacts()]
+        return feet, np.asarray(on, np.uint8)
+
+    def draw(self, show_samples: bool) -> None:
+        X = self.ctl.joints()
+        q, p, s = bone_instances(X, self.ctl.skel.parents)
+        feet, cols = self._feet(X)
+        with self.server.atomic():
+            self.limbs.batched_wxyzs, self.limbs.batched_positions = q, p
+            self.limbs.batched_scales = s
+            self.joints.batched_positions = X.astype(np.float32)
+            self.contacts.batched_positions, self.contacts.batched_colors = feet, cols
+            up = self.ctl.upper_samples_world() if show_samples else None
+            if up is not None and self.samples is None:
+                self.samples = self.server.scene.add_point_cloud(
+                    "/samples/upper", up.astype(np.float32), (60, 170, 60), point_size=0.015
+                )
+            elif up is not None:
+                self.samples.points = up.astype(np.float32)
+            if self.samples is not None:
+                self.samples.visible = up is not None
 
 
 def _panel(server, ctl):
@@ -442,28 +485,32 @@ def serve_motion(
     port: int = 8080,
     *,
     host: str = "127.0.0.1",
-    environment_map: bool = True,
+    environment_map: bool = False,
     block: bool = True,
     fps: float = 30.0,
     export_path: str | Path = "recording.bvh",
     playing: bool = True,
     options: ServeOptions | None = None,
+    server=None,
 ):
     """Serve the live controller for ``setup`` (``options`` or the old keywords; ``port=0``
     picks a free port): a shaded body walking on a ground plane (feet shaded green in
     contact), a camera that follows, steering (turn slider, ◀ / ▶), the upper control
     (joy or the hand gizmo), α, the sample clouds on their own panel, record → BVH. With
-    ``block=False`` returns ``(server, controller)`` at once (stop with ``server.stop()``)."""
+    ``block=False`` returns ``(server, controller)`` at once (stop with ``server.stop()``).
+    `server`: a running viser server to draw into (`serve` opens the page first, with
+    the ground and a progress line, while the set-up loads)."""
     o = options or ServeOptions(port, host, fps, block, environment_map)
-    server = new_server(o.port, o.host, o.environment_map)
+    server = server if server is not None else new_server(o.port, o.host, o.environment_map)
     ctl = MotionController(setup)
     ground, grid = _scene(server)
     refresh_panel = _panel(server, ctl)
     state: dict = {}
+    body = _Body(server, ctl)
 
     @serialized(server)
     def draw() -> None:
-        _draw_body(server, ctl, bool(state["show"].value))
+        body.draw(bool(state["show"].value))
         state["status"].content = ctl.status()
 
     state["status"], state["play"], state["follow"], state["show"] = _controls(
@@ -480,20 +527,30 @@ def serve_motion(
         )  # fmt: skip
         hand.on_update(lambda _e: ctl.set_hand_target(np.asarray(hand.position)))
 
+    snapped: list = [None]
+
     @serialized(server)
     def tick() -> None:
+        # every frame: the step and the body; the rest at a lower rate (a page rendered in
+        # software WebGL falls behind when every control changes 30 times a second)
         ctl.step()
-        draw()
+        body.draw(bool(state["show"].value))
         r = ctl.root * np.asarray([1.0, 0.0, 1.0])
         snap = tuple(np.round(r / 10.0) * 10.0)
-        ground.position = grid.position = snap
-        if state["follow"].value:
+        if snap != snapped[0]:
+            ground.position = grid.position = snapped[0] = snap
+        if state["follow"].value and ctl.frame % 2 == 0:
             _follow_camera(server, r + np.asarray([0.0, 0.9, 0.0]))
+        if ctl.frame % 6 == 0:
+            state["status"].content = ctl.status()
         if ctl.frame % 15 == 0:
             refresh_panel()
 
     draw()
-    attach_stop(server, Player(tick, lambda: bool(state["play"].value), o.fps))
+    # plays only while a page is open: the walker does not walk off before anyone looks,
+    # and no frames are made that nobody receives
+    playing_now = lambda: bool(state["play"].value) and bool(server.get_clients())  # noqa: E731
+    attach_stop(server, Player(tick, playing_now, o.fps))
     if o.block:
         run_until_interrupted(server, "motion controller", o.host)
     return server, ctl
@@ -506,4 +563,21 @@ def serve(target: str | Path, port: int = 8080, **kwargs):
     print(f"fxspace studio: building the parametric spaces of {target} …")
     p = Path(target)
     kwargs.setdefault("export_path", (p if p.is_dir() else Path(".")) / "recording.bvh")
-    return serve_motion(load_setup(target, setup), port=port, **kwargs)
+    # the page first: the ground and a progress line while the set-up and the controller
+    # (JAX tracing, a few seconds even with the compilation cache) are built
+    given = {k: kwargs.pop(k) for k in ("host", "fps", "block", "environment_map") if k in kwargs}
+    o = kwargs.pop("options", None) or ServeOptions(port, **given)
+    server = new_server(o.port, o.host, o.environment_map)
+    try:
+        _scene(server)
+        note = server.gui.add_markdown(f"**building the parametric spaces of** `{p.name}` …")
+        st = load_setup(target, setup)
+        note.content = "**compiling the controller** …"
+        out = serve_motion(st, server=server, options=dataclasses.replace(o, block=False), **kwargs)
+        note.remove()
+    except BaseException:
+        server.stop()
+        raise
+    if o.block:
+        run_until_interrupted(server, "motion controller", o.host)
+    return out

@@ -308,7 +308,7 @@ def serve_navigator(
     port: int = 8080,
     *,
     host: str = "127.0.0.1",
-    environment_map: bool = True,
+    environment_map: bool = False,
     block: bool = True,
     fps: float = 30.0,
     export_dir: str | Path = "navigator_export",

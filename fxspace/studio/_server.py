@@ -37,17 +37,21 @@ class ServeOptions:
 
     **Fields:** `port` (``0`` picks a free one), `host` (``127.0.0.1``: local only),
     `fps` of the player, `block` (serve until Ctrl-C; ``False`` returns the running
-    server, as tests do), `environment_map` (lighting; off in headless tests).
+    server, as tests do), `environment_map` (viser's image-based lighting, an HDR
+    environment; off by default: a soft ambient + a key light instead. On a page rendered
+    in software WebGL the environment map's pre-filtering alone delays the first frame by
+    ~10 s, measured with experiments/bench_studio.py; ``fxspace studio --environment-map``
+    turns it on).
     """
 
     port: int = 8080
     host: str = "127.0.0.1"
     fps: float = 30.0
     block: bool = True
-    environment_map: bool = True
+    environment_map: bool = False
 
 
-def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = True):
+def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = False):
     """A viser server bound to ``host`` (``port=0``: a free port), or a clear error when the
     viewer extra is missing."""
     try:

@@ -164,3 +164,59 @@ def test_browser_slider_changes_the_pose(mood, tmp_path, chromium):
         page.get_by_text("wrote 2 frames", exact=False).wait_for(timeout=60_000)
     assert fx.io.read_bvh(tmp_path / "rec.bvh").num_frames == 2
     assert jnp.isfinite(jnp.asarray(ctl.rotations)).all()
+
+
+def test_bone_instances_place_a_unit_cylinder_on_every_bone():
+    """The per-frame update (three small arrays) puts the unit cylinder's axis exactly on
+    each bone, its rim at the limb radius, whatever the bone's direction (−z included)."""
+    from scipy.spatial.transform import Rotation
+
+    from fxspace.studio._motion import _bones, bone_instances
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(8, 3))
+    parents = [-1, 0, 1, 2, 0, 4, 5, 0]
+    X[7] = X[0] + [0.0, 0.0, -0.5]  # a bone along −z (the quaternion's singular case)
+    q, p, s = bone_instances(X, parents, radius=0.05)
+    pi, ji = _bones(parents)
+    R = Rotation.from_quat(q[:, [1, 2, 3, 0]].astype(np.float64))  # scipy: xyzw
+    np.testing.assert_allclose(R.apply(s * [0.0, 0.0, 1.0]) + p, X[ji], atol=1e-6)
+    rim = R.apply(s * [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(np.linalg.norm(rim, axis=1), 0.05, rtol=1e-6)
+    np.testing.assert_allclose(np.sum(rim * (X[ji] - X[pi]), axis=1), 0.0, atol=1e-6)
+    V, _ = body_mesh(X, parents, radius=0.05)  # the same limbs as the old per-frame mesh
+    assert np.allclose(np.linalg.norm(V.reshape(len(ji), 2, -1, 3)[:, 0].mean(1) - X[pi], axis=1), 0,
+                       atol=1e-6)  # fmt: skip
+
+
+def test_run_folder_setup_is_read_not_rebuilt_and_never_another_configs(tmp_path, monkeypatch):
+    """``fxspace studio RUN_DIR`` reads the run's stored set-up (no rebuild) when the cache
+    is bound to the folder's config; an edited config.toml gets its own set-up built."""
+    import os
+
+    from fxspace.pipelines import parametric_synthesis as ps
+    from fxspace.runs import run_key
+    from fxspace.studio._motion import load_setup
+
+    st = _setup(5)
+    text = 'experiment = "parametric_synthesis"\nsetups = ["block_walk"]\n'
+    cfg = tmp_path / "config.toml"
+    cfg.write_text(text)
+    (tmp_path / "cache").mkdir()
+    np.savez(tmp_path / "cache" / "block_walk_setup.npz", **ps._setup_to_arrays(st))
+    (tmp_path / "cache" / "KEY").write_text(run_key(text, []) + "\n")
+
+    def rebuilt(*a, **k):
+        raise AssertionError("the stored set-up was rebuilt")
+
+    monkeypatch.setattr(M, "prepare_setup", rebuilt)
+    got = load_setup(tmp_path)
+    assert got.name == "block_walk" and got.skeleton.names == st.skeleton.names
+    np.testing.assert_allclose(got.spaces.upper_params, st.spaces.upper_params, rtol=1e-6)
+    np.testing.assert_allclose(got.spaces.lam, st.spaces.lam, rtol=1e-6)
+    cfg.write_text(text + "stride = 2\n")  # another config: the stored stage is not served
+    os.utime(cfg, ns=(cfg.stat().st_atime_ns, cfg.stat().st_mtime_ns + 10**9))
+    calls = []
+    monkeypatch.setattr(M, "prepare_setup", lambda *a, **k: calls.append(a[0]) or st)
+    load_setup(tmp_path)
+    assert calls == ["block_walk"]

@@ -41,3 +41,20 @@ def test_serialized_draws_from_two_threads_never_collide():
     assert not errors, errors
     assert len(calls) >= 300
     assert not player._thread.is_alive()  # stopped with the server, not crashed earlier
+
+
+def test_studio_lights_without_the_environment_map_unless_asked(monkeypatch, tmp_path):
+    """``fxspace studio`` serves with a key + ambient light by default (viser's HDR
+    environment map costs ~10 s to a software-rendered first frame); ``--environment-map``
+    turns it on, and the flag reaches the app."""
+    import fxspace.cli as cli
+    import fxspace.studio as studio
+    from fxspace.studio._server import ServeOptions
+
+    assert ServeOptions().environment_map is False
+    seen = []
+    monkeypatch.setattr(cli, "studio_target", lambda target, out=None: tmp_path)
+    monkeypatch.setattr(studio, "serve", lambda target, **kw: seen.append(kw))
+    assert cli.main(["studio", str(tmp_path), "--port", "0"]) == 0
+    assert cli.main(["studio", str(tmp_path), "--port", "0", "--environment-map"]) == 0
+    assert [kw["environment_map"] for kw in seen] == [False, True]

@@ -1,0 +1,151 @@
+"""Navigation on the sparse hierarchy (issue 24): routes refined level by level to frames."""
+
+import jax
+import numpy as np
+import pytest
+
+import fxspace as fx
+from fxspace.navigation import (
+    NavigationError,
+    Route,
+    is_graph_walk,
+    sparse_bridge_keys,
+    sparse_hierarchy,
+    sparse_make_route,
+    sparse_navigate,
+    sparse_path_candidates,
+    sparse_refine_route,
+)
+
+
+@pytest.fixture(scope="module")
+def space():
+    rng = np.random.default_rng(0)
+    n = 600
+    t = rng.uniform(0, 3 * np.pi, n)
+    X = np.stack([t * np.cos(t), t * np.sin(t), rng.normal(0, 1.0, n)], 1)
+    g = fx.neighbourhood_graph(X, k=8, reduce_dim=None)
+    assert fx.expression.sparse_components(g)[0] == 1
+    Y = X[:, :2]
+    h = sparse_hierarchy(Y, g, levels=3, c0=4, key=jax.random.key(0), finest=True)
+    W = fx.expression.to_scipy(g).toarray()
+    W[W == 0] = np.inf
+    return Y, g, h, W
+
+
+def _linked(lv, cs):
+    return all(bool(lv.links[a, b]) for a, b in zip(cs[:-1], cs[1:], strict=True))
+
+
+def test_navigate_links_every_level_and_walks_the_graph(space):
+    Y, g, h, W = space
+    keys, _ = sparse_bridge_keys(h, g, 0, [0, 2, 3, 1])
+    routes = sparse_navigate(h, Y, g, keys)
+    assert [r.level for r in routes] == list(range(len(h)))
+    for r in routes:
+        lv = h[r.level]
+        assert _linked(lv, r.centres)
+        if r.level > 0:  # refinement cuts loops: no centre repeats
+            assert len(set(r.centres)) == len(r.centres)
+        assert np.array_equal(r.key_frames, lv.center_frames[list(r.centres)])
+        assert is_graph_walk(r.frames, W)
+        assert r.frames[0] == r.key_frames[0] and r.frames[-1] == r.key_frames[-1]
+    fine = routes[-1]
+    # at the finest level every frame is a centre: the key frames are the frames
+    assert np.array_equal(fine.frames, fine.key_frames)
+    # the route spans the animator's first to last frame down to the frames
+    one_way = sparse_navigate(h, Y, g, sparse_bridge_keys(h, g, 0, [0, 3])[0])
+    anchors = one_way[0].anchors
+    assert one_way[-1].frames[0] == anchors[0] and one_way[-1].frames[-1] == anchors[-1]
+
+
+def test_frame_path_is_the_shortest_walk_through_the_keys(space):
+    Y, g, h, W = space
+    from scipy.sparse.csgraph import dijkstra
+
+    lv = h[1]
+    a = 0
+    b = int(lv.neighbours(a)[0])
+    r = sparse_make_route(h, g, 1, [a, b])
+    D = dijkstra(fx.expression.to_scipy(g), directed=False)
+    length = sum(W[u, v] for u, v in zip(r.frames[:-1], r.frames[1:], strict=True))
+    assert np.isclose(length, D[lv.center_frames[a], lv.center_frames[b]])
+    assert np.isclose(lv.lengths[a, b], D[lv.center_frames[a], lv.center_frames[b]])
+
+
+def test_unlinked_picks_are_refused_and_bridged(space):
+    Y, g, h, _ = space
+    lv = h[-1]
+    a = 0
+    nb = set(lv.neighbours(a).tolist())
+    b = next(k for k in range(1, lv.n_clusters) if k not in nb)
+    with pytest.raises(NavigationError, match="not linked"):
+        sparse_make_route(h, g, len(h) - 1, [a, b])
+    keys, notes = sparse_bridge_keys(h, g, len(h) - 1, [a, a, b])
+    assert keys[0] == a and keys[-1] == b and _linked(lv, keys)
+    assert any("dropped" in n for n in notes) and any("bridged" in n for n in notes)
+
+
+def test_refine_with_picks_and_candidates(space):
+    Y, g, h, _ = space
+    r0 = sparse_make_route(h, g, 0, [0, int(h[0].neighbours(0)[0])])
+    cands = sparse_path_candidates(h, Y, 1, r0.frames)
+    assert len(cands) and np.all(cands < h[1].n_clusters)
+    d = np.min(
+        np.linalg.norm(Y[h[1].center_frames[cands]][:, None] - Y[r0.frames][None], axis=-1), 1
+    )
+    assert np.all(d <= h[1].radius + 1e-12)
+    auto = sparse_refine_route(h, Y, g, r0)
+    assert isinstance(auto, Route) and auto.level == 1 and _linked(h[1], auto.centres)
+    picked = sparse_refine_route(h, Y, g, r0, picks=auto.centres[:2])
+    assert picked.centres == auto.centres[:2]
+    fine = sparse_navigate(h, Y, g, r0.centres, to_level=len(h) - 1)[-1]
+    with pytest.raises(NavigationError, match="finest"):
+        sparse_refine_route(h, Y, g, fine)
+
+
+def test_bad_requests_name_the_argument(space):
+    Y, g, h, _ = space
+    with pytest.raises(NavigationError, match="level"):
+        sparse_make_route(h, g, 9, [0])
+    with pytest.raises(NavigationError, match="centre 99"):
+        sparse_make_route(h, g, 0, [99])
+    with pytest.raises(NavigationError, match="centres is empty"):
+        sparse_make_route(h, g, 0, [])
+    with pytest.raises(NavigationError, match="levels"):
+        sparse_make_route([], g, 0, [0])
+    with pytest.raises(NavigationError, match="graph"):
+        sparse_make_route(h, np.eye(3), 0, [0])
+    with pytest.raises(NavigationError, match="embedding"):
+        sparse_refine_route(h, Y[:5], g, sparse_make_route(h, g, 0, [0]))
+    with pytest.raises(NavigationError, match="to_level"):
+        sparse_navigate(h, Y, g, [0], to_level=7)
+    with pytest.raises(NavigationError, match="frames"):
+        sparse_path_candidates(h, Y, 0, [])
+
+
+@pytest.mark.slow
+def test_finest_level_and_route_at_20000_frames():
+    from scipy.sparse.csgraph import connected_components
+
+    from fxspace.navigation import finest_level
+
+    rng = np.random.default_rng(1)
+    n = 20000
+    t = rng.uniform(0, 3 * np.pi, n)
+    X = np.stack([t * np.cos(t), t * np.sin(t), rng.normal(0, 1.0, n)], 1)
+    X = X.astype(np.float32)  # the tests run with x64 on: float64 would be ~10× slower here
+    g = fx.neighbourhood_graph(X, k=8, reduce_dim=None)
+    Y = X[:, :2]
+    h = sparse_hierarchy(Y, g, levels=3, c0=10, key=jax.random.key(0))
+    h.append(finest_level(Y, g))
+    top = h[-1]
+    assert top.n_clusters == n and connected_components(top.links, directed=False)[0] == 1
+    assert top.links.nnz < 20 * n  # O(T·K)
+    keys, _ = sparse_bridge_keys(h, g, 0, [0, 4, 9])
+    routes = sparse_navigate(h, Y, g, keys)
+    csr = fx.expression.to_scipy(g)
+    for r in routes:
+        assert _linked(h[r.level], r.centres)
+        f = r.frames
+        assert np.all(f[1:] != f[:-1]) and np.all(csr[f[:-1], f[1:]] > 0)
