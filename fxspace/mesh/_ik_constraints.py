@@ -55,8 +55,7 @@ from fxspace.errors import FxspaceError
 from fxspace.mesh._ik_gradients import (
     gradient_factored_from_forward,
     gradient_naive_from_forward,
-    lever_arms,
-    marker_normal_equations,
+    gram_normal_equations,
 )
 from fxspace.mesh._ik_model import IKModel, ik_forward, ik_model
 from fxspace.mesh._markers import MarkerSet
@@ -369,17 +368,13 @@ def constrained_normal_equations(
 ) -> tuple[Array, Array, Array]:
     """``(F, Jᵀr, JᵀJ)`` of every residual block (flat pose order), for
     Levenberg–Marquardt."""
-    fw = ik_forward(model, pose)
-    p = lever_arms(model, fw)
-    r = fw.markers - targets
-    g, h = marker_normal_equations(fw, p, r, cons.marker_weights)
-    wr = r if cons.marker_weights is None else cons.marker_weights[:, None] * r
-    obj = jnp.sum(wr * r)
+    obj, g, h, parts = gram_normal_equations(model, pose, targets, cons.marker_weights)
     if cons.contact is not None:
         ct = cons.contact
-        c = _contact_residual(ct, fw.markers)
+        c = _contact_residual(ct, parts.markers)
         # row k: (J_kᵀ n_k)_ad = ω_ad · (P_ka × n_k); translation n_k
-        rows = jnp.einsum("jdc,kjc->kjd", fw.axes, jnp.cross(p, ct.normals[:, None, :]))
+        p = jnp.transpose(parts.lever_arms, (2, 0, 1))  # (K, J, 3)
+        rows = jnp.einsum("jdc,kjc->kjd", parts.axes, jnp.cross(p, ct.normals[:, None, :]))
         a = jnp.concatenate([rows.reshape(rows.shape[0], -1), ct.normals], axis=1)
         aw = ct.weights[:, None] * a
         g = g + aw.T @ c

@@ -20,8 +20,9 @@ the contribution of joint ``j`` to marker ``k``. The gradient has three forms he
 * **autodiff**: ``jax.grad`` of `ik_objective`.
 
 All three share the forward pass `fxspace.ik_forward`. The analytic per-marker
-Jacobian (`ik_jacobian`) and `ik_normal_equations` feed the
-Levenberg–Marquardt solver.
+Jacobian (`ik_jacobian`) gives `ik_normal_equations`; the Levenberg–Marquardt solver
+builds the same normal equations with `gram_normal_equations` (markers minor, one
+product for the Gram matrix, few kernels: XLA:CPU pays a launch per kernel).
 
 Example:
 
@@ -32,13 +33,14 @@ g = fx.ik_gradient_factored(model, pose, targets)   # a Pose-shaped gradient
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace.mesh._ik_model import IKForward, IKModel, ik_forward, ik_objective
+from fxspace.mesh._ik_model import IKForward, IKModel, ik_forward, ik_frames, ik_objective
 from fxspace.mesh._skinning import Pose
 
 __all__ = [
@@ -54,7 +56,18 @@ __all__ = [
     "ik_normal_equations",
     "marker_normal_equations",
     "lever_arms",
+    "gram_normal_equations",
+    "GramParts",
 ]
+
+
+class GramParts(NamedTuple):
+    """What `gram_normal_equations` computes on the way (for the constraint blocks)."""
+
+    markers: Float[Array, "markers 3"]  # p_k
+    lever_arms: Float[Array, "joints 3 markers"]  # P_ka, markers minor
+    axes: Float[Array, "joints 3 3"]  # ω_ad, [joint, dof, xyz]
+
 
 Gradient = Literal["factored", "naive", "autodiff"]
 GRADIENTS: tuple[str, ...] = ("factored", "naive", "autodiff")
@@ -229,3 +242,68 @@ def marker_normal_equations(
     )
     g = jnp.concatenate([g_ang.reshape(-1), wr.sum(axis=0)])
     return g, h
+
+
+def gram_normal_equations(
+    model: IKModel,
+    pose: Pose,
+    targets: Float[Array, "markers 3"],
+    weights: Float[Array, " markers"] | None = None,
+) -> tuple[Float[Array, ""], Float[Array, " n"], Float[Array, "n n"], GramParts]:
+    """``(E_w, JᵀWr, JᵀWJ)`` of the marker residuals in few kernels (the
+    Levenberg–Marquardt kernel), plus the markers, lever arms and axes on the way.
+
+    The same normal equations as `ik_normal_equations` (``tr(G_ab) I − G_abᵀ``, see
+    `marker_normal_equations`), laid out with the markers minor (on XLA:CPU at J = 19,
+    K = 120 every kernel launch and every transposing copy costs about as much as the
+    arithmetic):
+
+    - dense contributions ``q_jk = L_j u_kj + W_kj o_j`` (``(J, 3, K)``, one batched
+      product with the model's dense skinning) and their subtree sums, one product with
+      the descendant matrix, whose extra row of ones gives the markers ``p_k = Σ_j q_jk``;
+    - ``P_ka = Σ_{j ∈ desc(a)} q_jk − (Σ_{j ∈ desc(a)} W_kj) o_a``;
+    - one product ``A (W A)ᵀ`` of the ``(3J + 4, K)`` matrix ``A = [P; r; 1]``: ``G``, the
+      ``Σ_k w_k P_ka r_kᵀ`` of the gradient, ``Σ_k w_k P_ka`` of the angle–translation
+      block, ``Σ_k w_k r_k``, ``E_w`` and ``Σ_k w_k`` at once;
+    - the ω-projections per joint pair, as `marker_normal_equations`.
+    """
+    nj, nk = model.ancestors.shape[0], targets.shape[0]
+    n3 = 3 * nj
+    frames, w = ik_frames(model, pose.angles)  # w: axes (J, dof, xyz)
+    o = frames[:, :3, 3] + pose.translation[None, :]
+    wk = model.skin[n3 : 4 * nj]  # W_kj as [j, k]
+    uw = jnp.concatenate([model.skin[:n3].reshape(nj, 3, nk), wk[:, None, :]], axis=1)
+    go = jnp.concatenate([frames[:, :3, :3], o[:, :, None]], axis=2)  # [L_j | o_j]
+    q = jnp.einsum("jrc,jck->jrk", go, uw)  # (J, 3, K)
+    dd = jnp.concatenate([model.descendants, jnp.ones((1, nj), q.dtype)], axis=0)
+    qa = (dd @ q.reshape(nj, 3 * nk)).reshape(nj + 1, 3, nk)
+    subtree = model.descendants @ wk  # Σ_{j ∈ desc(a)} W_kj (pose-independent: hoisted)
+    p = qa[:nj] - subtree[:, None, :] * o[:, :, None]  # (J, 3, K)
+    r = qa[nj] - targets.T  # (3, K)
+    pad = jnp.zeros((-(n3 + 4) % 8, nk), r.dtype)  # rows to a multiple of 8: ~20 % faster
+    a = jnp.concatenate([p.reshape(n3, nk), r, jnp.ones((1, nk), r.dtype), pad], axis=0)
+    c = a @ (a if weights is None else a * weights[None, :]).T  # (3J + 4 + pad)²
+    gm = c[:n3, :n3].reshape(nj, 3, nj, 3)  # G[a, c, b, f] = Σ_k w_k P_ka,c P_kb,f
+    x = c[:n3, n3 : n3 + 3].reshape(nj, 3, 3)  # Σ_k w_k P_ka,c r_k,f
+    s = c[:n3, n3 + 3].reshape(nj, 3)  # Σ_k w_k P_ka
+    cross = jnp.stack(
+        [x[:, 1, 2] - x[:, 2, 1], x[:, 2, 0] - x[:, 0, 2], x[:, 0, 1] - x[:, 1, 0]], axis=-1
+    )  # Σ_k w_k P_ka × r_k
+    g_ang = jnp.sum(w * cross[:, None, :], axis=-1)
+    tr = gm[:, 0, :, 0] + gm[:, 1, :, 1] + gm[:, 2, :, 2]
+    eye = np.eye(3, dtype=p.dtype)  # a literal: no kernel builds it
+    m = tr[:, None, :, None] * eye[None, :, None, :] - jnp.transpose(gm, (0, 3, 2, 1))
+    wm = jnp.einsum("adc,acbf->adbf", w, m)
+    # the second projection elementwise (as a product it needs a transposing copy)
+    h_ang = sum(wm[:, :, :, None, f] * w[None, None, :, :, f] for f in range(3)).reshape(n3, n3)
+    h_at = jnp.cross(w, s[:, None, :]).reshape(n3, 3)
+    h = jnp.concatenate(
+        [
+            jnp.concatenate([h_ang, h_at], axis=1),
+            jnp.concatenate([h_at.T, c[n3 + 3, n3 + 3] * eye], axis=1),
+        ],
+        axis=0,
+    )
+    g = jnp.concatenate([g_ang.reshape(-1), c[n3 : n3 + 3, n3 + 3]])
+    obj = c[n3, n3] + c[n3 + 1, n3 + 1] + c[n3 + 2, n3 + 2]
+    return obj, g, h, GramParts(qa[nj].T, p, w)

@@ -60,8 +60,8 @@ class IKModel(NamedTuple):
       premultiplied by the fixed base transform above it for roots, so that the posed local
       transform is ``local_rest[j] · diag(R_x R_y R_z · S_j, 1)``;
     - ``hops[s]``: the ``(2, J)`` ancestor tables of step ``s`` of the ternary pointer
-      jumping in `ik_forward` (the ``3^s``-th and ``2·3^s``-th ancestor, ``-1`` for
-      none);
+      jumping in `ik_forward` (the ``3^s``-th and ``2·3^s``-th ancestor, ``J`` for
+      none: an identity appended to the transforms);
     - ``scales[j] = (s_jx, s_jy, s_jz, 1/σ_j)``: the joint's rest scale ``S_j`` and the
       inverse of the global scale ``σ_j`` of its frame ``G_j S_j⁻¹`` (pose-independent for
       rotation + uniform scale; normalises the rotation axes);
@@ -171,7 +171,8 @@ def _quaternion_to_matrix_np(q: np.ndarray) -> np.ndarray:
 
 def _hop_tables(anc: np.ndarray) -> np.ndarray:
     """``(steps, 2, J)``: for ternary pointer jumping, the ``3^s``-th and ``2·3^s``-th
-    ancestor of each joint (``-1`` past the root); ``3^steps ≥ D``."""
+    ancestor of each joint (``J`` past the root: the identity appended to the transforms in
+    `ik_forward`, no mask); ``3^steps ≥ D``."""
     nj, depth = anc.shape
     steps, span = 0, 1
     while span < depth:
@@ -179,9 +180,8 @@ def _hop_tables(anc: np.ndarray) -> np.ndarray:
 
     def up(n: int) -> np.ndarray:
         if n >= depth:
-            return np.full(nj, -1, np.int64)
-        col = anc[:, n].astype(np.int64)
-        return np.where(col < nj, col, -1)
+            return np.full(nj, nj, np.int64)
+        return np.minimum(anc[:, n].astype(np.int64), nj)
 
     return np.array([[up(3**s), up(2 * 3**s)] for s in range(steps)], dtype=np.int32).reshape(
         steps, 2, nj
@@ -277,6 +277,37 @@ def _euler_rows(e: Float[Array, "joints 3"]) -> tuple[Array, Array, Array]:
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2), cz, sz
 
 
+def _global_frames(model: IKModel, angles: Float[Array, "joints 3"]):
+    """Posed global transforms ``G_j`` (without the world translation) by ternary pointer
+    jumping, and the Euler axes' local directions ``v_jd`` (scaled by ``1/σ_j`` and
+    ``S_j⁻¹``, so that ``ω_jd = L_j v_jd``); see `ik_forward`."""
+    rot, cz, sz = _euler_rows(angles)
+    lr, sc = model.local_rest, model.scales
+    rs = rot * sc[:, None, :3]  # R_x R_y R_z S_j
+    g = jnp.concatenate([_mm_unrolled(lr[:, :, :3], rs), lr[:, :, 3:]], axis=2)  # (J, 4, 4)
+    eye = np.eye(4, dtype=g.dtype)[None]  # a literal: no kernel builds it
+    for step in range(model.hops.shape[0]):
+        # (2, J, 4, 4), index J: none; "clip" (in range anyway): no negative-index wrap
+        up = jnp.take(jnp.concatenate([g, eye]), model.hops[step], axis=0, mode="clip")
+        g = _mm_reduce(_mm_unrolled(up[1], up[0]), g)
+    # ω_jd = L_j S_j⁻¹ v_jd / σ_j with v_jx = E_jᵀ e_x, v_jy = R_zᵀ e_y, v_jz = e_z
+    zero = jnp.zeros_like(cz)
+    v = jnp.stack(
+        [rot[:, 0, :], jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, zero + 1], -1)], 1
+    )
+    return g, v * (sc[:, 3:] / sc[:, :3])[:, None, :]
+
+
+def ik_frames(model: IKModel, angles: Float[Array, "joints 3"]) -> tuple[Array, Array]:
+    """Posed global transforms ``G_j`` (``(J, 4, 4)``, without the world translation) and
+    the unit world Euler axes ``ω_jd`` (``(J, dof, xyz)``), the axes as one elementwise
+    kernel (no batched product: the Levenberg–Marquardt kernel, where every kernel launch
+    counts)."""
+    g, v = _global_frames(model, angles)
+    axes = sum(g[:, None, :3, c] * v[:, :, c : c + 1] for c in range(3))
+    return g, axes
+
+
 def ik_forward(model: IKModel, pose: Pose) -> IKForward:
     """Forward kinematics + marker skinning at ``pose`` (shared by all gradient forms).
 
@@ -299,23 +330,9 @@ def ik_forward(model: IKModel, pose: Pose) -> IKForward:
     recomputing) the forward pass into its own kernels: both analytic gradients pay for
     the same forward pass.
     """
-    rot, cz, sz = _euler_rows(pose.angles)
-    lr, sc = model.local_rest, model.scales
-    rs = rot * sc[:, None, :3]  # R_x R_y R_z S_j
-    g = jnp.concatenate([_mm_unrolled(lr[:, :, :3], rs), lr[:, :, 3:]], axis=2)  # (J, 4, 4)
-    eye = jnp.eye(4, dtype=g.dtype)
-    for step in range(model.hops.shape[0]):
-        h = model.hops[step]  # (2, J)
-        up = jnp.where((h >= 0)[:, :, None, None], g[jnp.maximum(h, 0)], eye[None, None])
-        g = _mm_reduce(_mm_unrolled(up[1], up[0]), g)
+    g, v = _global_frames(model, pose.angles)
     o = g[:, :3, 3] + pose.translation[None, :]
     lin = g[:, :3, :3]
-    # ω_jd = L_j S_j⁻¹ v_jd / σ_j with v_jx = E_jᵀ e_x, v_jy = R_zᵀ e_y, v_jz = e_z
-    zero = jnp.zeros_like(cz)
-    v = jnp.stack(
-        [rot[:, 0, :], jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, zero + 1], -1)], 1
-    )
-    v = v * (sc[:, 3:] / sc[:, :3])[:, None, :]
     v = jnp.concatenate([v, jnp.zeros_like(v[..., :1])], axis=-1)
     axes = jnp.einsum("jrc,jdc->jdr", g, v)[..., :3]  # (J, dof, xyz)
     gm = g[model.marker_joints][..., :3, :]  # (K, N, 3, 4)
