@@ -35,6 +35,7 @@ from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
+from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr
 from fxspace.expression._sparse import graph_from_dense as graph_from_dense
 from fxspace.expression._sparse import neighbourhood_graph as neighbourhood_graph
 from fxspace.expression._sparse import sparse_components as sparse_components
@@ -78,6 +79,7 @@ __all__ = [
     "sparse_components",
     "sparse_shortest_path",
     "to_scipy",
+    "dijkstra_csr",
     "GapFill",
     "fill_gaps",
     "missing_report",

@@ -39,8 +39,7 @@ from jaxtyping import Array, Float
 
 from fxspace.cluster import SparseFCMResult, sparse_fuzzy_cmeans
 from fxspace.errors import FxspaceError
-from fxspace.expression import NeighbourGraph, sparse_shortest_path
-from fxspace.expression._sparse import dijkstra_csr
+from fxspace.expression import NeighbourGraph, dijkstra_csr, sparse_shortest_path
 
 __all__ = [
     "SparseLevel",
