@@ -38,10 +38,10 @@ class ServeOptions:
     **Fields:** `port` (``0`` picks a free one), `host` (``127.0.0.1``: local only),
     `fps` of the player, `block` (serve until Ctrl-C; ``False`` returns the running
     server, as tests do), `environment_map` (viser's image-based lighting, an HDR
-    environment; off by default: a soft ambient + a key light instead. On a page rendered
-    in software WebGL the environment map's pre-filtering alone delays the first frame by
-    ~10 s, measured with experiments/bench_studio.py; ``fxspace studio --environment-map``
-    turns it on).
+    environment; off by default: a soft ambient + a key light instead, and no shadow maps.
+    On a page rendered in software WebGL the environment map's pre-filtering alone delays
+    the first frame by ~10 s, and shadow maps make a playing app's page fall behind;
+    ``fxspace studio --environment-map`` turns both back on).
     """
 
     port: int = 8080
@@ -66,6 +66,10 @@ def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = False
         # without the image-based light, a soft ambient + a key light from the viewer
         server.scene.add_light_ambient("/lights/ambient", intensity=0.8)
         server.scene.add_light_point("/lights/key", intensity=12.0, position=(0.5, 1.5, 4.0))
+        # and no shadow maps: rendered in software (no GPU), a page drawing shadows every
+        # frame could not keep up with a playing app (measured: the motion app's page never
+        # answered a screenshot while playing with shadows, and did at once without)
+        server.scene.configure_default_lights(True, cast_shadow=False)
     server.scene.set_up_direction("+y")
     return server
 
