@@ -14,10 +14,11 @@ canvas screenshot that differs from the one of an empty viser scene. Timed from 
 
 Each app is opened twice: **cold** (an empty JAX compilation cache: every kernel compiled, as
 on a first install) and **cached** (the same cache again: what every later launch costs).
-A config whose run folder is not complete is run first (its time, shown as ``prepare``, is
-not part of the cold figure), and so are the configs it reads (``--needs``: the threshold
-sweep the navigation takes its ε from). Apps are independent processes, so the figures are the
-user's; the machine may be shared (times are noisy). Usage:
+A config whose run folder is not complete, or not current (other code), is run first (its
+time, shown as ``prepare``, is not part of the cold figure), and so are the configs it
+reads (``--needs``: the threshold sweep the navigation takes its ε from). Apps are
+independent processes, so the figures are the user's; the machine may be shared (times
+are noisy). Usage:
 ``python experiments/bench_studio.py [CONFIG | RUN_DIR ...] [--runs runs] [--timeout 600]
 [--json out]`` (a finished run folder is opened as it is: ``fxspace studio RUN_DIR``).
 """
@@ -73,12 +74,32 @@ def _differs(a: np.ndarray, b: np.ndarray | None, frac: float = 0.002) -> bool:
 
 
 def _canvas_png(page) -> bytes | None:
+    """The canvas as the page shows it now. Chrome's own capture (DevTools protocol,
+    ``optimizeForSpeed``) takes ≈ 0.3 s of a software-rendered page that is playing;
+    playwright's element screenshot waits for a stable page and took 2–4 s there, which
+    delayed the frame the benchmark saw, not the one the user saw."""
+    import base64
+
     canvas = page.locator("canvas").first
     try:
         canvas.wait_for(timeout=1000)
-        return canvas.screenshot(timeout=5000)
+        box = canvas.bounding_box(timeout=2000)
+        if box is None or box["width"] < 1 or box["height"] < 1:
+            return None
+        cdp = getattr(page, "_fxspace_cdp", None)
+        if cdp is None:
+            cdp = page._fxspace_cdp = page.context.new_cdp_session(page)
+        clip = {k: box[k] for k in ("x", "y", "width", "height")}
+        shot = cdp.send(
+            "Page.captureScreenshot",
+            {"format": "png", "optimizeForSpeed": True, "clip": {**clip, "scale": 1}},
+        )
+        return base64.b64decode(shot["data"])
     except Exception:  # not attached yet, or mid-reload
-        return None
+        try:
+            return canvas.screenshot(timeout=5000)
+        except Exception:
+            return None
 
 
 def _wait_http(port: int, proc: subprocess.Popen, deadline: float) -> None:
@@ -204,24 +225,28 @@ def launch(config: Path, run_dir: Path, cache: Path, pw, exe: str, base, timeout
     return out
 
 
-def _complete(run_dir: Path) -> bool:
+def _status(run_dir: Path) -> tuple:
     import json
 
     try:
-        return json.loads((run_dir / "status.json").read_text()).get("status") == "complete"
+        st = json.loads((run_dir / "status.json").read_text())
+        return st.get("status"), st.get("key")
     except (OSError, ValueError):
-        return False
+        return None, None
 
 
-def _prepare(config: Path, run_dir: Path, cache: Path) -> float:
-    """Run the config once (``fxspace run``) so the app opens a complete run folder."""
+def _prepare(config: Path, run_dir: Path, cache: Path) -> float | None:
+    """``fxspace run CONFIG --out RUN`` so the app opens a complete run folder *of the
+    current config, data and code* (a run of older code is rerun: its stored stages would
+    not be read); the seconds it took, or None when the folder was already current."""
     env = {**os.environ, "FXSPACE_COMPILE_CACHE": str(cache), "FXSPACE_QUIET": "1"}
+    before = _status(run_dir)
     t = time.monotonic()
     subprocess.run(
         [sys.executable, "-m", "fxspace.cli", "run", str(config), "--out", str(run_dir)],
         cwd=ROOT, env=env, check=True, stdout=subprocess.DEVNULL,
     )  # fmt: skip
-    return time.monotonic() - t
+    return None if _status(run_dir) == before else time.monotonic() - t
 
 
 def _fmt(r: dict, key: str) -> str:
@@ -256,12 +281,12 @@ def main(argv=None) -> int:
         floor = browser_floor(pw, exe, base)
         print(f"floor: browser launch to the first frame of a bare viser scene {floor:.1f} s")
         for need in map(Path, a.needs):
-            if not _complete(Path(a.runs) / need.stem):
-                try:
-                    t = _prepare(need, Path(a.runs) / need.stem, Path(tmp) / "warm-cache")
+            try:
+                t = _prepare(need, Path(a.runs) / need.stem, Path(tmp) / "warm-cache")
+                if t is not None:
                     print(f"ran {need.name} first ({t:.0f} s)", flush=True)
-                except subprocess.CalledProcessError as e:
-                    print(f"running {need.name} first failed ({e.returncode})", flush=True)
+            except subprocess.CalledProcessError as e:
+                print(f"running {need.name} first failed ({e.returncode})", flush=True)
         print(
             f"time to first rendered frame of `fxspace studio CONFIG` (s from launch); cold = "
             f"empty JAX compilation cache, cached = second launch; {os.cpu_count()} CPUs, "
@@ -275,8 +300,8 @@ def main(argv=None) -> int:
             warm = Path(tmp) / "warm-cache"  # runs the config if needed, compiles its stages
             row: dict = {"config": str(config), "run_dir": str(run_dir)}
             try:
-                if not _complete(run_dir):
-                    row["prepare_s"] = _prepare(config, run_dir, warm)
+                if not config.is_dir() and (t := _prepare(config, run_dir, warm)) is not None:
+                    row["prepare_s"] = t
             except subprocess.CalledProcessError as e:
                 row["error"] = f"fxspace run failed ({e.returncode})"
             if "error" not in row:

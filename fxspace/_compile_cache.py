@@ -22,6 +22,11 @@ fxspace's kernels on a CPU); fxspace lowers it to `MIN_COMPILE_TIME_S` unless th
 set it. The cache is an optimisation only: a folder that cannot be created leaves the cache
 off, never an error.
 
+`cached_executable` goes one step further for an app's hot per-frame kernel: the compiled
+executable itself is serialised to disk (CPU), keyed by the function, fxspace's code, JAX's
+version, the device and the arguments' structure and shapes, so a new process skips tracing
+and lowering too (seconds for a large step function), not only XLA's compilation.
+
 `compile_timer` splits a block's wall time into compile time (tracing, lowering and
 backend compilation or cache retrieval, from `jax.monitoring`'s duration events) and the
 rest (compute); pipelines record it in ``meta.json`` under ``"timing"``.
@@ -44,6 +49,9 @@ __all__ = [
     "compile_cache_dir",
     "CompileTimer",
     "compile_timer",
+    "cached_executable",
+    "CachedExecutable",
+    "executable_cache_dir",
 ]
 
 ENV = "FXSPACE_COMPILE_CACHE"
@@ -214,3 +222,201 @@ class CompileTimer:
 def compile_timer() -> CompileTimer:
     """A `CompileTimer` context manager: ``with compile_timer() as t: ...; t.summary()``."""
     return CompileTimer()
+
+
+# ------------------------------------------------------------------ serialised executables
+#: executables kept on disk (the oldest files beyond this are removed when one is written)
+MAX_EXECUTABLES = 32
+_LAPACK = "lapack_"
+_MEMO: dict[str, Any] = {}
+_MEMO_LOCK = threading.Lock()
+_CODE: list[str] = []
+
+
+def executable_cache_dir() -> Path | None:
+    """Where `cached_executable` keeps executables: beside JAX's compilation cache folder
+    (``…/fxspace/jax-executables`` by default); ``None`` when the compilation cache is off."""
+    base = compile_cache_dir()
+    return None if base is None else base.with_name(base.name + "-executables")
+
+
+def _code_version() -> str:
+    if not _CODE:
+        from fxspace.runs import code_digest
+
+        _CODE.append(code_digest())
+    return _CODE[0]
+
+
+def _executable_key(fn: Any, args: tuple) -> str:
+    import hashlib
+    import sys
+
+    import jax
+    import jaxlib
+
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    dev = jax.devices()[0]
+    h = hashlib.sha256()
+    for part in (
+        getattr(fn, "__module__", ""),
+        getattr(fn, "__qualname__", repr(fn)),
+        _code_version(),
+        jax.__version__,
+        jaxlib.__version__,
+        sys.version,
+        dev.platform,
+        getattr(dev, "device_kind", ""),
+        str(jax.config.jax_enable_x64),
+        str(jax.config.jax_default_matmul_precision),
+        os.environ.get("XLA_FLAGS", ""),
+        str(tree),
+    ):
+        h.update(str(part).encode() + b"\0")
+    for x in leaves:
+        a = jax.typeof(x)
+        h.update(f"{a.shape}|{a.dtype}|{getattr(a, 'weak_type', False)};".encode())
+    return h.hexdigest()
+
+
+def _custom_targets(lowered: Any) -> set[str]:
+    import re
+
+    text = lowered.as_text()
+    found = re.findall(r'custom_call @([\w.]+)|call_target_name = "([\w.]+)"', text)
+    return {a or b for a, b in found}
+
+
+def _prepare_targets(targets: set[str]) -> bool:
+    """Make the executable's custom calls callable in this process (LAPACK's function
+    pointers are set when JAX first lowers a LAPACK call; a deserialised executable skips
+    that and would call a null pointer). False when a target is not one we can prepare."""
+    if any(not t.startswith(_LAPACK) for t in targets):
+        return False
+    if targets:
+        try:
+            import numpy as np
+            from jaxlib import lapack
+
+            lapack.prepare_lapack_call("syevd_ffi", np.dtype(np.float32))
+        except Exception:  # noqa: BLE001 - another jaxlib layout: do not deserialise
+            return False
+    return True
+
+
+def _mark_unserialisable(path: Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.with_suffix(".noexe").touch()
+    except OSError:
+        pass
+
+
+def _prune(folder: Path) -> None:
+    files = sorted(folder.glob("*.exe"), key=lambda f: f.stat().st_mtime)
+    for f in sorted(folder.glob("*.noexe"), key=lambda f: f.stat().st_mtime)[:-MAX_EXECUTABLES]:
+        try:
+            f.unlink()
+        except OSError:
+            pass
+    for f in files[:-MAX_EXECUTABLES]:
+        try:
+            f.unlink()
+        except OSError:
+            pass
+
+
+class CachedExecutable:
+    """A jitted function compiled ahead of time for one argument structure (see
+    `cached_executable`). Calling it runs the compiled executable; arguments of another
+    structure or shape fall back to the jitted function (correct, compiled as usual).
+
+    ``source`` says where the executable came from: ``"disk"`` (deserialised),
+    ``"compiled"`` (lowered and compiled in this process, then written when XLA can
+    serialise it), or ``"jit"`` (no executable: the cache is off, not a CPU, or an earlier
+    process found that XLA cannot serialise this program).
+    """
+
+    def __init__(self, fn: Any, compiled: Any, source: str):
+        self.fn = fn
+        self.compiled = compiled
+        self.source = source
+
+    def __call__(self, *args: Any) -> Any:
+        if self.compiled is not None:
+            try:
+                return self.compiled(*args)
+            except TypeError:  # another structure, dtype or shape than it was built for
+                pass
+        return self.fn(*args)
+
+
+def cached_executable(fn: Any, *args: Any) -> CachedExecutable:
+    """`fn` (a ``jax.jit`` function) compiled for `args`' structure and shapes, kept on disk.
+
+    The first process lowers and compiles `fn` (through JAX's compilation cache as usual)
+    and writes the serialised executable to `executable_cache_dir`; later processes load
+    it (no tracing, no lowering). The key covers the function's name, fxspace's source
+    (`fxspace.runs.code_digest`), JAX / jaxlib / Python versions, the device, the x64 and
+    matmul-precision settings, ``XLA_FLAGS`` and the arguments' tree structure (static
+    fields included) and shapes / dtypes: another version or configuration is compiled
+    afresh, never served. Only on CPU (elsewhere the function is returned as is) and only
+    for programs whose custom calls are LAPACK's; a file that cannot be read is
+    recompiled. The executable is compiled outside JAX's persistent cache (one read from it
+    serialises without its code). XLA cannot serialise every program (it depends on what
+    the process compiled before): such a key is marked, and later processes use the
+    jitted function through JAX's cache. Within a process the result is memoised by key.
+    """
+    import pickle
+
+    import jax
+
+    folder = executable_cache_dir()
+    if folder is None or jax.devices()[0].platform != "cpu":
+        return CachedExecutable(fn, None, "jit")
+    key = _executable_key(fn, args)
+    with _MEMO_LOCK:
+        if key in _MEMO:
+            return _MEMO[key]
+    from jax.experimental import serialize_executable as se
+
+    path = folder / f"{key}.exe"
+    out = None
+    if path.with_suffix(".noexe").exists():  # known not to serialise: the jitted function
+        out = CachedExecutable(fn, None, "jit")  # (through JAX's compilation cache)
+    elif path.exists():
+        try:
+            with open(path, "rb") as f:
+                payload, in_tree, out_tree, targets = pickle.load(f)
+            if _prepare_targets(set(targets)):
+                out = CachedExecutable(
+                    fn, se.deserialize_and_load(payload, in_tree, out_tree), "disk"
+                )
+                os.utime(path)
+        except Exception:  # noqa: BLE001 - a torn or foreign file: compile instead
+            out = None
+    if out is None:
+        lowered = fn.lower(*args)
+        targets = _custom_targets(lowered)
+        # compiled here, not read from the persistent cache: an executable that was itself
+        # loaded from that cache serialises without its code (calls then fail)
+        from jax._src import config as _config
+
+        with _config.enable_compilation_cache(False):
+            compiled = lowered.compile()
+        out = CachedExecutable(fn, compiled, "compiled")
+        if not _prepare_targets(targets):
+            _mark_unserialisable(path)
+        else:
+            try:
+                blob = pickle.dumps((*se.serialize(compiled), sorted(targets)))
+                folder.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(blob)
+                os.replace(tmp, path)
+                _prune(folder)
+            except Exception:  # noqa: BLE001 - XLA cannot serialise every program
+                _mark_unserialisable(path)
+    with _MEMO_LOCK:
+        _MEMO[key] = out
+    return out

@@ -35,6 +35,7 @@ from fxspace.motion._locomotion import heading_angle as heading_angle
 from fxspace.motion._locomotion import init_locomotion as init_locomotion
 from fxspace.motion._locomotion import locomotion as locomotion
 from fxspace.motion._locomotion import locomotion_step as locomotion_step
+from fxspace.motion._locomotion import locomotion_stepper as locomotion_stepper
 from fxspace.motion._locomotion import turn_table as turn_table
 from fxspace.motion._locomotion import turn_to_lower_param as turn_to_lower_param
 from fxspace.motion._locomotion import world_positions as world_positions
@@ -180,6 +181,7 @@ __all__ = [
     "TurnTable",
     "heading_angle",
     "init_locomotion",
+    "locomotion_stepper",
     "locomotion",
     "locomotion_step",
     "turn_table",

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._compile_cache import cached_executable
 from fxspace._validate import check_scalar
 from fxspace.errors import FxspaceError
 from fxspace.motion._blend import blend_pose, blend_quaternions, pose_at, warp_times
@@ -50,6 +51,7 @@ __all__ = [
     "TurnTable",
     "init_locomotion",
     "locomotion_step",
+    "locomotion_stepper",
     "locomotion",
     "turn_table",
     "turn_to_lower_param",
@@ -138,18 +140,23 @@ def init_locomotion(
 ) -> LocomotionState:
     """The walker at the start of the cycle, at ``position`` (default the origin), facing
     ``yaw`` (radians about +Y)."""
+    dtype = sp.lam.dtype
+    pos = jnp.zeros(3, dtype) if position is None else jnp.asarray(position, dtype)
+    args = (sp, jnp.asarray(lower_param, dtype), pos, jnp.asarray(yaw, dtype))
+    # one program (not hundreds of eager ops), kept on disk for the next process
+    return cached_executable(_init_locomotion, *args)(*args)
+
+
+@jax.jit
+def _init_locomotion(sp, lower_param, position, yaw):
     s = init_state(sp, lower_param)
     dtype = sp.lam.dtype
-    pos = (
-        jnp.zeros(3, dtype)
-        if position is None
-        else jnp.asarray(position, dtype) * jnp.asarray([1.0, 0.0, 1.0], dtype)
-    )
+    pos = position * jnp.asarray([1.0, 0.0, 1.0], dtype)
     J = len(sp.parents)
     ident = jnp.zeros((J, 4), dtype).at[:, 0].set(1.0)
     z = jnp.zeros((), dtype)
     wU = jnp.zeros(sp.upper.warps.shape[0], dtype)  # none yet: the first step takes its own
-    return LocomotionState(s, pos, jnp.asarray(yaw, dtype), z, ident, z, wU)
+    return LocomotionState(s, pos, yaw, z, ident, z, wU)
 
 
 def _wrap_offset(sp, state, wL, wU, wrapped, decay):
@@ -227,6 +234,39 @@ def locomotion_step(
     return _locomotion_step(sp, state, upper_param, lower_param, alpha, dt)
 
 
+def locomotion_stepper(
+    sp: SynthesisSpaces,
+    state: LocomotionState,
+    upper_param: Float[Array, " p"],
+    lower_param: Float[Array, " d"],
+):
+    """`locomotion_step` for this set-up, compiled ahead of time: the function an
+    interactive controller calls every frame.
+
+    The compiled step is kept on disk beside fxspace's compilation cache
+    (``FXSPACE_COMPILE_CACHE``; not when the cache is off), so a new process that opens
+    the same set-up skips tracing and lowering the step as well as compiling it. The
+    example arguments give the shapes (``state`` from `init_locomotion`, the parameters of
+    the set-up's dimensions).
+
+    **Returns:** ``step(state, upper_param, lower_param, alpha=0.5, dt=1.0) -> (state,
+    pose)``, the same contract as `locomotion_step` (``alpha`` / ``dt`` checked; other
+    shapes fall back to the jitted step).
+    """
+    dtype = sp.lam.dtype
+    ex = (sp, state, jnp.asarray(upper_param, dtype), jnp.asarray(lower_param, dtype),
+          np.asarray(0.5, dtype), np.asarray(1.0, dtype))  # fmt: skip
+    exe = cached_executable(_locomotion_step, *ex)
+
+    def step(state, upper_param, lower_param, alpha=0.5, dt=1.0):
+        check_step_controls(alpha, dt)
+        return exe(sp, state, jnp.asarray(upper_param, dtype), jnp.asarray(lower_param, dtype),
+                   np.asarray(alpha, dtype), np.asarray(dt, dtype))  # fmt: skip
+
+    step.source = exe.source
+    return step
+
+
 @jax.jit
 def locomotion(
     sp: SynthesisSpaces,
@@ -266,6 +306,12 @@ jax.tree_util.register_dataclass(
 def _sample_turn_rates(sp: SynthesisSpaces, rate: float) -> np.ndarray:
     """Heading change of every lower sample over the reference cycle, degrees per second
     (the blend's duration: its weighted example lengths)."""
+    args = (sp, jnp.asarray(rate, sp.lam.dtype))
+    return np.asarray(cached_executable(_turn_rates, *args)(*args), np.float64)
+
+
+@jax.jit
+def _turn_rates(sp, rate):
     end = sp.lam.shape[0] - 1.0
 
     def one(w):
@@ -273,7 +319,7 @@ def _sample_turn_rates(sp: SynthesisSpaces, rate: float) -> np.ndarray:
         dur = jnp.sum(w * (sp.lower.warps[:, -1] - sp.lower.warps[:, 0])) / rate
         return jnp.degrees(dyaw) / jnp.maximum(dur, 1e-6)
 
-    return np.asarray(jax.jit(jax.vmap(one))(sp.lower_weights), np.float64)
+    return jax.vmap(one)(sp.lower_weights)
 
 
 def turn_table(sp: SynthesisSpaces, rate: float, n_grid: int = 101) -> TurnTable:

@@ -78,6 +78,9 @@ class MotionController:
         self.hand_param = np.asarray(sp.upper_params[0], np.float64) if self.parametric else None
         self._lag = [np.concatenate([self.lower_param, self._upper_target()])] * 2
         self.state = M.init_locomotion(sp, jnp.asarray(self.lower_param, sp.lam.dtype))
+        up, low = self._params()
+        # compiled ahead of time and kept on disk: a new process skips tracing the step
+        self._step = M.locomotion_stepper(sp, self.state, up, low)
         self.cycle_origin = (np.zeros(3), 0.0)
         self.recording: list[tuple[np.ndarray, np.ndarray]] | None = None
         self.frame = 0
@@ -165,7 +168,7 @@ class MotionController:
 
     def _pose_now(self):
         up, low = self._params()
-        _, pose = M.locomotion_step(self.sp, self.state, up, low, self.alpha, 0.0)
+        _, pose = self._step(self.state, up, low, self.alpha, 0.0)
         return np.asarray(pose.rotations), np.asarray(pose.root)
 
     def step(self) -> None:
@@ -176,7 +179,7 @@ class MotionController:
         self._lag = [a, M.smooth_controls(self._lag[1], a, dt_s, tau)]
         up, low = self._params()
         cycles = float(self.state.cycles)
-        self.state, pose = M.locomotion_step(self.sp, self.state, up, low, self.alpha, 1.0)
+        self.state, pose = self._step(self.state, up, low, self.alpha, 1.0)
         if float(self.state.cycles) != cycles:  # a new cycle starts here
             self.cycle_origin = (np.asarray(self.state.position, np.float64),
                                  float(self.state.yaw))  # fmt: skip

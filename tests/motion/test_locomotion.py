@@ -164,3 +164,62 @@ def test_registration_result_flags_nan_features():
     assert np.isnan(bad.warps[2]).all() and np.isfinite(bad.warps[:2]).all()
     with pytest.raises(fx.FxspaceError, match="register_dtw"):
         M.register_dtw(f, throw=True)
+
+
+_STEPPER_CHILD = """
+import json, sys
+sys.path[:0] = [sys.argv[1], sys.argv[1] + "/.."]
+import jax
+jax.config.update("jax_enable_x64", True)  # as the test suite runs
+import jax.numpy as jnp, numpy as np
+from fxspace import motion as M
+from test_locomotion import _spaces
+uj = int(sys.argv[2])
+sp = _spaces(uj)
+low = jnp.asarray(sp.lower_params[1])
+up = jnp.asarray(sp.upper_params[0]) if uj >= 0 else jnp.asarray([0.7, 0.3])
+st = M.init_locomotion(sp, low)
+step = M.locomotion_stepper(sp, st, up, low)
+roots = []
+for k in range(30):
+    st, pose = step(st, up, low + 0.01 * k, 0.5, 1.0)
+    roots.append(np.asarray(pose.root).tolist())
+print("RESULT", json.dumps({"source": step.source, "roots": roots,
+                            "cycles": float(st.cycles)}))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("upper_joint", [7, -1])
+def test_stepper_is_locomotion_step_compiled_and_read_back(tmp_path, upper_joint):
+    """`locomotion_stepper` (what the live controller calls each frame): the first process
+    compiles the step and writes it, the next reads it back (no tracing) and walks the same
+    30 frames (across a wrap of the 20-frame cycle) as `locomotion_step` does here: a
+    parametric upper space (Horn re-placement, a LAPACK eigh inside) and a style one."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "FXSPACE_COMPILE_CACHE": str(tmp_path / "jax"), "JAX_PLATFORMS": "cpu"}
+    here = str(Path(__file__).resolve().parent)
+    got = []
+    for _ in range(2):
+        r = subprocess.run([sys.executable, "-c", _STEPPER_CHILD, here, str(upper_joint)],
+                           env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+        assert r.returncode == 0, r.stderr[-2000:]
+        line = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+        got.append(json.loads(line[len("RESULT ") :]))
+    assert [g["source"] for g in got] == ["compiled", "disk"]
+    assert got[1]["roots"] == got[0]["roots"]  # the same executable
+    sp = _spaces(upper_joint)
+    low = jnp.asarray(sp.lower_params[1])
+    up = jnp.asarray(sp.upper_params[0]) if upper_joint >= 0 else jnp.asarray([0.7, 0.3])
+    st = M.init_locomotion(sp, low)
+    for k in range(30):
+        st, pose = M.locomotion_step(sp, st, up, low + 0.01 * k, 0.5, 1.0)
+        np.testing.assert_allclose(got[1]["roots"][k], np.asarray(pose.root), atol=1e-9)
+    assert got[1]["cycles"] == float(st.cycles) >= 1
+    with pytest.raises(fx.errors.FxspaceError):  # the stepper checks its controls
+        M.locomotion_stepper(sp, st, up, low)(st, up, low, 1.5, 1.0)
