@@ -60,6 +60,7 @@ from fxspace.motion._setups import Setup as Setup
 from fxspace.motion._setups import SetupData as SetupData
 from fxspace.motion._setups import SetupSpace as SetupSpace
 from fxspace.motion._setups import prepare_setup as prepare_setup
+from fxspace.motion._setups import setup_takes as setup_takes
 from fxspace.motion._space import extract_window as extract_window
 from fxspace.motion._space import find_key_times as find_key_times
 from fxspace.motion._space import stack_examples as stack_examples
@@ -135,6 +136,7 @@ __all__ = [
     "SetupData",
     "SetupSpace",
     "prepare_setup",
+    "setup_takes",
     "extract_window",
     "find_key_times",
     "stack_examples",

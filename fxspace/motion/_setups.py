@@ -25,6 +25,7 @@ from typing import Literal, NamedTuple
 import jax
 import numpy as np
 
+from fxspace.errors import FxspaceError
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._register import alignment_curve, gait_window, pose_features, register_dtw
 from fxspace.motion._space import extract_window, find_key_times, stack_examples
@@ -33,7 +34,15 @@ from fxspace.motion._synthesis import SynthesisSpaces, build_spaces
 from fxspace.motion._timewarp import keytime_warp
 from fxspace.rotations import quat_conj, quat_rotate
 
-__all__ = ["SetupName", "SETUPS", "SetupData", "SetupSpace", "Setup", "prepare_setup"]
+__all__ = [
+    "SetupName",
+    "SETUPS",
+    "SetupData",
+    "SetupSpace",
+    "Setup",
+    "prepare_setup",
+    "setup_takes",
+]
 
 SetupName = Literal["mood_walk", "block_walk", "block_kick"]
 SETUPS: tuple[str, ...] = ("mood_walk", "block_walk", "block_kick")
@@ -174,6 +183,16 @@ def _kicks(takes, load, J, max_reps: int, rate: float):
     return clips, keysets
 
 
+def setup_takes(name: str, data: SetupData = SetupData()) -> tuple[tuple[str, ...], ...]:
+    """``(lower takes, upper takes)`` the set-up ``name`` reads: ``data``'s, else its
+    defaults (Bandai ``dataset-…`` or CMU ``SSS_TT`` names)."""
+    if not isinstance(name, str) or name not in SETUPS:
+        raise FxspaceError(f"unknown set-up {name!r}; choose one of {list(SETUPS)}")
+    if not isinstance(data, SetupData):
+        raise FxspaceError(f"data must be a SetupData, got {type(data).__name__}")
+    return tuple(data.lower or DEFAULTS[name][0]), tuple(data.upper or DEFAULTS[name][1])
+
+
 def prepare_setup(
     name: str,
     load: Callable[[str], object],
@@ -189,11 +208,8 @@ def prepare_setup(
 
     **Returns:** a `Setup` (spaces ready for `synthesize_step`).
     """
-    if name not in SETUPS:
-        raise ValueError(f"unknown set-up {name!r}; choose one of {list(SETUPS)}")
+    lower_takes, upper_takes = setup_takes(name, data)
     key = jax.random.PRNGKey(0) if key is None else key
-    lower_takes = data.lower or DEFAULTS[name][0]
-    upper_takes = data.upper or DEFAULTS[name][1]
     t0 = time.perf_counter()
     if name in ("mood_walk", "block_walk"):
         J = _NAMES["bandai"]

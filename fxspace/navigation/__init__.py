@@ -14,6 +14,7 @@ from fxspace.navigation._index import GridIndex as GridIndex
 from fxspace.navigation._links import center_links as center_links
 from fxspace.navigation._links import default_link_radius as default_link_radius
 from fxspace.navigation._links import link_graph_connected as link_graph_connected
+from fxspace.navigation._links import link_pairs as link_pairs
 from fxspace.navigation._playback import Playback as Playback
 from fxspace.navigation._playback import playback as playback
 from fxspace.navigation._playback import rigid_align as rigid_align
@@ -30,6 +31,8 @@ from fxspace.navigation._scale import SparseLevel as SparseLevel
 from fxspace.navigation._scale import finest_level as finest_level
 from fxspace.navigation._scale import frame_links as frame_links
 from fxspace.navigation._scale import sparse_hierarchy as sparse_hierarchy
+from fxspace.navigation._scale import sparse_levels_from_arrays as sparse_levels_from_arrays
+from fxspace.navigation._scale import sparse_levels_to_arrays as sparse_levels_to_arrays
 from fxspace.navigation._scale import sparse_links as sparse_links
 from fxspace.navigation._scale import sparse_route as sparse_route
 from fxspace.navigation._scale_routes import sparse_bridge_keys as sparse_bridge_keys
@@ -61,6 +64,7 @@ __all__ = [
     "default_link_radius",
     "level_sizes",
     "link_graph_connected",
+    "link_pairs",
     "nearest_frames",
     "split_centers",
     "NavigationError",
@@ -79,6 +83,8 @@ __all__ = [
     "sparse_hierarchy",
     "sparse_links",
     "sparse_route",
+    "sparse_levels_to_arrays",
+    "sparse_levels_from_arrays",
     "frame_links",
     "finest_level",
     "sparse_make_route",

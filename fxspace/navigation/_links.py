@@ -21,7 +21,7 @@ from fxspace._validate import checked
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
 
-__all__ = ["center_links", "default_link_radius", "link_graph_connected"]
+__all__ = ["center_links", "default_link_radius", "link_graph_connected", "link_pairs"]
 
 
 @checked
@@ -197,3 +197,17 @@ def link_graph_connected(level) -> bool:
     if level.links is None:
         raise FxspaceError("this level has no links")
     return len(np.unique(_components(level.links))) == 1
+
+
+def link_pairs(links) -> tuple[np.ndarray, np.ndarray]:
+    """The linked pairs ``(i, j)`` with ``i < j`` of a level's links: a dense ``(c, c)``
+    bool matrix (`Level`) or a sparse ``csr_array`` (`SparseLevel`), without densifying
+    the sparse one (for drawing the links of 100 000 centres)."""
+    if links is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if hasattr(links, "tocoo"):
+        m = links.tocoo()
+        keep = (m.row < m.col) & (np.asarray(m.data) != 0)
+        return np.asarray(m.row[keep], np.int64), np.asarray(m.col[keep], np.int64)
+    i, j = np.nonzero(np.triu(np.asarray(links), 1))
+    return i.astype(np.int64), j.astype(np.int64)

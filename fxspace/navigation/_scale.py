@@ -49,6 +49,8 @@ __all__ = [
     "finest_level",
     "sparse_hierarchy",
     "sparse_route",
+    "sparse_levels_to_arrays",
+    "sparse_levels_from_arrays",
 ]
 
 
@@ -619,3 +621,83 @@ def sparse_route(graph: NeighbourGraph, key_frames: Sequence[int]) -> np.ndarray
     for a, b in zip(keys[:-1], keys[1:], strict=True):
         frames.append(sparse_shortest_path(graph, a, b)[1:])
     return np.concatenate(frames)
+
+
+def _csr_parts(m, c: int, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if m is None:
+        return np.zeros(c + 1, np.int64), np.zeros(0, np.int64), np.zeros(0, dtype)
+    return (np.asarray(m.indptr, np.int64), np.asarray(m.indices, np.int64),
+            np.asarray(m.data, dtype))  # fmt: skip
+
+
+def sparse_levels_to_arrays(levels: Sequence[SparseLevel]) -> dict[str, np.ndarray]:
+    """Flat arrays of a sparse hierarchy (for ``.npz`` files and run caches): per level
+    the centres, their frames, ρ and the links / bridges / lengths in CSR form. The FCM
+    results are not kept (`sparse_levels_from_arrays` gives ``fcm = None``).
+
+    **Example:**
+
+    ```python
+    np.savez("h.npz", **fx.navigation.sparse_levels_to_arrays(h))
+    h2 = fx.navigation.sparse_levels_from_arrays(np.load("h.npz"))
+    ```
+    """
+    if not isinstance(levels, Sequence) or isinstance(levels, str):
+        raise FxspaceError(
+            f"levels must be a list of SparseLevel (sparse_hierarchy), got {type(levels).__name__}"
+        )
+    out: dict[str, np.ndarray] = {"n_levels": np.asarray(len(levels), np.int64)}
+    for i, lv in enumerate(levels):
+        if not isinstance(lv, SparseLevel):
+            raise FxspaceError(f"levels[{i}] must be a SparseLevel, got {type(lv).__name__}")
+        c = int(lv.n_clusters)
+        out[f"l{i}_centers"] = np.asarray(lv.centers, np.float64)
+        out[f"l{i}_center_frames"] = np.asarray(lv.center_frames, np.int64)
+        out[f"l{i}_radius"] = np.asarray(lv.radius, np.float64)
+        out[f"l{i}_links_indptr"], out[f"l{i}_links_indices"], _ = _csr_parts(lv.links, c, bool)
+        out[f"l{i}_bridges_indptr"], out[f"l{i}_bridges_indices"], _ = _csr_parts(
+            lv.bridges, c, bool
+        )
+        has = lv.lengths is not None
+        out[f"l{i}_has_lengths"] = np.asarray(has)
+        out[f"l{i}_lengths"] = _csr_parts(lv.lengths, c, np.float64)[2] if has else np.zeros(0)
+    return out
+
+
+def sparse_levels_from_arrays(arrays) -> list[SparseLevel]:
+    """The levels `sparse_levels_to_arrays` wrote (``fcm = None``; links, bridges and
+    lengths as sorted symmetric ``csr_array``\\ s again)."""
+    from scipy.sparse import csr_array
+
+    if not hasattr(arrays, "keys"):
+        raise FxspaceError(
+            f"arrays must be a mapping (dict or np.load's NpzFile) from "
+            f"sparse_levels_to_arrays, got {type(arrays).__name__}"
+        )
+    a = {k: np.asarray(arrays[k]) for k in arrays.keys()}
+    if "n_levels" not in a:
+        raise FxspaceError("not the arrays of sparse_levels_to_arrays: no 'n_levels'")
+    try:
+        return _levels_from(a, csr_array)
+    except (KeyError, ValueError, TypeError, IndexError) as e:
+        raise FxspaceError(
+            f"arrays are not a complete sparse_levels_to_arrays result: {type(e).__name__}: {e}"
+        ) from None
+
+
+def _levels_from(a: dict, csr_array) -> list[SparseLevel]:
+    out = []
+    for i in range(int(a["n_levels"])):
+        cf = a[f"l{i}_center_frames"].astype(np.int64)
+        c = len(cf)
+
+        def csr(name, data=None, c=c, i=i):
+            ind = a[f"l{i}_{name}_indices"].astype(np.int64)
+            vals = np.ones(len(ind), bool) if data is None else data
+            return csr_array((vals, ind, a[f"l{i}_{name}_indptr"].astype(np.int64)), shape=(c, c))
+
+        links = csr("links")
+        lengths = csr("links", a[f"l{i}_lengths"]) if bool(a[f"l{i}_has_lengths"]) else None
+        out.append(SparseLevel(c, a[f"l{i}_centers"], cf, links, csr("bridges"), None,
+                               float(a[f"l{i}_radius"]), lengths))  # fmt: skip
+    return out

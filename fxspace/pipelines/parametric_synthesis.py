@@ -39,6 +39,8 @@ __all__ = [
     "STAGES",
     "run",
     "load_take",
+    "take_files",
+    "data_files",
     "load_setup",
     "scripted_session",
     "session_parameters",
@@ -92,18 +94,34 @@ class Config:
             raise ConfigError("space.n_samples, data.cycles and data.max_reps must be >= 1")
 
 
+def take_files(take: str) -> list[Path]:
+    """The data files of a clip: Bandai Namco ``dataset-…`` (one BVH) or CMU ``SSS_TT``
+    (the subject's ASF and the take's AMC)."""
+    if take.startswith("dataset-"):
+        return [data_path("body", "bandai", f"{take}.bvh.gz")]
+    subj = take.split("_")[0]
+    return [data_path("body", "cmu", subj, f"{subj}.asf"),
+            data_path("body", "cmu", subj, f"{take}.amc.gz")]  # fmt: skip
+
+
+def data_files(cfg: Config) -> list[Path]:
+    """The files a run reads (for its content key): every clip of every set-up, so a run
+    (and its stored set-up) is never served after a clip changed on disk."""
+    files: list[Path] = []
+    for name in cfg.setups:
+        for takes in M.setup_takes(name, cfg.data):
+            for t in takes:
+                files += [f for f in take_files(t) if f not in files]
+    return files
+
+
 def load_take(take: str, stride: int = 4) -> Motion:
     """A clip by take name: Bandai Namco ``dataset-…`` (BVH, cm, static root dropped) or CMU
     ``SSS_TT`` (ASF/AMC, every ``stride``-th frame)."""
+    files = take_files(take)
     if take.startswith("dataset-"):
-        m = read_bvh(data_path("body", "bandai", f"{take}.bvh.gz"), scale=0.01)
-        return M.drop_root(m)
-    subj = take.split("_")[0]
-    m = read_amc(
-        data_path("body", "cmu", subj, f"{subj}.asf"),
-        data_path("body", "cmu", subj, f"{take}.amc.gz"),
-    )
-    return m.frames(slice(None, None, stride))
+        return M.drop_root(read_bvh(files[0], scale=0.01))
+    return read_amc(*files).frames(slice(None, None, stride))
 
 
 _SETUPS: dict = {}
@@ -311,7 +329,11 @@ def _stored_setup(run_dir: Path, name: str, cfg: Config) -> M.Setup | None:
     if not (kp.is_file() and sp.is_file()):
         return None
     text = (run_dir / "config.toml").read_text()
-    if kp.read_text().strip() != run_key(text, _data_files(sys.modules[__name__], cfg)):
+    try:
+        key = run_key(text, _data_files(sys.modules[__name__], cfg))
+    except OSError:  # a clip is missing (DataNotFoundError): the rebuild names it
+        return None
+    if kp.read_text().strip() != key:
         return None
     try:
         with np.load(sp, allow_pickle=False) as z:

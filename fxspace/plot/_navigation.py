@@ -30,8 +30,11 @@ __all__ = [
 ]
 
 
-def _links_segments(xy_c: np.ndarray, links: np.ndarray) -> np.ndarray:
-    i, j = np.nonzero(np.triu(links, 1))
+def _links_segments(xy_c: np.ndarray, links) -> np.ndarray:
+    """Segments of the links (dense ``(c, c)`` or a sparse level's ``csr_array``)."""
+    from fxspace.navigation import link_pairs
+
+    i, j = link_pairs(links)
     return np.stack([xy_c[i], xy_c[j]], axis=1)
 
 

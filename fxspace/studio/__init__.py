@@ -62,6 +62,7 @@ __all__ = [
 #: experiment name → ``"module:function"`` serving that experiment's app
 APPS: dict[str, str] = {
     "navigation": "fxspace.studio._navigator:serve",
+    "navigation_scale": "fxspace.studio._navigator:serve",
     "reconstruction": "fxspace.studio._editor:serve",
     "parametric_synthesis": "fxspace.studio._motion:serve",
     "mesh_ik": "fxspace.studio._ik:serve_ik",

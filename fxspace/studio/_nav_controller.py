@@ -39,6 +39,10 @@ from fxspace.navigation import (
     playback,
     refine_route,
     rigid_align,
+    sparse_bridge_keys,
+    sparse_make_route,
+    sparse_path_candidates,
+    sparse_refine_route,
 )
 from fxspace.studio._server import FrameDensity, frame_density, read_run_config
 
@@ -51,7 +55,13 @@ DENSITY_ABOVE = 20_000
 @dataclass(frozen=True)
 class NavData:
     """What the navigator shows: the hierarchy, the frame graph's geodesics, the markers,
-    and where ε came from."""
+    and where ε came from.
+
+    At scale (a ``navigation_scale`` run) ``hierarchy`` holds
+    `fxspace.navigation.SparseLevel` objects (links as ``csr_array``), ``geodesics`` is None
+    and ``graph`` is the frames' `fxspace.expression.NeighbourGraph`: routes are then made,
+    bridged and refined on the graph (`fxspace.navigation.sparse_make_route` & co.), with
+    no ``T × T`` or ``c × c`` matrix anywhere."""
 
     hierarchy: Hierarchy
     geodesics: object
@@ -60,6 +70,44 @@ class NavData:
     rate: float = 60.0
     threshold: float = float("nan")
     threshold_source: str = ""
+    graph: object = None
+
+    @property
+    def sparse(self) -> bool:
+        """True for a sparse hierarchy on a neighbourhood graph (navigation at scale)."""
+        return self.geodesics is None and self.graph is not None
+
+
+class _Routes:
+    """The route operations of the dense hierarchy (geodesic matrices) or of the sparse
+    one (neighbourhood graph): one interface for the controller."""
+
+    def __init__(self, data: NavData):
+        self.d = data
+
+    def make(self, level: int, centres, anchors=None) -> Route:
+        d = self.d
+        if d.sparse:
+            return sparse_make_route(d.hierarchy.levels, d.graph, level, centres, anchors)
+        return make_route(d.hierarchy, d.geodesics, level, centres, anchors=anchors)
+
+    def bridge(self, level: int, keys) -> tuple[list[int], list[str]]:
+        d = self.d
+        if d.sparse:
+            return sparse_bridge_keys(d.hierarchy.levels, d.graph, level, keys)
+        return bridge_keys(d.hierarchy, d.geodesics, level, keys)
+
+    def refine(self, route: Route) -> Route:
+        d = self.d
+        if d.sparse:
+            return sparse_refine_route(d.hierarchy.levels, d.hierarchy.embedding, d.graph, route)
+        return refine_route(d.hierarchy, d.geodesics, route)
+
+    def candidates(self, level: int, frames) -> np.ndarray:
+        d = self.d
+        if d.sparse:
+            return sparse_path_candidates(d.hierarchy.levels, d.hierarchy.embedding, level, frames)
+        return path_candidates(d.hierarchy, level, frames)
 
 
 def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData:
@@ -76,7 +124,10 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
     from fxspace.datasets import load_face
     from fxspace.pipelines import navigation as nav
 
-    cfg_path, raw = read_run_config(target, "navigation")
+    cfg_path, raw = read_run_config(target)
+    if raw.get("experiment") == "navigation_scale":
+        return _load_scale_data(target, cfg_path, raw)
+    read_run_config(target, "navigation")  # a clear error for another experiment
     seed = int(raw.get("seed", 0))
     body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name")}
     try:
@@ -93,6 +144,26 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
     return NavData(
         ns.hierarchy, ns.geodesics, np.asarray(face.positions),
         tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source,
+    )  # fmt: skip
+
+
+def _load_scale_data(target, cfg_path: Path, raw: dict) -> NavData:
+    from fxspace.config import ConfigError, config_from_dict
+    from fxspace.datasets import load_face
+    from fxspace.pipelines import navigation_scale as ns
+
+    seed = int(raw.get("seed", 0))
+    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name")}
+    try:
+        cfg = config_from_dict(ns.Config, body)
+    except ConfigError as e:
+        raise ConfigError(f"{cfg_path}: {e}") from None
+    face = load_face(cfg.data, seed)
+    run_dir = Path(target) if Path(target).is_dir() else None
+    ss = ns.load_scale_space(cfg, face.positions, run_dir, seed)
+    return NavData(
+        ss.hierarchy, None, np.asarray(face.positions), tuple(face.marker_names), face.rate,
+        threshold_source=f"k-NN graph, k = {cfg.graph.k} (r = {ss.r:.4f})", graph=ss.graph,
     )  # fmt: skip
 
 
@@ -127,6 +198,8 @@ class NavigatorController:
         density_bins: int = 256,
     ):
         self.data = data
+        self.routes = _Routes(data)
+        self._cand: dict = {}  # (level, id(frames)) → (frames, candidates), recent asks
         self.density_above = int(density_above)
         self.density_bins = int(density_bins)
         self._density: FrameDensity | None = None
@@ -196,10 +269,7 @@ class NavigatorController:
         self._play = None
         self.play_index = 0
         if self.picks:
-            self.route = make_route(
-                self.data.hierarchy, self.data.geodesics, self.level, self.picks,
-                anchors=self.anchors,
-            )  # fmt: skip
+            self.route = self.routes.make(self.level, self.picks, self.anchors)
         else:
             self.route = self.guide
 
@@ -253,10 +323,7 @@ class NavigatorController:
                     )
                     return False
             try:
-                make_route(
-                    self.data.hierarchy, self.data.geodesics, self.level,
-                    [*self.picks[-1:], centre],
-                )  # fmt: skip
+                self.routes.make(self.level, [*self.picks[-1:], centre])
             except NavigationError as e:
                 self.message = f"not picked: {e}"
                 return False
@@ -314,11 +381,10 @@ class NavigatorController:
     def _edit(self, keys: list[int], what: str) -> bool:
         """Replace the key centres by ``keys`` (bridged where not linked); False and a
         message if no valid route results."""
-        h, geo = self.data.hierarchy, self.data.geodesics
         try:
-            new, notes = bridge_keys(h, geo, self.level, keys)
+            new, notes = self.routes.bridge(self.level, keys)
             if new:
-                make_route(h, geo, self.level, new, anchors=None)
+                self.routes.make(self.level, new)
         except NavigationError as e:
             self.message = f"not {what}: {e}"
             return False
@@ -461,7 +527,7 @@ class NavigatorController:
                 self.message = "already at the finest level: the route is the animation"
                 return
             self._push()
-            r = refine_route(self.data.hierarchy, self.data.geodesics, self.route)
+            r = self.routes.refine(self.route)
             self.guide = self.route
             self.level = r.level
             self.picks = list(r.centres)
@@ -473,13 +539,24 @@ class NavigatorController:
         """Centres of the shown level near the guide route (empty without a guide)."""
         if self.guide is None:
             return np.zeros(0, int)
-        return path_candidates(self.data.hierarchy, self.level, self.guide.frames)
+        return self._candidates(self.level, self.guide.frames)
+
+    def _candidates(self, level: int, frames) -> np.ndarray:
+        # asked on every status line: recent answers are kept (a route's frames never
+        # change; the frames object is held, so its id is not reused while kept)
+        key = (int(level), id(frames))
+        hit = self._cand.get(key)
+        if hit is None or hit[0] is not frames:
+            if len(self._cand) >= 8:
+                self._cand.clear()
+            hit = self._cand[key] = (frames, self.routes.candidates(level, frames))
+        return hit[1]
 
     def next_candidates(self) -> np.ndarray:
         """Centres of the next level near the shown route."""
         if self.route is None or self.level + 1 >= self.n_levels:
             return np.zeros(0, int)
-        return path_candidates(self.data.hierarchy, self.level + 1, self.route.frames)
+        return self._candidates(self.level + 1, self.route.frames)
 
     # -- playback and export -------------------------------------------------------------
     def playback(self, fps: float = 30.0):
@@ -549,6 +626,9 @@ class NavigatorController:
     def status(self) -> str:
         lv = self.data.hierarchy.levels[self.level]
         keys = " → ".join(map(str, self.picks)) if self.picks else "none"
+        if len(self.picks) > 16:  # a refined route at a fine level: its ends and the count
+            keys = (" → ".join(map(str, self.picks[:6])) + f" → … ({len(self.picks) - 12} "
+                    "more) → " + " → ".join(map(str, self.picks[-6:])))  # fmt: skip
         prev = f"Preview: centre {self.preview}  \n" if self.preview is not None else ""
         if self.picks:
             prev += f"Selected key: #{self.selected_key}  \n"

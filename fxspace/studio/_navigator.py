@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fxspace.navigation import rigid_align
+from fxspace.navigation import link_pairs, rigid_align
 from fxspace.studio._nav_controller import (
     DENSITY_ABOVE,
     NavData,
@@ -142,7 +142,7 @@ class NavigatorView:
             scene.remove_by_name("/pad/centres")
             return
         if lv.links is not None:
-            i, j = np.nonzero(np.triu(lv.links, 1))
+            i, j = link_pairs(lv.links)
             if len(i):
                 scene.add_line_segments(
                     "/pad/links", _segments(cp, i, j), colors=(80, 120, 220),

@@ -149,3 +149,46 @@ def test_finest_level_and_route_at_20000_frames():
         assert _linked(h[r.level], r.centres)
         f = r.frames
         assert np.all(f[1:] != f[:-1]) and np.all(csr[f[:-1], f[1:]] > 0)
+
+
+def test_levels_round_trip_through_arrays(space, tmp_path):
+    """`sparse_levels_to_arrays` → ``.npz`` → `sparse_levels_from_arrays`: the same centres,
+    links, bridges and lengths, and the same routes navigated on the levels read back."""
+    from fxspace.navigation import sparse_levels_from_arrays, sparse_levels_to_arrays
+
+    Y, g, h, _ = space
+    np.savez(tmp_path / "h.npz", **sparse_levels_to_arrays(h))
+    with np.load(tmp_path / "h.npz") as z:
+        back = sparse_levels_from_arrays(z)
+    assert len(back) == len(h)
+    for a, b in zip(h, back, strict=True):
+        assert a.n_clusters == b.n_clusters and b.fcm is None
+        np.testing.assert_array_equal(a.center_frames, b.center_frames)
+        np.testing.assert_array_equal(a.centers, b.centers)
+        for m in ("links", "bridges"):
+            assert (getattr(a, m) != getattr(b, m)).nnz == 0
+        np.testing.assert_array_equal(a.lengths.toarray(), b.lengths.toarray())
+        assert a.radius == b.radius
+    keys, _ = sparse_bridge_keys(h, g, 0, [0, h[0].n_clusters - 1])
+    r1 = sparse_navigate(h, Y, g, keys)
+    r2 = sparse_navigate(back, Y, g, keys)
+    np.testing.assert_array_equal(r1[-1].frames, r2[-1].frames)
+    with pytest.raises(fx.errors.FxspaceError, match="n_levels"):
+        sparse_levels_from_arrays({"x": np.zeros(1)})
+
+
+def test_link_pairs_dense_and_sparse_agree(space):
+    """`link_pairs` lists each link once (i < j), from a sparse level's csr_array and from
+    the same links as a dense matrix."""
+    from fxspace.navigation import link_pairs
+
+    _, _, h, _ = space
+    for lv in h:
+        i, j = link_pairs(lv.links)
+        di, dj = link_pairs(lv.links.toarray())
+        np.testing.assert_array_equal(
+            np.sort(i * lv.n_clusters + j), np.sort(di * lv.n_clusters + dj)
+        )
+        assert np.all(i < j) and len(i) == lv.links.nnz // 2
+    e = link_pairs(None)
+    assert len(e[0]) == len(e[1]) == 0

@@ -205,6 +205,7 @@ def test_run_folder_setup_is_read_not_rebuilt_and_never_another_configs(tmp_path
     (tmp_path / "cache").mkdir()
     np.savez(tmp_path / "cache" / "block_walk_setup.npz", **ps._setup_to_arrays(st))
     (tmp_path / "cache" / "KEY").write_text(run_key(text, []) + "\n")
+    monkeypatch.setattr(ps, "data_files", lambda cfg: [])  # no clips needed for this test
 
     def rebuilt(*a, **k):
         raise AssertionError("the stored set-up was rebuilt")
@@ -220,3 +221,21 @@ def test_run_folder_setup_is_read_not_rebuilt_and_never_another_configs(tmp_path
     monkeypatch.setattr(M, "prepare_setup", lambda *a, **k: calls.append(a[0]) or st)
     load_setup(tmp_path)
     assert calls == ["block_walk"]
+
+
+def test_run_key_covers_every_clip_of_every_setup(data_dir):
+    """The parametric-synthesis run key (and so its stored set-ups) covers the clips read:
+    Bandai BVH files and CMU ASF + AMC files of every configured set-up; a missing clip
+    is named."""
+    from fxspace.pipelines import parametric_synthesis as ps
+
+    cfg = ps.Config(setups=("mood_walk", "block_kick"))
+    names = [p.name for p in ps.data_files(cfg)]
+    assert "dataset-1_walk_happy_001.bvh.gz" in names and "dataset-1_walk_sad_001.bvh.gz" in names
+    assert "135.asf" in names and "135_04.amc.gz" in names and "135_09.amc.gz" in names
+    assert len(names) == len(set(names))  # the subject's ASF once
+    lower, upper = M.setup_takes("block_kick")
+    assert lower == ("135_04", "135_07", "135_11") and upper == ("135_05", "135_10", "135_09")
+    custom = ps.Config(setups=("mood_walk",), data=M.SetupData(lower=("dataset-x",)))
+    with pytest.raises(fx.errors.DataNotFoundError, match="dataset-x.bvh.gz"):
+        ps.data_files(custom)

@@ -1,0 +1,110 @@
+"""The navigation pipeline at scale (issue 24): sparse end to end, down to every frame;
+cached stages and resume (Pipeline protocol); the navigator reads the run."""
+
+import json
+
+import numpy as np
+import pytest
+
+import fxspace as fx
+import fxspace.pipelines.navigation_scale as nsc
+from fxspace.config import ConfigError
+from fxspace.pipelines import run_dict
+
+SMALL = {
+    "experiment": "navigation_scale",
+    "seed": 0,
+    "data": {"source": "synthetic", "synthetic_frames": 1500, "synthetic_markers": 24},
+    "graph": {"k": 8, "landmarks": 64},
+    "hierarchy": {"c0": 6, "levels": 3},
+    "navigation": {"figure": False},
+}
+
+
+@pytest.fixture(autouse=True)
+def _fixed_code_digest(monkeypatch):
+    import fxspace.runs
+
+    monkeypatch.setattr(fxspace.runs, "code_digest", lambda: "test-code")
+
+
+def _metrics(d):
+    m = json.loads((d / "metrics.json").read_text())
+    m.pop("timings"), m.pop("wall_time_s", None)
+    return m
+
+
+def test_route_refined_to_every_frame_is_a_graph_walk(tmp_path):
+    (d,) = run_dict(SMALL, tmp_path / "run")
+    m = _metrics(d)
+    assert m["frames"] == 1500 and m["centres_per_level"] == [6, 12, 24, 1500]
+    assert m["path_is_graph_walk"] and m["path_length_frames"] >= 2
+    assert all(n >= c - 1 for n, c in zip(m["links_per_level"], m["centres_per_level"],
+                                          strict=True))  # fmt: skip
+    assert 0.5 < m["r_landmark"] <= 1.0
+    routes = json.loads((d / "routes.json").read_text())
+    assert [r["level"] for r in routes] == [0, 1, 2, 3]
+    # the finest route's frames are the run's: consecutive frames joined by graph edges
+    from fxspace.datasets import FaceData, load_face
+
+    ss = nsc.load_scale_space(nsc.Config(), load_face(FaceData(**SMALL["data"]), 0).positions,
+                              d, 0)  # fmt: skip
+    W = fx.expression.to_scipy(ss.graph)
+    fr = np.asarray(routes[-1]["frames"])
+    assert np.all(np.asarray(W[fr[:-1], fr[1:]]).ravel() > 0)
+
+
+def test_interrupted_after_the_space_resumes(tmp_path, monkeypatch):
+    """Interrupt after the first stage (the graph and the embedding), rerun: identical
+    metrics and the space not recomputed."""
+    assert nsc.STAGES == ("space", "hierarchy")
+    (ref,) = run_dict(SMALL, tmp_path / "ref")
+    calls = []
+    real_space = nsc._space
+    monkeypatch.setattr(nsc, "_space", lambda *a: calls.append(1) or real_space(*a))
+    real_h = nsc.sparse_hierarchy
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(nsc, "sparse_hierarchy", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_dict(SMALL, tmp_path / "a")
+    assert (tmp_path / "a" / "cache" / "space.npz").is_file() and len(calls) == 1
+    monkeypatch.setattr(nsc, "sparse_hierarchy", real_h)
+    (d,) = run_dict(SMALL, tmp_path / "a")
+    assert len(calls) == 1  # the space came from the cache
+    assert _metrics(d) == _metrics(ref)
+
+
+def test_config_validate_names_the_key():
+    for bad, key in [
+        (nsc.GraphConfig(k=1), "graph.k"),
+        (nsc.GraphConfig(landmarks=2), "graph.landmarks"),
+        (nsc.HierarchyConfig(c0=1), "c0"),
+        (nsc.NavConfig(fps=0.0), "fps"),
+        (nsc.NavConfig(num_keys=1), "num_keys"),
+    ]:
+        with pytest.raises(ConfigError, match=key):
+            bad.validate()
+
+
+def test_unknown_key_centre_names_the_setting(tmp_path):
+    bad = {**SMALL, "navigation": {"figure": False, "key_centres": [0, 99]}}
+    with pytest.raises(ConfigError, match="navigation.key_centres"):
+        run_dict(bad, tmp_path / "bad")
+
+
+def test_shipped_config_is_valid():
+    """``configs/navigation_scale.toml`` (100 000 frames, down to every frame) parses and
+    validates; the run itself is measured by ``bench_studio.py`` (README)."""
+    from pathlib import Path
+
+    from fxspace.config import config_from_dict, load_toml
+
+    raw = load_toml(Path(__file__).resolve().parents[2] / "configs" / "navigation_scale.toml")
+    assert raw["experiment"] == "navigation_scale"
+    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed")}
+    cfg = config_from_dict(nsc.Config, body)
+    cfg.validate()
+    assert cfg.data.synthetic_frames == 100_000 and cfg.hierarchy.finest
