@@ -1,7 +1,8 @@
 """Studio benchmark (issue 24): time from ``fxspace studio CONFIG`` to the first rendered frame.
 
 For every app config (``configs/navigation.toml``, ``reconstruction.toml``,
-``parametric_synthesis.toml``, ``mesh_ik.toml`` by default) it launches the real command,
+``parametric_synthesis.toml``, ``mesh_ik.toml``, ``navigation_scale.toml`` — 100 000 frames —
+by default) it launches the real command,
 ``python -m fxspace.cli studio CONFIG --port P --out RUN``, in a new process, opens the page in
 headless Chromium (playwright) and waits until the 3-D canvas shows the app's scene: a
 canvas screenshot that differs from the one of an empty viser scene. Timed from the launch:
@@ -42,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-APPS = ("navigation", "reconstruction", "parametric_synthesis", "mesh_ik")
+APPS = ("navigation", "reconstruction", "parametric_synthesis", "mesh_ik", "navigation_scale")
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync"]
 VIEWPORT = {"width": 960, "height": 640}
 
