@@ -54,6 +54,7 @@ def test_route_refined_to_every_frame_is_a_graph_walk(tmp_path):
     assert np.all(np.asarray(W[fr[:-1], fr[1:]]).ravel() > 0)
 
 
+@pytest.mark.slow
 def test_interrupted_after_the_space_resumes(tmp_path, monkeypatch):
     """Interrupt after the first stage (the graph and the embedding), rerun: identical
     metrics and the space not recomputed."""

@@ -93,6 +93,7 @@ def test_held_to_candidates_at_a_finer_level(data):
     assert ctl.nearest_centre(xy) == int(cand[0])
 
 
+@pytest.mark.slow
 @pytest.mark.browser
 def test_browser_studio_scale_run(run_dir, chromium):
     """``fxspace studio RUN`` on a navigation_scale run: picks through the page's controls,
