@@ -22,6 +22,7 @@ folder or config.
 from __future__ import annotations
 
 import dataclasses
+import time
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -43,7 +44,10 @@ from fxspace.studio._server import (
     serialized,
 )
 
-__all__ = ["MotionController", "load_setup", "serve_motion", "serve"]
+__all__ = ["MotionController", "load_setup", "serve_motion", "serve", "START_DELAY_S"]
+
+START_DELAY_S = 1.0
+"""Seconds the first page is given to draw the scene before the walker starts walking."""
 
 
 class MotionController:
@@ -551,8 +555,19 @@ def serve_motion(
 
     draw()
     # plays only while a page is open: the walker does not walk off before anyone looks,
-    # and no frames are made that nobody receives
-    playing_now = lambda: bool(state["play"].value) and bool(server.get_clients())  # noqa: E731
+    # and no frames are made that nobody receives; and only once the first page has had
+    # a moment to draw the scene (a page still starting, flooded with 30 updates a second,
+    # drew its first frame seconds later when rendered in software)
+    seen: dict = {}
+
+    def playing_now() -> bool:
+        clients = server.get_clients()
+        if not (state["play"].value and clients):
+            return False
+        now = time.monotonic()
+        first = min(seen.setdefault(c, now) for c in clients)
+        return now - first >= START_DELAY_S
+
     attach_stop(server, Player(tick, playing_now, o.fps))
     if o.block:
         run_until_interrupted(server, "motion controller", o.host)
