@@ -45,11 +45,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def studio_target(target: str | Path, out: str | Path | None = None) -> Path:
-    """What ``fxspace studio`` opens: a run folder as it is; a config file is first run
+    """What ``fxspace studio`` opens: a run folder, a ``.glb`` mesh, or a config whose app
+    builds only what it shows (`fxspace.studio.OPENS_CONFIG`: the IK studio reads one mesh
+    and its markers) as they are; another config file is first run
     (or resumed: finished stages and a finished run with the same content key are reused,
     so a second launch opens in seconds) and its run folder returned."""
+    from fxspace.studio import opens_directly
+
     p = Path(target)
-    if p.is_dir():
+    if opens_directly(p):  # a run folder, a mesh, or an app that builds what it shows
         return p
     from fxspace.pipelines import run_config
 
