@@ -286,6 +286,7 @@ class _Problem:
         self.model, self.cons, self.targets = model, cons, targets
         self.init, self.normals = init, normals
         self.nj = model.ancestors.shape[0]
+        self.target_norm = jnp.sqrt(jnp.sum(targets * targets))
         scale = model.length_scale
         self.sv = jnp.concatenate(
             [jnp.ones(3 * self.nj, targets.dtype), jnp.full(3, scale, targets.dtype)]
@@ -309,6 +310,18 @@ class _Problem:
         )
         sv = self.sv
         return obj, g * sv, h * (sv[:, None] * sv[None, :])
+
+
+def _ftol(solver, pb: _Problem, obj: Array) -> Array:
+    """The decrease of ``F`` below which a step counts as none: ``rtol · F``, floored at
+    what rounding lets the dtype resolve. A residual ``r = p − t`` of positions of size
+    ``|t|`` carries an error ``ε|t|`` (cancellation), so ``F = Σ r²`` is known to about
+    ``2 ε Σ |r||t| ≤ 2 ε √F ‖t‖``. In float32 near a minimum that is far above
+    ``1e-6 · F``: the steps there were rejected as rounding noise until the damping blew
+    up (CesiumMan, 120 markers, from rest: 26 LM iterations and ``stalled`` in float32
+    against 13.7 and ``successful`` in float64); in float64 the floor never binds."""
+    eps = float(jnp.finfo(obj.dtype).eps)
+    return jnp.maximum(solver.rtol * obj, 2.0 * eps * pb.target_norm * jnp.sqrt(obj))
 
 
 def _diagonal(h: Array) -> Array:
@@ -398,9 +411,14 @@ def _lm_step(pb: _Problem, solver: LevenbergMarquardt, c):
     dz_max, g_excess = jnp.max(jnp.stack([jnp.abs(dz), jnp.abs(g2) - 1e-8 * dg]), axis=1)
     stationary = g_excess <= 0.0
     small_step = dz_max <= 1e-12
+    # MINPACK's ftol test (`_ftol`): an accepted step's decrease below the tolerance, or
+    # a rejected step's actual and predicted changes both below it (|F − F'| is rounding
+    # noise near the minimum: float32 rejected every step there until μ blew up)
+    tol = _ftol(solver, pb, obj)
     conv = (
         (o2 <= abs_obj)
-        | (ok & (obj - objn <= solver.rtol * obj))
+        | (ok & (obj - objn <= tol))
+        | ((pred <= tol) & (jnp.abs(obj - objn) <= tol))
         | (small_step & (ok | stationary))
         | (ok & (dz_max <= solver.xtol))
     )
@@ -467,7 +485,7 @@ def _bfgs_step(pb: _Problem, solver: BFGS, c):
     z2 = jnp.where(ok, z + s, z)
     f2 = jnp.where(ok, fn, f)
     g2 = jnp.where(ok, gn, g)
-    conv = ok & ((f2 <= abs_obj) | (f - f2 <= solver.rtol * f))
+    conv = ok & ((f2 <= abs_obj) | (f - f2 <= _ftol(solver, pb, f)))
     return z2, f2, g2, h2, jnp.asarray(False), conv | ~ok, conv, ~ok, const
 
 
@@ -627,13 +645,21 @@ def _prepare(model, targets, init, solver, constraints, normals, frames: bool):
         )
     if not jnp.issubdtype(targets.dtype, jnp.floating) or targets.dtype == jnp.float16:
         raise FxspaceError(f"targets must be float32 or float64, got dtype {targets.dtype}")
+    # the precision of the solve: the model's where it is wider (float32 targets against a
+    # float64 model, JAX's default dtype under jax_enable_x64, solve in float64: the
+    # loop's carry keeps one dtype, and float32 stopping tests take more iterations)
+    dtype = jnp.promote_types(model.marker_skin.dtype, targets.dtype)
+    if targets.dtype != dtype:
+        targets = targets.astype(dtype)
     nj = model.ancestors.shape[0]
     if init is None:
-        init = Pose(jnp.zeros((nj, 3), targets.dtype), jnp.zeros((3,), targets.dtype))
+        init = Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
     elif (
         not isinstance(init, Pose) or init.angles.shape != (nj, 3) or init.translation.shape != (3,)
     ):
         raise FxspaceError(f"init must be a Pose with angles ({nj}, 3) and translation (3,)")
+    elif init.angles.dtype != dtype or init.translation.dtype != dtype:
+        init = Pose(jnp.asarray(init.angles, dtype), jnp.asarray(init.translation, dtype))
     if cons.normal is not None:
         if normals is None:
             raise FxspaceError("the normal constraint needs target_normals (one row per marker)")

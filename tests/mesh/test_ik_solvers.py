@@ -329,3 +329,36 @@ def test_dtype_rejected_at_the_boundary(toy):
     t = np.asarray(fx.ik_markers(model, fx.rest_pose(m)))
     with pytest.raises(FxspaceError, match="float32 or float64"):
         fx.solve_ik(model, t.astype(np.float16))
+
+
+def test_float32_solves_like_float64_and_converges(data_dir):
+    """The call a user makes with float32 targets (issue 31.6): against a float64 model
+    the solve runs in float64 (init=None used to fail: float32 carry, float64 step); an
+    all-float32 model stops ``successful`` in about the float64 iterations (it rejected
+    every step near the minimum as rounding noise until the damping blew up: 26
+    iterations and ``stalled`` on CesiumMan, 120 markers, from rest)."""
+    mesh = fx.io.read_gltf(data_dir / "mesh" / "CesiumMan.glb")
+    anim = mesh.animation_names[0]
+    ms = fx.place_markers(mesh.vertices, mesh.faces, 120, (0.3, -0.2, -1.0), seed=0)
+    model = fx.ik_model(mesh, ms)
+    t = np.linspace(*mesh.animation_range(anim), 6)
+    truth = jnp.asarray(fx.mesh.animation_vertices(mesh, anim, t))
+    T64 = fx.marker_positions(truth, mesh.faces, ms)
+    f32 = jax.tree_util.tree_map(
+        lambda a: a.astype(jnp.float32) if jnp.issubdtype(a.dtype, jnp.floating) else a, model
+    )
+    steps64, steps32 = [], []
+    for tgt in T64:
+        r64 = fx.solve_ik(model, tgt)
+        mixed = fx.solve_ik(model, tgt.astype(jnp.float32))
+        r32 = fx.solve_ik(f32, tgt.astype(jnp.float32))
+        assert mixed.pose.angles.dtype == jnp.float64
+        np.testing.assert_allclose(mixed.pose.angles, r64.pose.angles, atol=1e-5)
+        assert r64.result == fx.RESULTS.successful
+        assert r32.result == fx.RESULTS.successful, r32.result
+        assert r32.pose.angles.dtype == jnp.float32
+        # the same minimum, to float32's resolution of the marker fit
+        assert float(r32.residual) <= 1.01 * float(r64.residual) + 1e-6
+        steps64.append(int(r64.num_steps))
+        steps32.append(int(r32.num_steps))
+    assert np.mean(steps32) <= 1.3 * np.mean(steps64), (steps32, steps64)
