@@ -20,12 +20,18 @@ from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
 from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
 from fxspace.io._markers import read_markers as read_markers
 from fxspace.io._markers import write_npz as write_npz
+from fxspace.io._meshseq import BlendShapes as BlendShapes
 from fxspace.io._meshseq import MorphAnimation as MorphAnimation
+from fxspace.io._meshseq import read_gltf_blendshapes as read_gltf_blendshapes
 from fxspace.io._meshseq import read_gltf_morph as read_gltf_morph
 from fxspace.io._meshseq import read_obj as read_obj
+from fxspace.io._meshseq import write_gltf_blendshapes as write_gltf_blendshapes
 from fxspace.io._meshseq import write_gltf_morph as write_gltf_morph
 from fxspace.io._meshseq import write_obj_sequence as write_obj_sequence
 from fxspace.io._meshseq import write_ply_sequence as write_ply_sequence
+from fxspace.io._obj import ObjMesh as ObjMesh
+from fxspace.io._obj import read_obj_mesh as read_obj_mesh
+from fxspace.io._obj import read_obj_vertices as read_obj_vertices
 from fxspace.io._trc import write_trc as write_trc
 from fxspace.io._types import UNIT_SCALES as UNIT_SCALES
 from fxspace.io._types import MarkerSequence as MarkerSequence
@@ -60,6 +66,12 @@ __all__ = [
     "write_gltf_morph",
     "read_gltf_morph",
     "read_obj",
+    "read_obj_mesh",
+    "read_obj_vertices",
+    "ObjMesh",
+    "write_gltf_blendshapes",
+    "read_gltf_blendshapes",
+    "BlendShapes",
     "MorphAnimation",
     "write_obj_sequence",
     "write_ply_sequence",
