@@ -63,8 +63,9 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     rig = fx.face.read_rig(data_path("face", "ict"))
+    read_s = time.perf_counter() - t0
     print(f"ICT rig: {rig.num_vertices} vertices, {rig.num_shapes} shapes, read in "
-          f"{time.perf_counter() - t0:.2f} s (cached after the first read); {jax.devices()[0]}")  # fmt: skip
+          f"{read_s:.2f} s (cached after the first read); {jax.devices()[0]}")  # fmt: skip
     takes = TAKES[:1] if args.quick else TAKES
     print(f"{'take':26s} {'frames':>6s} {'resid mm':>9s} {'rigid mm':>9s} {'ours ms/f':>10s} "
           f"{'scipy ms/f':>10s} {'ratio':>7s} {'obj gap':>9s} {'w MAE':>7s}")  # fmt: skip

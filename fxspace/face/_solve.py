@@ -192,8 +192,8 @@ def solve_weights(
     rounds beat few long ones; on the AnimFace jaw take 20 × 30 reaches the objective
     of 20 × 1000 within 0.2 %); `tol`: a frame is ``successful`` when its Frank–Wolfe
     gap is below `tol` times its data term (the objective provably within that
-    fraction of its minimum at the solved head motion); `init` ``(T, K)``: starting weights (default 0); `throw`: raise when
-    a frame is not ``successful``.
+    fraction of its minimum at the solved head motion); `init` ``(T, K)``: starting
+    weights (default 0); `throw`: raise when a frame is not ``successful``.
 
     **Returns:** a `FaceSolve`.
     """
