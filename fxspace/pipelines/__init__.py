@@ -39,6 +39,11 @@ from fxspace.config import (
     expand_sweep,
     load_toml,
 )
+
+# the config-level motion session (a TOML and its clips in, poses out): pipelines, not
+# motion, since it reads the clips (fxspace.io, a layer above motion)
+from fxspace.pipelines.parametric_synthesis import scripted_session as scripted_session  # noqa: E402
+from fxspace.pipelines.parametric_synthesis import session_parameters as session_parameters  # noqa: E402,E501
 from fxspace.runs import (
     MANIFEST,
     active_run,
@@ -54,6 +59,8 @@ from fxspace.runs import (
 )
 
 __all__ = [
+    "scripted_session",
+    "session_parameters",
     "Pipeline",
     "PipelineConfig",
     "PipelineError",
