@@ -27,6 +27,7 @@ from fxspace.motion._fk import fk_arrays as fk_arrays
 from fxspace.motion._fk import forward_kinematics as forward_kinematics
 from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
+from fxspace.motion._horn import absolute_rotation as absolute_rotation
 from fxspace.motion._horn import apply_rigid as apply_rigid
 from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
 from fxspace.motion._locomotion import LocomotionState as LocomotionState
@@ -121,6 +122,7 @@ __all__ = [
     "forward_kinematics",
     "RigidTransform",
     "absolute_orientation",
+    "absolute_rotation",
     "apply_rigid",
     "euler_to_quat",
     "matrix_to_quat",
