@@ -94,6 +94,7 @@ class Config:
     n_init: int = 20
     max_points: int = 1000
     refine_steps: int = 10
+    cluster_method: str = "kernel"
     fit_steps: int = 300
     fit_support: int = 3
     fit_smoothness: float = 1e-4
@@ -125,6 +126,12 @@ class Config:
             raise ConfigError(
                 f"n_frames/thin = {self.n_frames // self.thin} too short for n_segments="
                 f"{self.n_segments}"
+            )
+        if self.cluster_method not in ("kernel", "hybrid"):
+            raise ConfigError(
+                f"cluster_method must be 'kernel' (kernel k-means to the end, the paper's) or "
+                f"'hybrid' (kernel k-means on a subset, Euclidean steps for the rest), got "
+                f"{self.cluster_method!r}"
             )
         if self.segment_criterion not in ("elbow", "bic"):
             raise ConfigError(
@@ -222,7 +229,7 @@ def _sweep(S, cfg: Config, key) -> list[dict]:
     for c, g in progress(grid, desc="(clusters, γ) sweep"):
         model, km = fit_control_points(
             S, min(c, S.shape[1]), gamma=g, key=key, n_init=cfg.n_init,
-            max_points=cfg.max_points, refine_steps=cfg.refine_steps,
+            max_points=cfg.max_points, refine_steps=cfg.refine_steps, method=cfg.cluster_method,
         )  # fmt: skip
         err = float(reconstruction_error(S, reconstruct(model)))
         rows.append({
@@ -241,7 +248,7 @@ def _scene(cfg: Config, X, n_segments: int, c: int, g: float, key) -> dict:
         fit = fit_scene(
             X, c, n_segments=n_segments, min_length=cfg.min_length, segment_on=cfg.segment_on,
             gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
-            refine_steps=cfg.refine_steps, show_progress=show,
+            refine_steps=cfg.refine_steps, method=cfg.cluster_method, show_progress=show,
         )  # fmt: skip
         reconstruct_scene(fit.model).block_until_ready()
         return fit
@@ -315,7 +322,12 @@ def _gltf_source(cfg: Config, key) -> dict:
     a, b = segments_from_boundaries(seg.boundaries)[int(np.argmax(errs))]
     S = X[a : b + 1]
     model, _ = fit_control_points(
-        S, min(cfg.gltf_clusters, S.shape[1]), key=key, n_init=cfg.n_init, max_points=cfg.max_points
+        S,
+        min(cfg.gltf_clusters, S.shape[1]),
+        key=key,
+        n_init=cfg.n_init,
+        max_points=cfg.max_points,
+        method=cfg.cluster_method,  # type: ignore[arg-type]
     )
     err = float(reconstruction_error(S, reconstruct(model)))
     return {
