@@ -291,9 +291,9 @@ def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     raise ConfigError(f"character mesh {path}: use an .obj or .glb file")
 
 
-def _character(cfg: Config, M: np.ndarray, names, scene, X0) -> dict:
+def _character(cfg: Config, M: np.ndarray, names, scene, X0, keys) -> dict:
     """Stage ``character``: the target face driven by the capture through the control
-    points (`fxspace.drive_character`)."""
+    points, carrying the animator's edits ``keys`` (`fxspace.drive_character`)."""
     if cfg.character == "standin":
         ch = standin_character(M[0], cfg.character_vertices)
     else:
@@ -302,8 +302,10 @@ def _character(cfg: Config, M: np.ndarray, names, scene, X0) -> dict:
         first = _read_mesh(_path(cfg.character_first))[0] if cfg.character_first else None
         last = _read_mesh(_path(cfg.character_last))[0] if cfg.character_last else None
         ch = character(V, F, mv, first, last)
-    Y = drive_character(ch, scene, M, X0)
-    return {"vertices": Y, "faces": ch.faces, "rest": ch.vertices}
+    Y = drive_character(ch, scene, M, X0, edits=keys)
+    Y0 = drive_character(ch, scene, M, X0)  # unedited, to report what the edit moved
+    moved = np.linalg.norm(Y - Y0, axis=2).max(0)
+    return {"vertices": Y, "faces": ch.faces, "rest": ch.vertices, "edit_moved": moved}
 
 
 def _gltf_source(cfg: Config, key) -> dict:
@@ -402,10 +404,13 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
         controls=jnp.asarray(rf["controls"]), weights=jnp.asarray(rf["weights"])
     )
     ch = None
+    keys = _edit_keys(cfg, scene, names, dense["marker_vertex"], si)
     if cfg.character:
         X0 = np.asarray(X[0])
         ch = cached_arrays(
-            run_dir, "character", _say("character", lambda: _character(cfg, M, names, scene, X0))
+            run_dir,
+            "character",
+            _say("character", lambda: _character(cfg, M, names, scene, X0, keys)),
         )
     gl = (
         cached(run_dir, "gltf_source", _say("gltf_source", lambda: _gltf_source(cfg, key)))
@@ -414,9 +419,17 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     )
     ctx = dict(cfg=cfg, run_dir=run_dir, M=M, names=names, rate=rate, units=units,
                dense=dense, sg=sg, X=X, scene=scene, errs=errs, si=si, fitted=fitted,
-               rf=rf, rows=rows, c=c, g=g, sc=sc, ch=ch, gl=gl)  # fmt: skip
+               rf=rf, rows=rows, c=c, g=g, sc=sc, ch=ch, gl=gl, keys=keys)  # fmt: skip
     outputs = _write_outputs(ctx)
     return _metrics(ctx, outputs)
+
+
+def _edit_keys(cfg: Config, scene, names, mv, si: int) -> list:
+    """The demonstration edit: a key at the middle of the most complex segment moving the
+    region under ``edit_marker`` by ``edit_offset_mm`` (the editor's saved keys)."""
+    a, b = segments_from_boundaries(scene.boundaries)[si]
+    vi = int(mv[names.index(cfg.edit_marker)]) if cfg.edit_marker in names else int(mv[0])
+    return [FaceKey(a + (b - a) // 2, vi, tuple(float(v) for v in cfg.edit_offset_mm))]
 
 
 def _write_outputs(ctx: dict) -> dict:
@@ -425,11 +438,9 @@ def _write_outputs(ctx: dict) -> dict:
     from fxspace.io import MarkerSequence, read_gltf_morph, write_gltf_morph, write_trc
 
     cfg, run_dir, scene, X, M = ctx["cfg"], ctx["run_dir"], ctx["scene"], ctx["X"], ctx["M"]
-    names, dense, si = ctx["names"], ctx["dense"], ctx["si"]
-    a, b = segments_from_boundaries(scene.boundaries)[si]
+    names, dense, keys = ctx["names"], ctx["dense"], ctx["keys"]
     mv = dense["marker_vertex"]
-    vi = int(mv[names.index(cfg.edit_marker)]) if cfg.edit_marker in names else int(mv[0])
-    keys = [FaceKey(a + (b - a) // 2, vi, tuple(float(v) for v in cfg.edit_offset_mm))]
+    vi = keys[0].vertex
     Xh = np.asarray(reconstruct_scene(scene))
     Xe = edited_vertices(scene, keys)
     moved = np.linalg.norm(Xe - Xh, axis=2).max(0) > 1e-9
@@ -454,6 +465,9 @@ def _write_outputs(ctx: dict) -> dict:
             "source": cfg.character,
             "reloaded_max_abs_diff": float(np.abs(back.vertices - Y).max()),
             "reloaded_fps": back.fps,
+            "carries_edits": True,
+            "edit_moved_vertices": int((ctx["ch"]["edit_moved"] > 1e-9).sum()),
+            "edit_moved_max": float(ctx["ch"]["edit_moved"].max()),
         }  # fmt: skip
     _figures(ctx, out)
     return out
