@@ -107,6 +107,7 @@ class Config:
     character_first: str = ""
     character_last: str = ""
     character_vertices: int = 3000
+    head: str = "face/ict"
     gltf_mesh: str = "CesiumMan"
     gltf_frames: int = 150
     gltf_clusters: int = 25
@@ -161,6 +162,8 @@ def _path(name: str) -> Path:
 def data_files(cfg: Config) -> list[Path]:
     """The files a run reads (for its content key)."""
     files = [] if cfg.file == SYNTHETIC else [_path(cfg.file)]
+    if cfg.head and cfg.file != SYNTHETIC and _path(cfg.head).is_dir():
+        files += sorted(p for p in _path(cfg.head).iterdir() if p.is_file())
     for f in (cfg.character if cfg.character not in ("", "standin") else "",
               cfg.character_markers, cfg.character_first, cfg.character_last):  # fmt: skip
         if f:
@@ -424,6 +427,44 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     return _metrics(ctx, outputs)
 
 
+def _head_outputs(cfg: Config, run_dir: Path, M, Me, names, rate: float, keys) -> dict:
+    """The real head (a blend-shape rig, the ICT Face Model by default) driven by the
+    *edited* markers: bound from the first frame, per-frame ARKit-named weights solved
+    (`fxspace.face`), written as ``head.glb`` (morph targets + the weight animation) and
+    ``head_weights.csv``; the unedited solve and the rigid-only residual beside it."""
+    from fxspace.face import (
+        bind_markers,
+        read_rig,
+        solve_weights,
+        write_rig_gltf,
+        write_weights_csv,
+    )
+
+    print("[reconstruction] the head: binding the markers, solving the weights …", flush=True)
+    rig = read_rig(_path(cfg.head))
+    b = bind_markers(rig, M[0], names)
+    edited = solve_weights(rig, b, Me)
+    plain = solve_weights(rig, b, M)
+    rigid = solve_weights(rig, b, M, expressions=False)
+    write_rig_gltf(run_dir / "head.glb", rig, edited.weights, fps=rate, name="edited")
+    write_weights_csv(run_dir / "head_weights.csv", edited.weights, rig.names, fps=rate)
+    f = keys[0].frame
+    dw = np.abs(np.asarray(edited.weights[f]) - np.asarray(plain.weights[f]))
+    mm = np.asarray(b.distance) / b.scale
+    return {
+        "rig": cfg.head, "files": ["head.glb", "head_weights.csv"],
+        "n_shapes": rig.num_shapes, "n_vertices": rig.num_vertices,
+        "binding_distance_median": float(np.median(mm)),
+        "binding_distance_max": float(mm.max()),
+        "residual_mean": float(np.nanmean(np.asarray(plain.residual))),
+        "residual_rigid_only_mean": float(np.nanmean(np.asarray(rigid.residual))),
+        "converged_fraction": float(np.mean(np.asarray(plain.converged))),
+        "edit_frame": int(f), "edit_weight_change_max": float(dw.max()),
+        "edit_weight_changed_most": rig.names[int(np.argmax(dw))],
+        "units": "the capture's (residuals and binding distances)",
+    }  # fmt: skip
+
+
 def _edit_keys(cfg: Config, scene, names, mv, si: int) -> list:
     """The demonstration edit: a key at the middle of the most complex segment moving the
     region under ``edit_marker`` by ``edit_offset_mm`` (the editor's saved keys)."""
@@ -455,6 +496,8 @@ def _write_outputs(ctx: dict) -> dict:
                     faces=dense["faces"], boundaries=scene.boundaries, markers=Me)  # fmt: skip
     write_trc(run_dir / "edited_markers.trc", MarkerSequence(Me, names, ctx["rate"], ctx["units"]))
     out = {"keys": keys, "moved": int(moved.sum()), "Xe": Xe, "vi": vi}
+    if cfg.head and cfg.file != SYNTHETIC:
+        out["head"] = _head_outputs(cfg, run_dir, M, Me, names, ctx["rate"], keys)
     if ctx["ch"] is not None:
         Y = ctx["ch"]["vertices"]
         p = write_gltf_morph(run_dir / "character.glb", Y, ctx["ch"]["faces"], ctx["rate"],
@@ -576,6 +619,7 @@ def _metrics(ctx: dict, out: dict) -> dict:
                     "ratio_segments_le_0.11": bool(np.all(errs.ratio <= 0.11)),
                     "scene_pipeline_le_18s": pipe_s <= 18.0},
         "character": out.get("character", {}),
+        "head": out.get("head", {}),
         "paper": PAPER,
         "gltf": ctx["gl"],
     }  # fmt: skip

@@ -164,6 +164,16 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
         assert (run_dir / name).is_file()
     seq = fx.io.read_markers(run_dir / "edited_markers.trc")
     assert seq.positions.shape == (150, 41, 3)
+    # the character and the real head carry the animator's edit (issue 30.5)
+    assert m["character"]["carries_edits"] and m["character"]["edit_moved_vertices"] > 0
+    if (data_dir / "face" / "ict").is_dir():
+        h = m["head"]
+        assert h["n_shapes"] == 53 and h["residual_mean"] < h["residual_rigid_only_mean"]
+        assert h["edit_weight_change_max"] > 0.01 and h["converged_fraction"] > 0.5
+        bs = fx.io.read_gltf_blendshapes(run_dir / "head.glb")
+        W, names, _ = fx.face.read_weights_csv(run_dir / "head_weights.csv")
+        assert bs.names == names and "jawOpen" in names
+        np.testing.assert_allclose(bs.weights, W, atol=1e-5)
 
 
 def test_kernel_kmeans_to_the_end_is_a_fixed_point(rng):
