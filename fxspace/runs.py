@@ -61,10 +61,16 @@ __all__ = [
     "manifest_files",
     "clean_run",
     "active_run",
+    "unrecorded",
+    "RunLockedError",
+    "run_lock",
+    "LOCK",
 ]
 
 #: Name of the manifest file: the files fxspace wrote into a run folder.
 MANIFEST = ".fxspace-manifest"
+#: Name of a run folder's lock file (pid, host and time of the process running it).
+LOCK = ".fxspace-lock"
 
 # the run folder being written by `run_dict` (files written under it are recorded)
 _ACTIVE: ContextVar[Path | None] = ContextVar("fxspace_active_run", default=None)
@@ -87,8 +93,13 @@ _PACKAGES = (
 def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder + rename)."""
     p = Path(path)
+    active = _ACTIVE.get()
+    if active is not None and (p.exists() or p.is_symlink()):
+        _check_ours(active, p)
     p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    # a short unique temp name beside the target: never NAME.tmp (a user's file of that
+    # name survives) and short enough for any legal (255-character) target name
+    fd, tmp = tempfile.mkstemp(prefix=".fx", suffix=".tmp", dir=p.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -100,10 +111,114 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    active = _ACTIVE.get()
     if active is not None:
         record(active, p)
     return p
+
+
+def _check_ours(root: Path, p: Path) -> None:
+    """Inside a run, an existing file under the run folder may be replaced only when the
+    folder's manifest lists it (fxspace wrote it); a user's file is never overwritten."""
+    try:
+        rel = p.resolve().relative_to(root).as_posix()
+    except ValueError:
+        return  # outside the run folder: not the run's business
+    if rel in set(manifest_files(root)):
+        return
+    raise FileExistsError(
+        f"{p} exists and this run did not write it (it is not in {root / MANIFEST}); "
+        "fxspace never overwrites a file it did not write: move or rename that file, "
+        "or choose another --out"
+    )
+
+
+@contextmanager
+def unrecorded() -> Iterator[None]:
+    """Within this block, files written through this module are not recorded in the
+    active run's manifest: user-owned state (the editor's ``edits.json``) that no
+    ``--force`` or stale-run clean may delete."""
+    token = _ACTIVE.set(None)
+    try:
+        yield
+    finally:
+        _ACTIVE.reset(token)
+
+
+class RunLockedError(RuntimeError):
+    """Another live process holds the run folder's lock."""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OSError, ValueError, OverflowError):
+        return False
+    return True
+
+
+@contextmanager
+def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -> Iterator[Path]:
+    """Hold ``run_dir/.fxspace-lock`` (pid, host, time) while one process writes the run.
+
+    A second process waits up to ``wait`` seconds (``None``: forever) and then raises
+    `RunLockedError` naming the holder and the fix. A lock whose holder died (same host,
+    pid gone) is taken over, with a message.
+    """
+    import socket
+    import time
+
+    root = Path(run_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    lp = root / LOCK
+    host = socket.gethostname()
+    me = {"pid": os.getpid(), "host": host,
+          "at": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}  # fmt: skip
+    t0 = time.monotonic()
+    while True:
+        try:
+            fd = os.open(lp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                held = json.loads(lp.read_text())
+            except (OSError, json.JSONDecodeError):
+                held = {}
+            if held.get("host") == host and isinstance(held.get("pid"), int) and (
+                not _pid_alive(held["pid"])
+            ):
+                print(f"[fxspace] {lp}: its holder (pid {held['pid']}) died; taking it over")
+                try:
+                    lp.unlink()
+                except FileNotFoundError:
+                    pass
+                continue
+            if not held and lp.exists():
+                time.sleep(poll)  # being written right now
+                if not lp.exists() or lp.read_text().strip():
+                    continue
+            if wait is not None and time.monotonic() - t0 >= wait:
+                raise RunLockedError(
+                    f"{root} is being written by another process (pid {held.get('pid')} on "
+                    f"{held.get('host')} since {held.get('at')}, lock {lp}); wait for it to "
+                    "finish, or choose another --out; if that process is gone, delete the "
+                    "lock file"
+                ) from None
+            time.sleep(poll)
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(me))
+        break
+    try:
+        yield lp
+    finally:
+        try:
+            if json.loads(lp.read_text()).get("pid") == os.getpid():
+                lp.unlink()
+        except (OSError, json.JSONDecodeError):
+            pass
 
 
 def _manifest_path(run_dir: str | Path) -> Path:
@@ -166,12 +281,25 @@ def active_run(run_dir: str | Path) -> Iterator[Path]:
         _ACTIVE.reset(token)
 
 
+def _in_nested_run(root: Path, rel: str) -> bool:
+    """Whether ``root/rel`` lies inside another run folder nested under ``root``."""
+    d = root
+    for part in Path(rel).parts[:-1]:
+        d = d / part
+        if (d / MANIFEST).is_file() or (d / "status.json").is_file() or (d / LOCK).exists():
+            return True
+    return False
+
+
 def _remove_listed(root: Path, keep: Callable[[str], bool]) -> list[str]:
     """Delete the manifest's files for which ``keep(rel)`` is false, then the folders
-    left empty by that (never a folder that still holds anything)."""
+    left empty by that (never a folder that still holds anything, never a file inside
+    a nested run folder)."""
     listed = manifest_files(root)
     removed, kept = [], []
     for rel in listed:
+        if _in_nested_run(root, rel):
+            continue  # another run's file (it has its own manifest): never ours to delete
         if keep(rel):
             kept.append(rel)
             continue

@@ -143,12 +143,10 @@ def write_gltf_morph(
         + struct.pack("<I4s", len(js), b"JSON") + js
         + struct.pack("<I4s", len(binary), b"BIN\0") + binary
     )  # fmt: skip
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_bytes(blob)
-    tmp.replace(p)
-    return p
+    from fxspace.runs import write_bytes_atomic
+
+    # a unique temp name beside the target (never NAME.tmp); recorded in a run's manifest
+    return write_bytes_atomic(path, blob)
 
 
 class MorphAnimation(NamedTuple):
