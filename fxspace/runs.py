@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from fxspace.errors import FxspaceError
+
 __all__ = [
     "write_bytes_atomic",
     "write_text_atomic",
@@ -65,6 +67,8 @@ __all__ = [
     "RunLockedError",
     "run_lock",
     "LOCK",
+    "collect",
+    "write_report",
 ]
 
 #: Name of the manifest file: the files fxspace wrote into a run folder.
@@ -144,7 +148,7 @@ def unrecorded() -> Iterator[None]:
         _ACTIVE.reset(token)
 
 
-class RunLockedError(RuntimeError):
+class RunLockedError(FxspaceError, RuntimeError):
     """Another live process holds the run folder's lock."""
 
 
@@ -186,8 +190,10 @@ def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -
                 held = json.loads(lp.read_text())
             except (OSError, json.JSONDecodeError):
                 held = {}
-            if held.get("host") == host and isinstance(held.get("pid"), int) and (
-                not _pid_alive(held["pid"])
+            if (
+                held.get("host") == host
+                and isinstance(held.get("pid"), int)
+                and (not _pid_alive(held["pid"]))
             ):
                 print(f"[fxspace] {lp}: its holder (pid {held['pid']}) died; taking it over")
                 try:
@@ -559,3 +565,185 @@ def cached_arrays(
     save_npz_atomic(p, **value)
     record(run_dir, p)
     return value
+
+
+# ------------------------------------------------------------------ comparing runs
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _scalar(v: Any) -> bool:
+    return isinstance(v, int | float | str) and not isinstance(v, bool) or isinstance(v, bool)
+
+
+def _run_folders(root: Path) -> list[Path]:
+    found = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        d = Path(dirpath)
+        dirnames[:] = sorted(n for n in dirnames if n != "report" and not n.startswith("."))
+        if "status.json" in filenames or "metrics.json" in filenames:
+            found.append(d)
+    return sorted(found)
+
+
+def collect(run_dir: str | Path, as_frame: bool = False) -> Any:
+    """One row per run under ``run_dir`` (every folder holding ``status.json`` or
+    ``metrics.json``): ``run`` (its path relative to ``run_dir``), the swept keys (the
+    config keys whose values differ between the runs, dotted), the scalar metrics,
+    ``wall_s`` / ``compile_s`` (``meta.json`` timing), ``status`` and ``error``.
+
+    Returns a list of dicts, or a pandas DataFrame with ``as_frame=True`` (needs pandas).
+    A missing value is ``None`` (NaN in the frame), never 0.
+    """
+    rows, _, _ = _collect(run_dir)
+    if as_frame:
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("collect(as_frame=True) needs pandas: pip install pandas") from None
+        return pd.DataFrame(rows, columns=list(rows[0]) if rows else None)
+    return rows
+
+
+def _collect(run_dir: str | Path) -> tuple[list[dict[str, Any]], list[str], list[str]]:
+    """The rows of `collect` plus the swept keys and the metric columns."""
+    import tomllib
+
+    root = Path(run_dir)
+    if not root.is_dir():
+        raise FileNotFoundError(f"run_dir {root} is not a folder; pass a sweep's --out folder")
+    runs = []
+    for d in _run_folders(root):
+        try:
+            cfg = _flatten(tomllib.loads((d / "config.toml").read_text()))
+        except (OSError, tomllib.TOMLDecodeError):
+            cfg = {}
+        try:
+            metrics = json.loads((d / "metrics.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            metrics = {}
+        try:
+            timing = json.loads((d / "meta.json").read_text()).get("timing") or {}
+        except (OSError, json.JSONDecodeError):
+            timing = {}
+        st = read_status(d)
+        runs.append((d, cfg, metrics, timing, st))
+    keys = sorted({k for _, c, *_ in runs for k in c})
+    swept = [
+        k for k in keys
+        if len({json.dumps(c.get(k), sort_keys=True) for _, c, *_ in runs}) > 1
+    ]  # fmt: skip
+    rows = []
+    for d, cfg, metrics, timing, st in runs:
+        row: dict[str, Any] = {"run": d.relative_to(root).as_posix() or "."}
+        for k in swept:
+            v = cfg.get(k)
+            row[k] = v if _scalar(v) or v is None else json.dumps(v)
+        for k, v in _flatten(metrics).items():
+            if _scalar(v) and k not in row:
+                row[k] = v
+        row["wall_s"] = timing.get("wall_s", metrics.get("wall_time_s"))
+        row["compile_s"] = timing.get("compile_s")
+        status = st.get("status") or ("complete" if metrics else "unknown")
+        row["status"] = status
+        row["error"] = st.get("error")
+        rows.append(row)
+    cols: list[str] = []
+    for r in rows:
+        cols += [k for k in r if k not in cols]
+    rows = [{k: r.get(k) for k in cols} for r in rows]
+    fixed = {"run", "wall_s", "compile_s", "status", "error", *swept}
+    metric_cols = [
+        k for k in cols if k not in fixed and any(r[k] is not None for r in rows) and all(
+            r[k] is None or (isinstance(r[k], int | float) and not isinstance(r[k], bool))
+            for r in rows
+        )
+    ]  # fmt: skip
+    return rows, swept, metric_cols
+
+
+def _fmt_cell(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+def write_report(run_dir: str | Path) -> tuple[list[dict[str, Any]], Path]:
+    """``fxspace report DIR``: `collect` the runs under ``run_dir`` and write
+    ``DIR/report/runs.csv``, ``runs.md`` and one figure per (metric, swept key) — the
+    metric against that key, one line per combination of the other swept keys, the best
+    run (lowest value) marked — then print the table. Returns (rows, report folder)."""
+    import csv
+    import io
+
+    rows, swept, metrics = _collect(run_dir)
+    out = Path(run_dir) / "report"
+    if not rows:
+        raise FileNotFoundError(
+            f"no runs under {run_dir} (no folder holds status.json or metrics.json); "
+            "pass the --out folder of a run or sweep"
+        )
+    cols = list(rows[0])
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: "" if v is None else v for k, v in r.items()})
+    write_text_atomic(out / "runs.csv", buf.getvalue())
+    md = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
+    md += "".join("| " + " | ".join(_fmt_cell(r[k]) for k in cols) + " |\n" for r in rows)
+    write_text_atomic(out / "runs.md", md)
+    print(md, end="")
+    _report_figures(rows, swept, metrics, out)
+    return rows, out
+
+
+def _report_figures(
+    rows: list[dict[str, Any]], swept: list[str], metrics: list[str], out: Path
+) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in rows if r["status"] == "complete"]
+    files = []
+    for m in metrics:
+        vals = [r for r in ok if isinstance(r[m], int | float) and np.isfinite(r[m])]
+        if not vals:
+            continue
+        best = min(vals, key=lambda r: r[m])
+        for x in swept:
+            others = [k for k in swept if k != x]
+            fig, ax = plt.subplots(figsize=(5, 3.5))
+            groups: dict[tuple, list] = {}
+            for r in vals:
+                groups.setdefault(tuple(r[k] for k in others), []).append(r)
+            numeric = all(isinstance(r[x], int | float) for r in vals)
+            cats = sorted({str(r[x]) for r in vals})
+            for g, rs in sorted(groups.items(), key=lambda t: str(t[0])):
+                rs = sorted(rs, key=lambda r: r[x] if numeric else str(r[x]))
+                xs = [r[x] if numeric else cats.index(str(r[x])) for r in rs]
+                lab = ", ".join(f"{k}={v}" for k, v in zip(others, g, strict=True)) or None
+                ax.plot(xs, [r[m] for r in rs], "o-", label=lab)
+            bx = best[x] if numeric else cats.index(str(best[x]))
+            ax.plot([bx], [best[m]], "*", ms=16, color="crimson", label=f"best ({best['run']})")
+            if not numeric:
+                ax.set_xticks(range(len(cats)), cats, rotation=30, ha="right", fontsize=7)
+            ax.set_xlabel(x)
+            ax.set_ylabel(m)
+            ax.set_title(f"{m} vs {x}", fontsize=9)
+            ax.legend(fontsize=6)
+            safe = f"{m}_vs_{x}".replace("/", "-")[:120]
+            files.append(save_figure_atomic(fig, out / f"{safe}.png"))
+    return files

@@ -64,6 +64,7 @@ __all__ = [
     "run_dict",
     "load_pipeline",
     "available",
+    "sweep_config",
 ]
 
 _NAME = re.compile(r"^[a-z_][a-z0-9_]*$")
@@ -385,3 +386,6 @@ def run_config(path: str | Path, out: str | Path | None = None, force: bool = Fa
 
 def summary(run_dir: str | Path) -> dict[str, Any]:
     return json.loads((Path(run_dir) / "metrics.json").read_text())
+
+
+from fxspace.pipelines._sweep import sweep_config  # noqa: E402  (uses the names above)
