@@ -682,7 +682,8 @@ def write_report(run_dir: str | Path) -> tuple[list[dict[str, Any]], Path]:
     """``fxspace report DIR``: `collect` the runs under ``run_dir`` and write
     ``DIR/report/runs.csv``, ``runs.md`` and one figure per (metric, swept key) — the
     metric against that key, one line per combination of the other swept keys, the best
-    run (lowest value) marked — then print the table. Returns (rows, report folder)."""
+    run marked (the highest ``r`` / score / accuracy, else the lowest value; constant
+    metrics and timings get no figure) — then print the table. Returns (rows, report folder)."""
     import csv
     import io
 
@@ -708,6 +709,18 @@ def write_report(run_dir: str | Path) -> tuple[list[dict[str, Any]], Path]:
     return rows, out
 
 
+def _is_bookkeeping(metric: str) -> bool:
+    last = metric.rsplit(".", 1)[-1]
+    return metric.startswith("timings.") or last.endswith("_s") or last in ("index", "seed")
+
+
+def _higher_is_better(metric: str) -> bool:
+    """The best run of a metric: the highest for a correlation / score / accuracy
+    (``r``, ``r_*``, ``*score*``, ``*accuracy*``), else the lowest (errors, costs)."""
+    last = metric.rsplit(".", 1)[-1]
+    return last == "r" or last.startswith("r_") or "score" in last or "accuracy" in last
+
+
 def _report_figures(
     rows: list[dict[str, Any]], swept: list[str], metrics: list[str], out: Path
 ) -> list[Path]:
@@ -720,9 +733,10 @@ def _report_figures(
     files = []
     for m in metrics:
         vals = [r for r in ok if isinstance(r[m], int | float) and np.isfinite(r[m])]
-        if not vals:
-            continue
-        best = min(vals, key=lambda r: r[m])
+        if len({r[m] for r in vals}) < 2 or _is_bookkeeping(m):
+            continue  # a constant, a timing or an index: nothing to compare
+        up = _higher_is_better(m)
+        best = (max if up else min)(vals, key=lambda r: r[m])
         for x in swept:
             others = [k for k in swept if k != x]
             fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -737,7 +751,8 @@ def _report_figures(
                 lab = ", ".join(f"{k}={v}" for k, v in zip(others, g, strict=True)) or None
                 ax.plot(xs, [r[m] for r in rs], "o-", label=lab)
             bx = best[x] if numeric else cats.index(str(best[x]))
-            ax.plot([bx], [best[m]], "*", ms=16, color="crimson", label=f"best ({best['run']})")
+            tag = f"best ({'max' if up else 'min'}: {best['run']})"
+            ax.plot([bx], [best[m]], "*", ms=16, color="crimson", label=tag)
             if not numeric:
                 ax.set_xticks(range(len(cats)), cats, rotation=30, ha="right", fontsize=7)
             ax.set_xlabel(x)
