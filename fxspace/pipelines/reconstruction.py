@@ -477,6 +477,7 @@ def _write_outputs(ctx: dict) -> dict:
     """The edit (``edits.json``), ``scene.npz`` for the editor, the edited sequence, the
     character's glTF, and the figures."""
     from fxspace.io import MarkerSequence, read_gltf_morph, write_gltf_morph, write_trc
+    from fxspace.runs import unrecorded
 
     cfg, run_dir, scene, X, M = ctx["cfg"], ctx["run_dir"], ctx["scene"], ctx["X"], ctx["M"]
     names, dense, keys = ctx["names"], ctx["dense"], ctx["keys"]
@@ -485,8 +486,12 @@ def _write_outputs(ctx: dict) -> dict:
     Xh = np.asarray(reconstruct_scene(scene))
     Xe = edited_vertices(scene, keys)
     moved = np.linalg.norm(Xe - Xh, axis=2).max(0) > 1e-9
-    save_edits(run_dir / "edits.json", keys, n_frames=scene.n_frames,
-               n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist())  # fmt: skip
+    if not (run_dir / "edits.json").exists():  # the animator's saved keys are theirs:
+        with unrecorded():  # never in the manifest, never overwritten by a rerun
+            save_edits(
+                run_dir / "edits.json", keys, n_frames=scene.n_frames,
+                n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist(),
+            )  # fmt: skip
     save_npz_atomic(run_dir / "scene.npz", original=np.asarray(X, np.float32),
                     faces=dense["faces"], marker_vertex=mv, marker_names=np.asarray(names),
                     markers=M, rate=np.float64(ctx["rate"]), gamma=np.float64(ctx["g"]),
