@@ -2,8 +2,7 @@
 skinned glTF. The data types live with their system (`fxspace.motion.Motion`,
 `fxspace.mesh.SkinnedMesh`) or in ``io/_types`` (`MarkerSequence`).
 
-The seeded synthetic face lives in `fxspace.synthetic`; ``fx.io.synthetic_face`` and
-its companions stay reachable here as aliases (resolved lazily, so there is no cycle).
+The seeded synthetic face lives in `fxspace.synthetic` (``fx.synthetic.synthetic_face``).
 """
 
 from fxspace.io._asfamc import read_amc as read_amc
@@ -34,14 +33,6 @@ from fxspace.mesh import LocalPose as LocalPose
 from fxspace.mesh import SkinnedMesh as SkinnedMesh
 from fxspace.motion import Motion as Motion
 
-_SYNTHETIC_ALIASES = (
-    "EXPRESSION_MODES",
-    "SyntheticFace",
-    "expression_displacement",
-    "face_layout",
-    "synthetic_face",
-)
-
 __all__ = [
     "read_amc",
     "read_asf",
@@ -70,14 +61,5 @@ __all__ = [
     "LocalPose",
     "SkinnedMesh",
     "Motion",
-    *_SYNTHETIC_ALIASES,
 ]
 
-
-def __getattr__(name: str):
-    # Aliases kept from before fxspace.synthetic existed (moves, not renames).
-    if name in _SYNTHETIC_ALIASES:
-        import fxspace.synthetic as _synthetic
-
-        return getattr(_synthetic, name)
-    raise AttributeError(f"module 'fxspace.io' has no attribute {name!r}")

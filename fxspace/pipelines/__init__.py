@@ -63,6 +63,8 @@ __all__ = [
     "run_dict",
     "load_pipeline",
     "available",
+    "scripted_session",
+    "session_parameters",
 ]
 
 _NAME = re.compile(r"^[a-z_][a-z0-9_]*$")
@@ -363,3 +365,16 @@ def run_config(path: str | Path, out: str | Path | None = None, force: bool = Fa
 
 def summary(run_dir: str | Path) -> dict[str, Any]:
     return json.loads((Path(run_dir) / "metrics.json").read_text())
+
+
+# The config-level motion session (issue 22's stable names): `fx.pipelines.scripted_session`
+# and `fx.pipelines.session_parameters`, loaded on first use (the pipeline reads clips).
+_SESSION_NAMES = ("scripted_session", "session_parameters")
+
+
+def __getattr__(name: str):
+    if name in _SESSION_NAMES:
+        from fxspace.pipelines import parametric_synthesis as _ps
+
+        return getattr(_ps, name)
+    raise AttributeError(f"module 'fxspace.pipelines' has no attribute {name!r}")
