@@ -29,6 +29,7 @@ from fxspace.motion._fk import forward_kinematics as forward_kinematics
 from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
 from fxspace.motion._horn import apply_rigid as apply_rigid
+from fxspace.motion._horn import rotation_about_origin as rotation_about_origin
 from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
 from fxspace.motion._locomotion import LocomotionState as LocomotionState
 from fxspace.motion._locomotion import TurnTable as TurnTable
@@ -123,6 +124,7 @@ __all__ = [
     "RigidTransform",
     "absolute_orientation",
     "apply_rigid",
+    "rotation_about_origin",
     "euler_to_quat",
     "matrix_to_quat",
     "quat_conj",

@@ -11,7 +11,7 @@ from fxspace._validate import _is_tracer, as_float_array
 from fxspace.errors import FxspaceError
 from fxspace.rotations import quat_to_matrix
 
-__all__ = ["absolute_orientation", "RigidTransform", "apply_rigid"]
+__all__ = ["absolute_orientation", "rotation_about_origin", "RigidTransform", "apply_rigid"]
 
 
 class RigidTransform(NamedTuple):
@@ -66,6 +66,27 @@ def absolute_orientation(
     q = vecs[:, -1]
     R = quat_to_matrix(q)
     return RigidTransform(R, dbar - R @ sbar)
+
+
+def rotation_about_origin(src: Float[Array, "k 3"], dst: Float[Array, "k 3"]) -> RigidTransform:
+    """Rotation ``R`` about the origin minimising ``Σ_k ||R src_k − dst_k||²`` (Horn 1987's
+    quaternion solution with the points *not* centred: no translation, ``t = 0``).
+
+    Ha & Han §3.2 express both point clouds in the root frame and re-place the stored
+    samples by this rotation only, so the root (the origin) stays where it is. Needs
+    ``k ≥ 2`` non-collinear-with-the-origin points for a unique answer. O(k); jit/vmap/grad
+    like `absolute_orientation`.
+    """
+    src = as_float_array(src, "src", finite="allow")
+    dst = as_float_array(dst, "dst", finite="allow")
+    if src.ndim != 2 or src.shape[-1] != 3 or src.shape != dst.shape:
+        raise FxspaceError(f"src and dst must both be (k, 3), got {src.shape} and {dst.shape}")
+    sc = jnp.maximum(jnp.max(jnp.abs(src)), jnp.max(jnp.abs(dst)))
+    sc = jnp.where(sc > 0, sc, 1.0)
+    S = jnp.einsum("ka,kb->ab", src / sc, dst / sc)
+    _, vecs = jnp.linalg.eigh(horn_matrix(S))
+    R = quat_to_matrix(vecs[:, -1])
+    return RigidTransform(R, jnp.zeros(3, src.dtype))
 
 
 def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:

@@ -99,6 +99,7 @@ class SetupSpace:
     posture_transfer: float = 1.0
     splice: str = "heck"  # "heck": spatial alignment + posture transfer; "heading"
     min_slope: float = 0.05
+    replace: str = "rotation"  # §3.2: "rotation" about the root (paper) or "rigid"
 
 
 class Setup(NamedTuple):
@@ -288,6 +289,7 @@ def prepare_setup(
         concentration=space.concentration,
         max_active=space.max_active,
         min_slope=space.min_slope,
+        replace=space.replace,
     )
     jax.block_until_ready(sp.upper_params)
     sampling_s = time.perf_counter() - t0

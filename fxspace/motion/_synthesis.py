@@ -23,7 +23,7 @@ from jaxtyping import Array, Float
 from fxspace._validate import check_scalar
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
-from fxspace.motion._horn import absolute_orientation, apply_rigid
+from fxspace.motion._horn import absolute_orientation, apply_rigid, rotation_about_origin
 from fxspace.motion._splice import heading_quat, heck_splice, splice_pose, torso_joints
 from fxspace.motion._timewarp import advance_clock, align_clocks, interp_curve, invert_curve
 from fxspace.rotations import quat_conj, quat_rotate
@@ -57,7 +57,9 @@ class SynthesisSpaces:
     ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
     walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``splice`` (``"heck"``:
     `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
-    ``torso`` (`torso_joints`, used by ``"heck"``).
+    ``torso`` (`torso_joints`, used by ``"heck"``), ``replace`` (§3.2's re-placement:
+    ``"rotation"``, the paper's rotation about the root, or ``"rigid"``, rotation and
+    translation fitted together).
     """
 
     lower: ExampleSet
@@ -83,6 +85,7 @@ class SynthesisSpaces:
     min_slope: float
     splice: str = "heck"
     torso: tuple[int, ...] = ()
+    replace: str = "rotation"
 
 
 jax.tree_util.register_dataclass(
@@ -93,7 +96,7 @@ jax.tree_util.register_dataclass(
     ],
     meta_fields=[
         "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
-        "knn_k", "min_slope", "splice", "torso",
+        "knn_k", "min_slope", "splice", "torso", "replace",
     ],
 )  # fmt: skip
 
@@ -170,11 +173,13 @@ def exact_upper_params(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Flo
 @jax.jit
 def replace_samples(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, "S 3"]:
     """§3.2 re-placement: the real parameters ``p_1..p_k`` of the first ``k = k_replace``
-    samples for the new lower blend, Horn's rigid transform taking the stored ``ṗ_1..ṗ_k``
-    onto them (least squares), applied to all ``n`` stored ``ṗ_i``. O(k) splices + O(n)."""
+    samples for the new lower blend (root frame), Horn's rotation about the root taking the
+    stored ``ṗ_1..ṗ_k`` onto them (least squares), applied to all ``n`` stored ``ṗ_i``.
+    ``sp.replace == "rigid"`` fits a translation too (not in the paper). O(k) splices + O(n)."""
     k = sp.k_replace
     real = jax.vmap(lambda w: upper_param_of(sp, w_lower, w))(sp.upper_weights[:k])
-    tf = absolute_orientation(sp.upper_params[:k], real)
+    fit = absolute_orientation if sp.replace == "rigid" else rotation_about_origin
+    tf = fit(sp.upper_params[:k], real)
     return apply_rigid(tf, sp.upper_params)
 
 
@@ -366,19 +371,25 @@ def build_spaces(
     concentration: float = 0.5,
     max_active: int = 3,
     min_slope: float = 0.05,
+    replace: str = "rotation",
 ) -> SynthesisSpaces:
     """Sample both parameter spaces (Kovar & Gleicher 2004: ``n_samples`` random sparse
     blends, the examples first) and evaluate their parameters in one vmapped call each: the
     lower parameter (`lower_param_of`) and the upper one in the root frame, spliced
     onto the first lower example (``ṗ_i``, §3.2). ``upper_joint = -1`` builds an upper space
     without parameterisation (weights set by the user). ``k_replace`` (§3.2's ``k``, 8–12 in
-    the paper) must not exceed the number of upper samples."""
+    the paper) must not exceed the number of upper samples. ``replace``: ``"rotation"`` (the
+    paper's re-placement, about the root) or ``"rigid"`` (rotation and translation)."""
     kL, kU = jax.random.split(key)
     EL, EU = lower.warps.shape[0], upper.warps.shape[0]
     WL = sample_blend_weights(kL, EL, max(n_samples, EL), concentration, max_active)
     WU = sample_blend_weights(kU, EU, max(n_samples, EU), concentration, max_active)
     if splice not in ("heck", "heading"):
         raise ValueError(f"splice must be 'heck' or 'heading', got {splice!r}")
+    if replace not in ("rotation", "rigid"):
+        raise ValueError(
+            f"replace must be 'rotation' (§3.2, about the root) or 'rigid', got {replace!r}"
+        )
     if upper_joint >= 0 and not 3 <= k_replace <= WU.shape[0]:
         raise ValueError(f"k_replace must lie in [3, {WU.shape[0]}], got {k_replace}")
     dtype = jnp.result_type(float)
@@ -407,6 +418,7 @@ def build_spaces(
         min_slope=float(min_slope),
         splice=splice,
         torso=torso_joints(tuple(int(p) for p in parents), mask, int(spine)),
+        replace=replace,
     )
     return _sample_params(sp)
 

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from helpers import TOY_NAMES as NAMES
 from helpers import TOY_OFFSETS as OFFSETS
 from helpers import TOY_PARENTS as PARENTS
@@ -69,12 +70,44 @@ def test_replacement_matches_exact_resampling(sp):
     np.testing.assert_allclose(_replace(sp, sp.lower_w0), stale, atol=1e-5)
     # the heading-relative splice at posture transfer 1: the upper body keeps its
     # heading-relative orientation, so a new lower body moves every sample by one
-    # translation — Horn recovers it (float32 round-off)
+    # translation — Horn's rigid option recovers it (float32 round-off)
     s1 = dataclasses.replace(
-        sp, posture_transfer=jnp.ones_like(sp.posture_transfer), splice="heading"
+        sp, posture_transfer=jnp.ones_like(sp.posture_transfer), splice="heading", replace="rigid"
     )
     s1 = dataclasses.replace(s1, upper_params=_exact(s1, s1.lower_w0))
     np.testing.assert_allclose(_replace(s1, w_new), _exact(s1, w_new), atol=2e-5)
+
+
+def test_default_replacement_is_a_rotation_about_the_root(sp):
+    """§3.2 as printed: the stored ṗ (root frame) are re-placed by a rotation about the
+    root only — the root's position (the origin) stays put and distances to it are kept;
+    the rotation is scipy's least-squares one (``Rotation.align_vectors``)."""
+    assert sp.replace == "rotation"
+    w_new = jnp.asarray([0.1, 0.2, 0.6, 0.1])
+    k = sp.k_replace
+    real = np.asarray(jax.vmap(lambda w: fx.motion.upper_param_of(sp, w_new, w))(
+        sp.upper_weights[:k]))  # fmt: skip
+    tf = fx.motion.rotation_about_origin(sp.upper_params[:k], real)
+    R, t = tf
+    np.testing.assert_array_equal(np.asarray(t), 0.0)
+    np.testing.assert_allclose(np.asarray(fx.motion.apply_rigid(tf, jnp.zeros(3))), 0.0)
+    ref, _ = Rotation.align_vectors(real, np.asarray(sp.upper_params[:k], float))
+    np.testing.assert_allclose(np.asarray(R), ref.as_matrix(), atol=2e-4)
+    repl = np.asarray(_replace(sp, w_new))
+    np.testing.assert_allclose(repl, np.asarray(sp.upper_params) @ np.asarray(R).T, atol=1e-5)
+    np.testing.assert_allclose(
+        np.linalg.norm(repl, axis=1), np.linalg.norm(np.asarray(sp.upper_params), axis=1),
+        rtol=1e-5,
+    )  # fmt: skip
+
+
+def test_rotation_about_origin_recovers_a_known_rotation():
+    rng = np.random.default_rng(0)
+    R = Rotation.random(random_state=3).as_matrix()
+    src = rng.standard_normal((12, 3))
+    Rh, th = fx.motion.rotation_about_origin(src, src @ R.T)
+    np.testing.assert_allclose(np.asarray(Rh), R, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(th), 0.0)
 
 
 def test_step_is_pure_and_scan_matches_a_loop(sp):
