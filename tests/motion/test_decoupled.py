@@ -7,11 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from helpers import TOY_NAMES as NAMES
 from helpers import TOY_OFFSETS as OFFSETS
 from helpers import TOY_PARENTS as PARENTS
 from helpers import toy_clips as _clips
+from scipy.spatial.transform import Rotation
 
 import fxspace as fx
 from fxspace.motion import (
