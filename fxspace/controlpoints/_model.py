@@ -35,7 +35,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from fxspace._validate import as_float_array, check_indices, check_int, check_scalar, checked
-from fxspace.cluster import KernelKMeansResult, kernel_kmeans
+from fxspace.cluster import KernelKMeansResult, kernel_kmeans, median_gamma
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -211,6 +211,7 @@ def fit_control_points(
     max_steps: int = 100,
     max_points: int | None = 1000,
     refine_steps: int = 10,
+    method: str = "kernel",
 ) -> tuple[ControlPointModel, KernelKMeansResult]:
     """Control points of a segment by kernel k-means on the vertices' residual trajectories.
 
@@ -220,18 +221,27 @@ def fit_control_points(
     control point. ``gamma`` is the kernel width on these scaled trajectories (``None`` →
     median heuristic).
 
-    Dense meshes: kernel k-means is O(N²) in time and memory per step, so with more than
-    ``max_points`` vertices it runs on an evenly strided subset of ``max_points`` vertices,
-    and every vertex is then assigned, with ``refine_steps`` Euclidean k-means steps on all
-    vertices' trajectories from the subset's cluster means. Those steps lower eq. (1)
-    directly (for one-hot weights eq. (1) *is* the Euclidean k-means objective on the
-    residual trajectories). ``max_points=None`` clusters every vertex.
+    Dense meshes: with more than ``max_points`` vertices the restarts run on an evenly
+    strided subset of ``max_points`` vertices (kernel k-means is O(N²) per step). With
+    ``method="kernel"`` (the default, the paper's clustering to the end) every vertex then
+    starts from the nearest subset cluster mean and kernel k-means runs on *all* vertices
+    (same γ) until no label changes: the final labels are a fixed point of kernel k-means.
+    ``method="hybrid"`` (faster, not the paper's) instead finishes with ``refine_steps``
+    Euclidean k-means steps on all vertices from the subset's means (for one-hot weights
+    eq. (1) *is* the Euclidean k-means objective on the residual trajectories).
+    ``max_points=None`` clusters every vertex from k-means++ restarts.
 
     ``blend_radius`` (units of ``X``) smooths the memberships across cluster borders
     (`blend_weights`, on the first frame).
 
-    **Returns:** ``(model, clustering)`` — the clustering of the (sub)set.
+    **Returns:** ``(model, clustering)`` — the final kernel k-means (``"hybrid"``: of the
+    subset).
     """
+    if method not in ("kernel", "hybrid"):
+        raise FxspaceError(
+            f"method must be 'kernel' (kernel k-means on every vertex, the paper's) or "
+            f"'hybrid' (kernel k-means on a subset, Euclidean k-means on all); got {method!r}"
+        )
     X = _check_X(X)
     T, N, _ = X.shape
     n_clusters = check_int(n_clusters, "n_clusters", low=1)
@@ -247,8 +257,17 @@ def fit_control_points(
     if max_points is not None and N > max_points:
         idx = np.linspace(0, N - 1, max_points).round().astype(np.int64)
         sub = _subset_features(Xp, T_, jnp.asarray(idx))
+        if gamma is None:
+            gamma = float(median_gamma(sub))
         km = kernel_kmeans(sub, n_clusters, gamma, key=key, n_init=n_init, max_steps=max_steps)
-        labels = _refine_labels(Xp, T_, sub, km.labels, n_clusters, int(refine_steps))
+        if method == "hybrid":
+            labels = _refine_labels(Xp, T_, sub, km.labels, n_clusters, int(refine_steps))
+        else:
+            init = _refine_labels(Xp, T_, sub, km.labels, n_clusters, 0)
+            km = kernel_kmeans(
+                _features(Xp, T_), n_clusters, gamma, init=init[None], max_steps=max_steps
+            )
+            labels = km.labels
     else:
         feats = _features(Xp, T_)
         km = kernel_kmeans(feats, n_clusters, gamma, key=key, n_init=n_init, max_steps=max_steps)
