@@ -63,7 +63,7 @@ def test_hybrid_is_a_named_option_and_bad_methods_are_refused():
     )
     assert km_h.labels.shape == (100,)  # the hybrid reports the subset's clustering
     # on well-separated groups both find the same partition (up to label names)
-    pairs = set(zip(np.asarray(m_k.labels).tolist(), np.asarray(m_h.labels).tolist()))
+    pairs = set(zip(np.asarray(m_k.labels).tolist(), np.asarray(m_h.labels).tolist(), strict=True))
     assert len(pairs) == 5
     with pytest.raises(fx.errors.FxspaceError, match="method"):
         fx.fit_control_points(X, 5, method="euclid")
