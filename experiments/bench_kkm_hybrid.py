@@ -33,7 +33,7 @@ def main():
     lin = np.asarray(fx.reconstruct(fx.fit_control_points(X, 1, n_init=1)[0]))
     for method in ("kernel", "hybrid"):
 
-        def fit():
+        def fit(method=method):
             m, _ = fx.fit_control_points(
                 X, a.clusters, key=jax.random.key(0), n_init=20, method=method
             )
