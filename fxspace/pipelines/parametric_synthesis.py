@@ -454,12 +454,12 @@ def _jitter(X: np.ndarray, rate: float) -> float:
 
 
 def _stage_timewarp(st: M.Setup) -> tuple[dict, dict]:
-    """Eq. 1's registration within one example set (``registration_*`` metrics; not the
-    paper's Fig. 3, which is `_fig3_clocks`): 50/50 blends of each set's reference example
-    with each other one, played over the reference clip with the registration (``C_i``,
-    eq. 1's warps) and without any time-warping (frame ``T`` of every example blended with
-    frame ``T``); foot sliding in contact and joint jitter of both, the examples' own as the floor. For the
-    mood walk the joy/sad walks (different tempi) are blended as well. Returns
+    """Eq. 1's registration within one example set (``registration_*`` metrics; not the paper's
+    Fig. 3, which is `_fig3_clocks`): 50/50 blends of each set's reference example with each
+    other one, played over the reference clip with the registration (``C_i``, eq. 1's warps)
+    and without any time-warping (frame ``T`` of every example blended with frame ``T``);
+    foot sliding in contact and joint jitter of both, the examples' own as the floor. For
+    the mood walk the joy/sad walks (different tempi) are blended as well. Returns
     ``(metrics, toe-height curves of the first set)``."""
     sp, sk = st.spaces, st.skeleton
     sets = [("lower", sp.lower)] + ([("upper", sp.upper)] if sp.upper_joint < 0 else [])
