@@ -268,6 +268,7 @@ _SP_META = (
     "min_slope",
     "splice",
     "torso",
+    "replace",
 )
 
 
@@ -453,11 +454,12 @@ def _jitter(X: np.ndarray, rate: float) -> float:
 
 
 def _stage_timewarp(st: M.Setup) -> tuple[dict, dict]:
-    """Ha & Han Fig. 3: 50/50 blends of each set's reference example with each other one,
-    played over the reference clip with the registration (``C_i``, eq. 1's warps) and
-    without any time-warping (frame ``T`` of every example blended with frame ``T``); foot
-    sliding in contact and joint jitter of both, the examples' own as the floor. For the
-    mood walk the joy/sad walks (different tempi) are blended as well. Returns
+    """Eq. 1's registration within one example set (``registration_*`` metrics; not the paper's
+    Fig. 3, which is `_fig3_clocks`): 50/50 blends of each set's reference example with each
+    other one, played over the reference clip with the registration (``C_i``, eq. 1's warps)
+    and without any time-warping (frame ``T`` of every example blended with frame ``T``);
+    foot sliding in contact and joint jitter of both, the examples' own as the floor. For
+    the mood walk the joy/sad walks (different tempi) are blended as well. Returns
     ``(metrics, toe-height curves of the first set)``."""
     sp, sk = st.spaces, st.skeleton
     sets = [("lower", sp.lower)] + ([("upper", sp.upper)] if sp.upper_joint < 0 else [])
@@ -485,13 +487,15 @@ def _stage_timewarp(st: M.Setup) -> tuple[dict, dict]:
                     curves[kind][f"{set_name} M1+M{i + 1}"] = X[:, toe, 1]
     Xe = _examples_X(st, sp.lower) + (_examples_X(st, sp.upper) if len(sets) > 1 else [])
     curves["examples"] = {f"example {i + 1}": x[:, toe, 1] for i, x in enumerate(Xe[-2:])}
-    m = {f"fig3_{k}_mean": float(np.nanmean(v)) for k, v in out.items()}
-    m["fig3_foot_slide_examples_mean"] = float(
+    m = {f"registration_{k}_mean": float(np.nanmean(v)) for k, v in out.items()}
+    m["registration_foot_slide_examples_mean"] = float(
         np.nanmean([M.foot_sliding(X, st.feet, sk.rate) for X in Xe])
     )
-    m["fig3_jitter_examples_mean"] = float(np.mean([_jitter(X, sk.rate) for X in Xe]))
-    m["fig3_units"] = "foot slide m/s while in contact; jitter m/s^2 (mean joint acceleration)"
-    m["fig3_blends"] = "50/50: reference + each other example of " + " and ".join(
+    m["registration_jitter_examples_mean"] = float(np.mean([_jitter(X, sk.rate) for X in Xe]))
+    m["registration_units"] = (
+        "foot slide m/s while in contact; jitter m/s^2 (mean joint acceleration)"
+    )
+    m["registration_blends"] = "50/50: reference + each other example of " + " and ".join(
         n for n, _ in sets
     )
     return m, curves
@@ -654,10 +658,116 @@ def _figures(st: M.Setup, cfg: Config, run_dir: Path, qL, extra: dict, curves: d
             curves["warped"],
             curves["plain"],
             curves["examples"],
-            title=f"{name}: Fig. 3, blends with and without time-warp",
+            title=f"{name}: eq. 1 registration, blends with and without time-warp",
         ),
-        run_dir / f"{name}_fig3_timewarp.png",
+        run_dir / f"{name}_registration_timewarp.png",
     )
+    f3 = _fig3_clocks(st, cfg)
+    save_figure_atomic(_plot_fig3(st, f3), run_dir / f"{name}_fig3.png")
+
+
+def _fig3_clocks(st: M.Setup, cfg: Config) -> dict:
+    """Ha & Han Fig. 3 as printed: the *spliced* motion (reference upper example on the
+    reference lower example), (a) each body half on its own clock (eq. 1 only) and (b) the
+    clocks aligned by eqs. 2–3 (α = ``synth.alpha``). Phase of each half: ``T_L/(N−1)`` and
+    ``λ⁻¹(T_U)/(N−1)`` (where the upper clock sits in the lower cycle); frames until each
+    clock ends its cycle (``N−1`` and ``λ(N−1)``)."""
+    sp, sk = st.spaces, st.skeleton
+    dt_ = sp.lam.dtype
+    wL = sp.lower_w0
+    wU = jnp.zeros(sp.upper.warps.shape[0], dt_).at[0].set(1.0)
+    lam = sp.lam
+    n = int(lam.shape[0])
+    endL, endU = n - 1.0, float(lam[-1])
+    F = 3 * n
+
+    def clocks(aligned: bool):
+        def body(c, _):
+            tl, tu = c
+            tl2 = tl + M.advance_clock(tl, sp.lower.warps, wL, 1.0, sp.min_slope)
+            tu2 = tu + M.advance_clock(tu, sp.upper.warps, wU, 1.0, sp.min_slope)
+            tl2 = jnp.minimum(tl2, endL)
+            if aligned:
+                tl2, tu2 = M.align_clocks(tl2, tu2, lam, cfg.synth.alpha)
+            return (tl2, tu2), jnp.stack([tl, tu])
+
+        c0 = (jnp.zeros((), dt_), lam[0])
+        return np.asarray(jax.lax.scan(body, c0, None, length=F)[1])
+
+    out: dict = {}
+    for key, aligned in (("unaligned", False), ("aligned", True)):
+        c = clocks(aligned)
+        doneL = np.nonzero(c[:, 0] >= endL - 1e-6)[0]
+        doneU = np.nonzero(c[:, 1] >= endU - 1e-6)[0]
+        nL = int(doneL[0]) if doneL.size else F
+        nU = int(doneU[0]) if doneU.size else F
+        m = max(min(nL, nU), 1) + 1  # both halves inside their first cycle
+        phL = c[:m, 0] / endL
+        inv = jax.vmap(lambda y: M.invert_curve(lam, y))
+        phU = np.asarray(inv(jnp.asarray(np.minimum(c[:m, 1], endU), dt_))) / endL
+        q = jax.vmap(
+            lambda tl, tu: M.splice_frame(
+                sp, M.blend_pose(sp.lower, wL, tl)[0], M.blend_pose(sp.upper, wU, tu)[0]
+            )
+        )(jnp.asarray(c[:m, 0], dt_), jnp.asarray(c[:m, 1], dt_))
+        r = jax.vmap(lambda tl: M.blend_pose(sp.lower, wL, tl)[1])(jnp.asarray(c[:m, 0], dt_))
+        X = np.asarray(M.fk_arrays(sk.parents, sp.offsets, r, q)[0])
+        out[key] = {
+            "phase_error": float(np.mean(np.abs(phU - phL))),
+            "length_difference_s": abs(nL - nU) / float(sk.rate),
+            "clocks": c[:m],
+            "phases": (phL, phU),
+            "X": X,
+        }
+    return out
+
+
+def _plot_fig3(st: M.Setup, f3: dict):
+    import matplotlib.pyplot as plt
+
+    parents = st.skeleton.parents
+    fig = plt.figure(figsize=(13, 7))
+    for row, key in enumerate(("unaligned", "aligned")):
+        d = f3[key]
+        X = d["X"]
+        frames = np.linspace(0, X.shape[0] - 1, 6).round().astype(int)
+        for j, f in enumerate(frames):
+            ax = fig.add_subplot(3, 6, 6 * row + j + 1)
+            P = X[f] - X[f, :1] * np.array([1.0, 0.0, 1.0])
+            for c, p in enumerate(parents):
+                if p >= 0:
+                    ax.plot(P[[p, c], 0], P[[p, c], 1], c="C0" if row == 0 else "C1", lw=1.2)
+            ax.set_aspect("equal")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_title(f"{'(a)' if row == 0 else '(b)'} frame {f}", fontsize=8)
+    ax = fig.add_subplot(3, 1, 3)
+    for i, key in enumerate(("unaligned", "aligned")):
+        phL, phU = f3[key]["phases"]
+        ax.plot(phL, c=f"C{i}", ls="--", label=f"{key}: lower body T_L/(N-1)")
+        ax.plot(phU, c=f"C{i}", label=f"{key}: upper body λ⁻¹(T_U)/(N-1)")
+    ax.set_xlabel("output frame")
+    ax.set_ylabel("phase in the lower cycle")
+    ax.legend(fontsize=7)
+    fig.suptitle(
+        f"{st.name}: Fig. 3, spliced motion (a) on separate clocks (phase error "
+        f"{f3['unaligned']['phase_error']:.3f}) and (b) aligned by eqs. 2-3 "
+        f"({f3['aligned']['phase_error']:.3f})"
+    )
+    return fig
+
+
+def fig3_metrics(st: M.Setup, cfg: Config) -> dict:
+    """``fig3_phase_error_unaligned`` / ``fig3_phase_error_aligned`` (mean |phase of the
+    upper body − phase of the lower body|, a fraction of the cycle) and the length
+    differences (s) of the spliced motion of `_fig3_clocks`."""
+    f3 = _fig3_clocks(st, cfg)
+    return {
+        "fig3_phase_error_unaligned": f3["unaligned"]["phase_error"],
+        "fig3_phase_error_aligned": f3["aligned"]["phase_error"],
+        "fig3_length_difference_unaligned_s": f3["unaligned"]["length_difference_s"],
+        "fig3_length_difference_aligned_s": f3["aligned"]["length_difference_s"],
+    }
 
 
 def _joy_sweep(st: M.Setup, cfg: Config, run_dir: Path, qL) -> dict:
@@ -707,9 +817,10 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key, seed: int) -> dict:
             },
         }
 
-    fig3 = cached(run_dir, f"{name}_timewarp", timewarp)
-    curves = fig3.pop("curves")
-    m.update(fig3)
+    reg = cached(run_dir, f"{name}_timewarp", timewarp)
+    curves = reg.pop("curves")
+    m.update(reg)
+    m.update(fig3_metrics(st, cfg))
     if name != "block_kick" and cfg.synth.session_s > 0:
         m.update(cached(run_dir, f"{name}_session", lambda: _stage_session(st, cfg, seed, run_dir)))
     more, extra = _clips_and_timing(st, cfg, run_dir, qL, wq_u)
