@@ -18,4 +18,10 @@ def on_page_read_source(page, config):
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     text = text.replace("](docs/", "](")
     # links to files of the repository that are not part of the site: keep the text only
-    return re.sub(r"\[([^\]]+)\]\((?!https?://|#|images/)([^)]+)\)", r"\1 (`\2`)", text)
+    def keep_or_code(m: re.Match) -> str:
+        target = m.group(2)
+        if re.match(r"https?://|#", target) or (ROOT / "docs" / target.split("#")[0]).is_file():
+            return m.group(0)
+        return f"{m.group(1)} (`{target}`)"
+
+    return re.sub(r"\[([^\]]+)\]\(([^)]+)\)", keep_or_code, text)
