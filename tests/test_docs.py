@@ -46,3 +46,25 @@ def test_readme_links_and_images_resolve(name):
     assert targets, "README links to nothing"
     for t in targets:
         assert (ROOT / t.split("#")[0]).exists(), f"{name} links to missing {t}"
+
+
+def test_site_loads_nothing_from_the_network():
+    text = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    assert "http://" not in text and "https://" not in text, "mkdocs.yml loads a URL"
+
+
+def test_maths_become_mathml_at_build_time():
+    pytest.importorskip("latex2mathml", reason="docs extra not installed (pip install -e .[docs])")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    html = (
+        '<p>a <span class="arithmatex">\\( x_i &lt; 1 \\)</span></p>'
+        '<div class="arithmatex">\\[ \\sum_k u_{ik} = 1 \\]</div>'
+    )
+    out = hooks.on_page_content(html, None, None, None)
+    assert "\\(" not in out and "\\[" not in out
+    assert out.count("<math") == 2
+    assert 'display="block"' in out and "<mo>&#x0003C;</mo>" in out
