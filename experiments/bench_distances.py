@@ -26,7 +26,8 @@ from scipy.spatial.distance import cdist
 import fxspace as fx
 from fxspace.data import data_path, data_root
 from fxspace.expression._features import _gram_distances
-from fxspace.io import read_markers, synthetic_face
+from fxspace.io import read_markers
+from fxspace.synthetic import synthetic_face
 
 
 def _frames(take: str) -> tuple[np.ndarray, str]:

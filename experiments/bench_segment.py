@@ -229,7 +229,49 @@ def main(argv=None) -> int:
         print(f"ours/numpy = {r['ratio_numpy']:.3f}, ours/tslearn = {r['ratio_tslearn']:.3f}")
     else:
         print(f"ours/numpy = {r['ratio_numpy']:.3f} (tslearn not installed)")
+    sizes = [1500] if a.quick else [1500, 4000, 6000]
+    print("\n## control points: kernel k-means to the end (default) vs the hybrid (issue 31.3)")
+    print("AnimFace cheeks, frames 300-351 on the dense face, 25 control points, 20 restarts on")
+    print("a 1000-vertex subset; 'kernel' then runs kernel k-means on every vertex to its fixed")
+    print("point, 'hybrid' stops at 10 Euclidean k-means steps; error = RMS / linear's RMS")
+    print(
+        "| vertices | kernel (s) | hybrid (s) | kernel/hybrid time | kernel error | hybrid error |"
+    )
+    print("|---|---|---|---|---|---|")
+    for nv in sizes:
+        r = bench_methods(nv, reps)
+        if r is None:
+            print("(no data: AnimFace absent)")
+            break
+        print(f"| {nv} | {r['kernel_s']:.3f} | {r['hybrid_s']:.3f} | "
+              f"{r['kernel_s'] / r['hybrid_s']:.2f} | {r['kernel_err']:.4f} | "
+              f"{r['hybrid_err']:.4f} |")  # fmt: skip
     return 0
+
+
+def bench_methods(n_vertices: int, repeats: int) -> dict | None:
+    """`fit_control_points` with ``method="kernel"`` and ``"hybrid"`` on the dense face:
+    median seconds (compiled) and the error ratio against linear interpolation."""
+    root = fx.data.data_root()
+    if root is None:
+        return None
+    seq = fx.io.read_markers(root / "face" / "animface_cheeks.c3d")
+    P = np.asarray(seq.positions, dtype=float)
+    surf = fx.face_surface(P[0], n_vertices)
+    S = jnp.asarray(fx.rbf_deform(surf.vertices, P[0], P[300:352]))
+    lin = float(fx.reconstruction_error(S, fx.linear_interpolation(S[0], S[-1], S.shape[0])))
+    out = {}
+    for m in ("kernel", "hybrid"):
+
+        def fit(m=m):
+            model, _ = fx.fit_control_points(S, 25, key=jax.random.PRNGKey(0), method=m)
+            return jax.block_until_ready(model.controls), model
+
+        fit()  # compile
+        t, (_, model) = _median_time(fit, repeats)
+        out[f"{m}_s"] = t
+        out[f"{m}_err"] = float(fx.reconstruction_error(S, fx.reconstruct(model))) / lin
+    return out
 
 
 if __name__ == "__main__":

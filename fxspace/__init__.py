@@ -28,6 +28,7 @@ from fxspace import controlpoints as controlpoints
 from fxspace import data as data
 from fxspace import errors as errors
 from fxspace import expression as expression
+from fxspace import face as face
 from fxspace import io as io
 from fxspace import mesh as mesh
 from fxspace import motion as motion

@@ -35,6 +35,7 @@ rest (compute); pipelines record it in ``meta.json`` under ``"timing"``.
 from __future__ import annotations
 
 import os
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -411,8 +412,9 @@ def cached_executable(fn: Any, *args: Any) -> CachedExecutable:
             try:
                 blob = pickle.dumps((*se.serialize(compiled), sorted(targets)))
                 folder.mkdir(parents=True, exist_ok=True)
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_bytes(blob)
+                fd, tmp = tempfile.mkstemp(prefix=".fx", suffix=".tmp", dir=folder)
+                with os.fdopen(fd, "wb") as f:  # unique temp name beside the target
+                    f.write(blob)
                 os.replace(tmp, path)
                 _prune(folder)
             except Exception:  # noqa: BLE001 - XLA cannot serialise every program

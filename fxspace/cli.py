@@ -44,12 +44,38 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from fxspace.pipelines import sweep_config
+
+    res = sweep_config(
+        args.config, args.out, workers=args.workers, scheduler=args.scheduler,
+        fail_fast=args.fail_fast, force=args.force, engine=args.engine,
+    )  # fmt: skip
+    failed = [r for r in res if r["status"] != "complete"]
+    for r in failed:
+        print(f"fxspace sweep: FAILED {r['run_dir']}: {r['error']}", file=sys.stderr)
+    print(f"fxspace sweep: {len(res) - len(failed)} complete, {len(failed)} failed")
+    return 1 if failed else 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from fxspace.runs import write_report
+
+    rows, folder = write_report(args.dir)
+    print(f"fxspace report: {len(rows)} runs; table and figures in {folder}")
+    return 0
+
+
 def studio_target(target: str | Path, out: str | Path | None = None) -> Path:
-    """What ``fxspace studio`` opens: a run folder as it is; a config file is first run
+    """What ``fxspace studio`` opens: a run folder, a ``.glb`` mesh, or a config whose app
+    builds only what it shows (`fxspace.studio.OPENS_CONFIG`: the IK studio reads one mesh
+    and its markers) as they are; another config file is first run
     (or resumed: finished stages and a finished run with the same content key are reused,
     so a second launch opens in seconds) and its run folder returned."""
+    from fxspace.studio import opens_directly
+
     p = Path(target)
-    if p.is_dir():
+    if opens_directly(p):  # a run folder, a mesh, or an app that builds what it shows
         return p
     from fxspace.pipelines import run_config
 
@@ -143,15 +169,30 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.set_defaults(func=_cmd_demo)
 
-    for name, helptext in (
-        ("run", "run the experiment a TOML config describes"),
-        ("sweep", "run a config with a [sweep] table (resumes finished runs)"),
-    ):
-        r = sub.add_parser(name, help=helptext)
-        r.add_argument("config", help="path to a TOML config (see configs/)")
-        r.add_argument("--out", default=None, help="output folder (default runs/<config stem>)")
-        r.add_argument("--force", action="store_true", help="rerun runs that are already complete")
-        r.set_defaults(func=_cmd_run)
+    r = sub.add_parser("run", help="run the experiment a TOML config describes (serially)")
+    r.add_argument("config", help="path to a TOML config (see configs/)")
+    r.add_argument("--out", default=None, help="output folder (default runs/<config stem>)")
+    r.add_argument("--force", action="store_true", help="rerun runs that are already complete")
+    r.set_defaults(func=_cmd_run)
+
+    w = sub.add_parser(
+        "sweep", help="run a config's [sweep] in parallel (local Dask cluster or processes)"
+    )
+    w.add_argument("config", help="path to a TOML config with a [sweep] table")
+    w.add_argument("--out", default=None, help="output folder (default runs/<config stem>)")
+    w.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    w.add_argument("--scheduler", default=None, help="a running Dask scheduler (tcp://HOST:PORT)")
+    w.add_argument("--fail-fast", action="store_true", help="stop at the first failed run")
+    w.add_argument("--force", action="store_true", help="rerun runs that are already complete")
+    w.add_argument(
+        "--engine", default="auto", choices=("auto", "dask", "processes", "serial"),
+        help="auto: Dask when installed, else processes",
+    )  # fmt: skip
+    w.set_defaults(func=_cmd_sweep)
+
+    rp = sub.add_parser("report", help="compare the runs under a folder (table + figures)")
+    rp.add_argument("dir", help="a folder of runs (e.g. a sweep's --out)")
+    rp.set_defaults(func=_cmd_report)
 
     for name in ("studio", "view"):
         v = sub.add_parser(

@@ -19,6 +19,7 @@ source = "animface"
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
 import tomllib
@@ -175,8 +176,20 @@ def expand_sweep(raw: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
         for k, v in zip(keys, values, strict=True):
             cfg = set_dotted(cfg, k, v)
             parts.append(f"{k.split('.')[-1]}={v}")
-        runs.append(("_".join(parts).replace("/", "-"), cfg))
-    return runs
+        runs.append(("_".join(parts).replace("/", "-"), cfg, values))
+    # labels unique by construction: colliding ones get a short hash of the swept values
+    counts: dict[str, int] = {}
+    for label, _, _ in runs:
+        counts[label] = counts.get(label, 0) + 1
+    out = []
+    for label, cfg, values in runs:
+        if counts[label] > 1:
+            h = hashlib.sha256(repr(list(values)).encode()).hexdigest()[:8]
+            label = f"{label}-{h}"
+        out.append((label, cfg))
+    if len({lab for lab, _ in out}) != len(out):
+        raise ConfigError("[sweep] holds the same combination of values twice; drop the repeat")
+    return out
 
 
 def _fmt(v: Any) -> str:

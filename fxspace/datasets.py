@@ -18,7 +18,8 @@ from fxspace.config import ConfigError
 from fxspace.data import data_path
 from fxspace.errors import FxspaceError
 from fxspace.expression import fill_gaps, missing_report
-from fxspace.io import read_markers, synthetic_face
+from fxspace.io import read_markers
+from fxspace.synthetic import synthetic_face
 
 __all__ = [
     "FaceData",

@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from fxspace.errors import FxspaceError
+
 __all__ = [
     "write_bytes_atomic",
     "write_text_atomic",
@@ -61,10 +63,18 @@ __all__ = [
     "manifest_files",
     "clean_run",
     "active_run",
+    "unrecorded",
+    "RunLockedError",
+    "run_lock",
+    "LOCK",
+    "collect",
+    "write_report",
 ]
 
 #: Name of the manifest file: the files fxspace wrote into a run folder.
 MANIFEST = ".fxspace-manifest"
+#: Name of a run folder's lock file (pid, host and time of the process running it).
+LOCK = ".fxspace-lock"
 
 # the run folder being written by `run_dict` (files written under it are recorded)
 _ACTIVE: ContextVar[Path | None] = ContextVar("fxspace_active_run", default=None)
@@ -87,8 +97,13 @@ _PACKAGES = (
 def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder + rename)."""
     p = Path(path)
+    active = _ACTIVE.get()
+    if active is not None and (p.exists() or p.is_symlink()):
+        _check_ours(active, p)
     p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    # a short unique temp name beside the target: never NAME.tmp (a user's file of that
+    # name survives) and short enough for any legal (255-character) target name
+    fd, tmp = tempfile.mkstemp(prefix=".fx", suffix=".tmp", dir=p.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -100,10 +115,116 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    active = _ACTIVE.get()
     if active is not None:
         record(active, p)
     return p
+
+
+def _check_ours(root: Path, p: Path) -> None:
+    """Inside a run, an existing file under the run folder may be replaced only when the
+    folder's manifest lists it (fxspace wrote it); a user's file is never overwritten."""
+    try:
+        rel = p.resolve().relative_to(root).as_posix()
+    except ValueError:
+        return  # outside the run folder: not the run's business
+    if rel in set(manifest_files(root)):
+        return
+    raise FileExistsError(
+        f"{p} exists and this run did not write it (it is not in {root / MANIFEST}); "
+        "fxspace never overwrites a file it did not write: move or rename that file, "
+        "or choose another --out"
+    )
+
+
+@contextmanager
+def unrecorded() -> Iterator[None]:
+    """Within this block, files written through this module are not recorded in the
+    active run's manifest: user-owned state (the editor's ``edits.json``) that no
+    ``--force`` or stale-run clean may delete."""
+    token = _ACTIVE.set(None)
+    try:
+        yield
+    finally:
+        _ACTIVE.reset(token)
+
+
+class RunLockedError(FxspaceError, RuntimeError):
+    """Another live process holds the run folder's lock."""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OSError, ValueError, OverflowError):
+        return False
+    return True
+
+
+@contextmanager
+def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -> Iterator[Path]:
+    """Hold ``run_dir/.fxspace-lock`` (pid, host, time) while one process writes the run.
+
+    A second process waits up to ``wait`` seconds (``None``: forever) and then raises
+    `RunLockedError` naming the holder and the fix. A lock whose holder died (same host,
+    pid gone) is taken over, with a message.
+    """
+    import socket
+    import time
+
+    root = Path(run_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    lp = root / LOCK
+    host = socket.gethostname()
+    me = {"pid": os.getpid(), "host": host,
+          "at": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}  # fmt: skip
+    t0 = time.monotonic()
+    while True:
+        try:
+            fd = os.open(lp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                held = json.loads(lp.read_text())
+            except (OSError, json.JSONDecodeError):
+                held = {}
+            if (
+                held.get("host") == host
+                and isinstance(held.get("pid"), int)
+                and (not _pid_alive(held["pid"]))
+            ):
+                print(f"[fxspace] {lp}: its holder (pid {held['pid']}) died; taking it over")
+                try:
+                    lp.unlink()
+                except FileNotFoundError:
+                    pass
+                continue
+            if not held and lp.exists():
+                time.sleep(poll)  # being written right now
+                if not lp.exists() or lp.read_text().strip():
+                    continue
+            if wait is not None and time.monotonic() - t0 >= wait:
+                raise RunLockedError(
+                    f"{root} is being written by another process (pid {held.get('pid')} on "
+                    f"{held.get('host')} since {held.get('at')}, lock {lp}); wait for it to "
+                    "finish, or choose another --out; if that process is gone, delete the "
+                    "lock file"
+                ) from None
+            time.sleep(poll)
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(me))
+        break
+    try:
+        yield lp
+    finally:
+        try:
+            if json.loads(lp.read_text()).get("pid") == os.getpid():
+                lp.unlink()
+        except (OSError, json.JSONDecodeError):
+            pass
 
 
 def _manifest_path(run_dir: str | Path) -> Path:
@@ -166,12 +287,25 @@ def active_run(run_dir: str | Path) -> Iterator[Path]:
         _ACTIVE.reset(token)
 
 
+def _in_nested_run(root: Path, rel: str) -> bool:
+    """Whether ``root/rel`` lies inside another run folder nested under ``root``."""
+    d = root
+    for part in Path(rel).parts[:-1]:
+        d = d / part
+        if (d / MANIFEST).is_file() or (d / "status.json").is_file() or (d / LOCK).exists():
+            return True
+    return False
+
+
 def _remove_listed(root: Path, keep: Callable[[str], bool]) -> list[str]:
     """Delete the manifest's files for which ``keep(rel)`` is false, then the folders
-    left empty by that (never a folder that still holds anything)."""
+    left empty by that (never a folder that still holds anything, never a file inside
+    a nested run folder)."""
     listed = manifest_files(root)
     removed, kept = [], []
     for rel in listed:
+        if _in_nested_run(root, rel):
+            continue  # another run's file (it has its own manifest): never ours to delete
         if keep(rel):
             kept.append(rel)
             continue
@@ -431,3 +565,200 @@ def cached_arrays(
     save_npz_atomic(p, **value)
     record(run_dir, p)
     return value
+
+
+# ------------------------------------------------------------------ comparing runs
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _scalar(v: Any) -> bool:
+    return isinstance(v, int | float | str) and not isinstance(v, bool) or isinstance(v, bool)
+
+
+def _run_folders(root: Path) -> list[Path]:
+    found = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        d = Path(dirpath)
+        dirnames[:] = sorted(n for n in dirnames if n != "report" and not n.startswith("."))
+        if "status.json" in filenames or "metrics.json" in filenames:
+            found.append(d)
+    return sorted(found)
+
+
+def collect(run_dir: str | Path, as_frame: bool = False) -> Any:
+    """One row per run under ``run_dir`` (every folder holding ``status.json`` or
+    ``metrics.json``): ``run`` (its path relative to ``run_dir``), the swept keys (the
+    config keys whose values differ between the runs, dotted), the scalar metrics,
+    ``wall_s`` / ``compile_s`` (``meta.json`` timing), ``status`` and ``error``.
+
+    Returns a list of dicts, or a pandas DataFrame with ``as_frame=True`` (needs pandas).
+    A missing value is ``None`` (NaN in the frame), never 0.
+    """
+    rows, _, _ = _collect(run_dir)
+    if as_frame:
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("collect(as_frame=True) needs pandas: pip install pandas") from None
+        return pd.DataFrame(rows, columns=list(rows[0]) if rows else None)
+    return rows
+
+
+def _collect(run_dir: str | Path) -> tuple[list[dict[str, Any]], list[str], list[str]]:
+    """The rows of `collect` plus the swept keys and the metric columns."""
+    import tomllib
+
+    root = Path(run_dir)
+    if not root.is_dir():
+        raise FileNotFoundError(f"run_dir {root} is not a folder; pass a sweep's --out folder")
+    runs = []
+    for d in _run_folders(root):
+        try:
+            cfg = _flatten(tomllib.loads((d / "config.toml").read_text()))
+        except (OSError, tomllib.TOMLDecodeError):
+            cfg = {}
+        try:
+            metrics = json.loads((d / "metrics.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            metrics = {}
+        try:
+            timing = json.loads((d / "meta.json").read_text()).get("timing") or {}
+        except (OSError, json.JSONDecodeError):
+            timing = {}
+        st = read_status(d)
+        runs.append((d, cfg, metrics, timing, st))
+    keys = sorted({k for _, c, *_ in runs for k in c})
+    swept = [
+        k for k in keys
+        if len({json.dumps(c.get(k), sort_keys=True) for _, c, *_ in runs}) > 1
+    ]  # fmt: skip
+    rows = []
+    for d, cfg, metrics, timing, st in runs:
+        row: dict[str, Any] = {"run": d.relative_to(root).as_posix() or "."}
+        for k in swept:
+            v = cfg.get(k)
+            row[k] = v if _scalar(v) or v is None else json.dumps(v)
+        for k, v in _flatten(metrics).items():
+            if _scalar(v) and k not in row:
+                row[k] = v
+        row["wall_s"] = timing.get("wall_s", metrics.get("wall_time_s"))
+        row["compile_s"] = timing.get("compile_s")
+        status = st.get("status") or ("complete" if metrics else "unknown")
+        row["status"] = status
+        row["error"] = st.get("error")
+        rows.append(row)
+    cols: list[str] = []
+    for r in rows:
+        cols += [k for k in r if k not in cols]
+    rows = [{k: r.get(k) for k in cols} for r in rows]
+    fixed = {"run", "wall_s", "compile_s", "status", "error", *swept}
+    metric_cols = [
+        k for k in cols if k not in fixed and any(r[k] is not None for r in rows) and all(
+            r[k] is None or (isinstance(r[k], int | float) and not isinstance(r[k], bool))
+            for r in rows
+        )
+    ]  # fmt: skip
+    return rows, swept, metric_cols
+
+
+def _fmt_cell(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+def write_report(run_dir: str | Path) -> tuple[list[dict[str, Any]], Path]:
+    """``fxspace report DIR``: `collect` the runs under ``run_dir`` and write
+    ``DIR/report/runs.csv``, ``runs.md`` and one figure per (metric, swept key) — the
+    metric against that key, one line per combination of the other swept keys, the best
+    run marked (the highest ``r`` / score / accuracy, else the lowest value; constant
+    metrics and timings get no figure) — then print the table. Returns (rows, report folder)."""
+    import csv
+    import io
+
+    rows, swept, metrics = _collect(run_dir)
+    out = Path(run_dir) / "report"
+    if not rows:
+        raise FileNotFoundError(
+            f"no runs under {run_dir} (no folder holds status.json or metrics.json); "
+            "pass the --out folder of a run or sweep"
+        )
+    cols = list(rows[0])
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: "" if v is None else v for k, v in r.items()})
+    write_text_atomic(out / "runs.csv", buf.getvalue())
+    md = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
+    md += "".join("| " + " | ".join(_fmt_cell(r[k]) for k in cols) + " |\n" for r in rows)
+    write_text_atomic(out / "runs.md", md)
+    print(md, end="")
+    _report_figures(rows, swept, metrics, out)
+    return rows, out
+
+
+def _is_bookkeeping(metric: str) -> bool:
+    last = metric.rsplit(".", 1)[-1]
+    return metric.startswith("timings.") or last.endswith("_s") or last in ("index", "seed")
+
+
+def _higher_is_better(metric: str) -> bool:
+    """The best run of a metric: the highest for a correlation / score / accuracy
+    (``r``, ``r_*``, ``*score*``, ``*accuracy*``), else the lowest (errors, costs)."""
+    last = metric.rsplit(".", 1)[-1]
+    return last == "r" or last.startswith("r_") or "score" in last or "accuracy" in last
+
+
+def _report_figures(
+    rows: list[dict[str, Any]], swept: list[str], metrics: list[str], out: Path
+) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in rows if r["status"] == "complete"]
+    files = []
+    for m in metrics:
+        vals = [r for r in ok if isinstance(r[m], int | float) and np.isfinite(r[m])]
+        if len({r[m] for r in vals}) < 2 or _is_bookkeeping(m):
+            continue  # a constant, a timing or an index: nothing to compare
+        up = _higher_is_better(m)
+        best = (max if up else min)(vals, key=lambda r: r[m])
+        for x in swept:
+            others = [k for k in swept if k != x]
+            fig, ax = plt.subplots(figsize=(5, 3.5))
+            groups: dict[tuple, list] = {}
+            for r in vals:
+                groups.setdefault(tuple(r[k] for k in others), []).append(r)
+            numeric = all(isinstance(r[x], int | float) for r in vals)
+            cats = sorted({str(r[x]) for r in vals})
+            for g, rs in sorted(groups.items(), key=lambda t: str(t[0])):
+                rs = sorted(rs, key=lambda r: r[x] if numeric else str(r[x]))
+                xs = [r[x] if numeric else cats.index(str(r[x])) for r in rs]
+                lab = ", ".join(f"{k}={v}" for k, v in zip(others, g, strict=True)) or None
+                ax.plot(xs, [r[m] for r in rs], "o-", label=lab)
+            bx = best[x] if numeric else cats.index(str(best[x]))
+            tag = f"best ({'max' if up else 'min'}: {best['run']})"
+            ax.plot([bx], [best[m]], "*", ms=16, color="crimson", label=tag)
+            if not numeric:
+                ax.set_xticks(range(len(cats)), cats, rotation=30, ha="right", fontsize=7)
+            ax.set_xlabel(x)
+            ax.set_ylabel(m)
+            ax.set_title(f"{m} vs {x}", fontsize=9)
+            ax.legend(fontsize=6)
+            safe = f"{m}_vs_{x}".replace("/", "-")[:120]
+            files.append(save_figure_atomic(fig, out / f"{safe}.png"))
+    return files

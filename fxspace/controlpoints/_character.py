@@ -22,6 +22,11 @@ capture's scene model (segments, control points) drives it:
    ``s Q Σ_k w_jk R_k(t)``, the capture's control points' non-linear motion — so the
    character moves like the actor between keys, the paper's model applied to another
    face.
+4. **The animator's edits.** With ``edits`` (the face-anchored keys of the editor,
+   `fxspace.FaceKey`), each character vertex also takes ``s Q ×`` its corresponding
+   capture vertex's edit displacement (`fxspace.edit_displacements`): the character
+   carries the edits, as the paper's loop asks (the animator edits, the character
+   follows).
 
 `standin_character` makes the project's stand-in: the capture's own face surface with
 different proportions (wider, shorter, deeper) and no artist frames.
@@ -36,6 +41,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float, Int
 
 from fxspace._validate import checked
+from fxspace.controlpoints._edits import FaceKey, edit_displacements
 from fxspace.controlpoints._model import _control_residuals
 from fxspace.controlpoints._rbf import face_surface, rbf_deform
 from fxspace.controlpoints._scene import SceneModel
@@ -125,12 +131,15 @@ def drive_character(
     scene: SceneModel,
     markers: Float[ArrayLike, "T M 3"],
     source_rest: Float[ArrayLike, "Ns 3"],
+    edits: tuple[FaceKey, ...] | list[FaceKey] = (),
 ) -> Float[np.ndarray, "T N 3"]:
     """The character's frames driven by the capture (module docstring).
 
     **Arguments:** `char` the target; `scene` the capture's fitted scene model
     (`fxspace.fit_scene`); `markers` ``(T, M, 3)`` the capture's markers (complete), in
-    the scene's frames; `source_rest` ``(Ns, 3)`` the capture's dense face at frame 0.
+    the scene's frames; `source_rest` ``(Ns, 3)`` the capture's dense face at frame 0;
+    `edits`: the animator's face-anchored keys (`fxspace.FaceKey`, as the editor saves
+    them), carried onto the character (step 4).
 
     **Returns:** ``(T, N, 3)``, equal to the artist's first and last frames at the ends.
     """
@@ -170,4 +179,7 @@ def drive_character(
         R = np.asarray(_control_residuals(m.controls), np.float64)  # (c, n, 3)
         W = np.asarray(m.weights, np.float64)[nn]  # (N, c)
         out[a : e + 1] = L + s * np.einsum("nk,ktd->tnd", W, R) @ Q.T
+    if len(edits):
+        D = edit_displacements(scene, list(edits))  # (T, Ns, 3), the capture's units
+        out += s * D[:, nn] @ Q.T
     return out

@@ -27,7 +27,7 @@ weight — outside the cluster and its blending border — do not move.
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +35,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from fxspace._validate import as_float_array, check_indices, check_int, check_scalar, checked
-from fxspace.cluster import KernelKMeansResult, kernel_kmeans
+from fxspace.cluster import KernelKMeansResult, kernel_kmeans, median_gamma
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -211,6 +211,7 @@ def fit_control_points(
     max_steps: int = 100,
     max_points: int | None = 1000,
     refine_steps: int = 10,
+    method: Literal["kernel", "hybrid"] = "kernel",
 ) -> tuple[ControlPointModel, KernelKMeansResult]:
     """Control points of a segment by kernel k-means on the vertices' residual trajectories.
 
@@ -218,19 +219,25 @@ def fit_control_points(
     the RMS norm; Gaussian kernel k-means (`fxspace.kernel_kmeans`, ``n_init``
     restarts — the paper used 20) clusters them and each cluster's mean trajectory is a
     control point. ``gamma`` is the kernel width on these scaled trajectories (``None`` →
-    median heuristic).
+    median heuristic, on every vertex).
 
-    Dense meshes: kernel k-means is O(N²) in time and memory per step, so with more than
-    ``max_points`` vertices it runs on an evenly strided subset of ``max_points`` vertices,
-    and every vertex is then assigned, with ``refine_steps`` Euclidean k-means steps on all
-    vertices' trajectories from the subset's cluster means. Those steps lower eq. (1)
-    directly (for one-hot weights eq. (1) *is* the Euclidean k-means objective on the
-    residual trajectories). ``max_points=None`` clusters every vertex.
+    Dense meshes (more than ``max_points`` vertices): the ``n_init`` restarts run on an
+    evenly strided subset of ``max_points`` vertices (kernel k-means is O(N²) per step and
+    restart), every vertex is assigned by ``refine_steps`` Euclidean k-means steps from the
+    subset's clusters, and then
 
-    ``blend_radius`` (units of ``X``) smooths the memberships across cluster borders
-    (`blend_weights`, on the first frame).
+    - ``method="kernel"`` (the default, the paper's method to the end): kernel k-means on
+      *every* vertex, started from those labels, runs to its fixed point: the final labels
+      are kernel k-means' (one more step changes none);
+    - ``method="hybrid"``: the Euclidean steps' labels are final (faster on big meshes;
+      for one-hot weights eq. (1) is the Euclidean k-means objective, so those steps lower
+      the reconstruction error directly, but the partition is no longer kernel k-means').
 
-    **Returns:** ``(model, clustering)`` — the clustering of the (sub)set.
+    ``max_points=None`` clusters every vertex with the restarts. ``blend_radius`` (units of
+    ``X``) smooths the memberships across cluster borders (`blend_weights`, first frame).
+
+    **Returns:** ``(model, clustering)``: the clustering of the final run (all vertices
+    with ``method="kernel"``; the subset with ``"hybrid"``).
     """
     X = _check_X(X)
     T, N, _ = X.shape
@@ -238,6 +245,11 @@ def fit_control_points(
     n_init = check_int(n_init, "n_init", low=1)
     if not 1 <= n_clusters <= N:
         raise FxspaceError(f"n_clusters must be in [1, {N}] (vertices); got {n_clusters}")
+    if method not in ("kernel", "hybrid"):
+        raise FxspaceError(
+            f"method must be 'kernel' (kernel k-means to the end, the paper's) or 'hybrid'; "
+            f"got {method!r}"
+        )
     # Segments of every length would each compile their own programs: the frames are padded
     # to a size bucket (copies of the last frame, whose residuals are exactly zero), which
     # leaves every distance between the vertices' features — and so the clustering — as is.
@@ -247,8 +259,16 @@ def fit_control_points(
     if max_points is not None and N > max_points:
         idx = np.linspace(0, N - 1, max_points).round().astype(np.int64)
         sub = _subset_features(Xp, T_, jnp.asarray(idx))
+        if method == "kernel" and gamma is None:
+            gamma = float(median_gamma(_features(Xp, T_)))  # one γ for subset and all
         km = kernel_kmeans(sub, n_clusters, gamma, key=key, n_init=n_init, max_steps=max_steps)
         labels = _refine_labels(Xp, T_, sub, km.labels, n_clusters, int(refine_steps))
+        if method == "kernel":
+            km = kernel_kmeans(
+                _features(Xp, T_), n_clusters, gamma, key=key, max_steps=max_steps,
+                init=labels[None],
+            )  # fmt: skip
+            labels = km.labels
     else:
         feats = _features(Xp, T_)
         km = kernel_kmeans(feats, n_clusters, gamma, key=key, n_init=n_init, max_steps=max_steps)

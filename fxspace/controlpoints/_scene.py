@@ -138,6 +138,8 @@ def fit_scene(
     n_init: int = 20,
     max_points: int | None = 1000,
     refine_steps: int = 10,
+    method: str = "kernel",
+    segment_criterion: str = "elbow",
     fit_steps: int = 0,
     fit_support: int = 3,
     fit_smoothness: float = 1e-4,
@@ -150,9 +152,11 @@ def fit_scene(
     - `X`: ``(T, N, 3)`` the dense scene (e.g. `fxspace.rbf_deform` of a capture).
     - `n_clusters`: control points per segment (capped at the vertex count).
     - `boundaries`: given segment boundaries; ``None`` → `fxspace.segment_motion`
-      with `n_segments` (a count, or ``"auto"``: chosen from the data), `min_length` and
-      `segment_on`.
-    - `gamma`, `n_init`, `max_points`, `refine_steps`: `fxspace.fit_control_points`.
+      with `n_segments` (a count, or ``"auto"``: chosen from the data by
+      `segment_criterion`, ``"elbow"`` by default as in the reconstruction pipeline, or
+      ``"bic"``), `min_length` and `segment_on`.
+    - `gamma`, `n_init`, `max_points`, `refine_steps`, `method`:
+      `fxspace.fit_control_points` (``method="kernel"``: kernel k-means to the end).
     - `fit_steps`: > 0 refines every segment by `fxspace.refine_control_points`
       (Adam; `fit_support`, `fit_smoothness`).
     - `key`: PRNG key (split per segment).
@@ -179,7 +183,10 @@ def fit_scene(
         n_segments = check_int(n_segments, "n_segments", low=1)
     seg = None
     if boundaries is None:
-        seg = segment_motion(X, n_segments, min_length=min_length, on=segment_on)  # type: ignore[arg-type]
+        seg = segment_motion(
+            X, n_segments, min_length=min_length, on=segment_on,  # type: ignore[arg-type]
+            criterion=segment_criterion,  # type: ignore[arg-type]
+        )  # fmt: skip
         boundaries = seg.boundaries
     b = _check_boundaries(boundaries, T)
     key = jax.random.PRNGKey(0) if key is None else key
@@ -191,7 +198,7 @@ def fit_scene(
         S = jnp.asarray(Xn[a : e + 1])
         model, km = fit_control_points(
             S, min(int(n_clusters), N), gamma=gamma, key=keys[i], n_init=n_init,
-            max_points=max_points, refine_steps=refine_steps,
+            max_points=max_points, refine_steps=refine_steps, method=method,  # type: ignore[arg-type]
         )  # fmt: skip
         n_steps, ok = 0, True
         if fit_steps > 0:

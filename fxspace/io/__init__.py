@@ -2,8 +2,8 @@
 skinned glTF. The data types live with their system (`fxspace.motion.Motion`,
 `fxspace.mesh.SkinnedMesh`) or in ``io/_types`` (`MarkerSequence`).
 
-The seeded synthetic face lives in `fxspace.synthetic`; ``fx.io.synthetic_face`` and
-its companions stay reachable here as aliases (resolved lazily, so there is no cycle).
+The seeded synthetic face lives in `fxspace.synthetic` (``fx.synthetic.synthetic_face``),
+a layer above: io knows nothing of it (its old lazy aliases here made a circle).
 """
 
 from fxspace.io._asfamc import read_amc as read_amc
@@ -20,12 +20,18 @@ from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
 from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
 from fxspace.io._markers import read_markers as read_markers
 from fxspace.io._markers import write_npz as write_npz
+from fxspace.io._meshseq import BlendShapes as BlendShapes
 from fxspace.io._meshseq import MorphAnimation as MorphAnimation
+from fxspace.io._meshseq import read_gltf_blendshapes as read_gltf_blendshapes
 from fxspace.io._meshseq import read_gltf_morph as read_gltf_morph
 from fxspace.io._meshseq import read_obj as read_obj
+from fxspace.io._meshseq import write_gltf_blendshapes as write_gltf_blendshapes
 from fxspace.io._meshseq import write_gltf_morph as write_gltf_morph
 from fxspace.io._meshseq import write_obj_sequence as write_obj_sequence
 from fxspace.io._meshseq import write_ply_sequence as write_ply_sequence
+from fxspace.io._obj import ObjMesh as ObjMesh
+from fxspace.io._obj import read_obj_mesh as read_obj_mesh
+from fxspace.io._obj import read_obj_vertices as read_obj_vertices
 from fxspace.io._trc import write_trc as write_trc
 from fxspace.io._types import UNIT_SCALES as UNIT_SCALES
 from fxspace.io._types import MarkerSequence as MarkerSequence
@@ -33,14 +39,6 @@ from fxspace.mesh import Animation as Animation
 from fxspace.mesh import LocalPose as LocalPose
 from fxspace.mesh import SkinnedMesh as SkinnedMesh
 from fxspace.motion import Motion as Motion
-
-_SYNTHETIC_ALIASES = (
-    "EXPRESSION_MODES",
-    "SyntheticFace",
-    "expression_displacement",
-    "face_layout",
-    "synthetic_face",
-)
 
 __all__ = [
     "read_amc",
@@ -60,6 +58,12 @@ __all__ = [
     "write_gltf_morph",
     "read_gltf_morph",
     "read_obj",
+    "read_obj_mesh",
+    "read_obj_vertices",
+    "ObjMesh",
+    "write_gltf_blendshapes",
+    "read_gltf_blendshapes",
+    "BlendShapes",
     "MorphAnimation",
     "write_obj_sequence",
     "write_ply_sequence",
@@ -70,14 +74,4 @@ __all__ = [
     "LocalPose",
     "SkinnedMesh",
     "Motion",
-    *_SYNTHETIC_ALIASES,
 ]
-
-
-def __getattr__(name: str):
-    # Aliases kept from before fxspace.synthetic existed (moves, not renames).
-    if name in _SYNTHETIC_ALIASES:
-        import fxspace.synthetic as _synthetic
-
-        return getattr(_synthetic, name)
-    raise AttributeError(f"module 'fxspace.io' has no attribute {name!r}")

@@ -20,6 +20,8 @@ from typing import NamedTuple
 import numpy as np
 
 from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.io._obj import read_obj_mesh
+from fxspace.runs import write_bytes_atomic
 
 __all__ = [
     "write_obj_sequence",
@@ -28,6 +30,9 @@ __all__ = [
     "read_gltf_morph",
     "read_obj",
     "MorphAnimation",
+    "write_gltf_blendshapes",
+    "read_gltf_blendshapes",
+    "BlendShapes",
 ]
 
 
@@ -87,7 +92,47 @@ def write_gltf_morph(
     V, F = _check(vertices, faces)
     if not fps > 0:
         raise FxspaceError(f"fps must be > 0; got {fps}")
-    T, N, _ = V.shape
+    T = len(V)
+    return write_gltf_blendshapes(
+        path, V[0], F, V - V[0], None, np.eye(T, dtype=np.float32), fps, name, "STEP"
+    )
+
+
+def write_gltf_blendshapes(
+    path: str | Path,
+    neutral,
+    faces,
+    deltas,
+    names=None,
+    weights=None,
+    fps: float = 30.0,
+    name: str = "weights",
+    interpolation: str = "LINEAR",
+) -> Path:
+    """One ``.glb`` of a blend-shape rig: the ``neutral`` ``(N, 3)`` mesh, one morph target
+    per shape (``deltas`` ``(K, N, 3)``, named by ``names`` in ``mesh.extras.targetNames``,
+    as Blender and three.js read them) and, with ``weights`` ``(T, K)``, an animation of
+    the morph weights at ``fps`` (``LINEAR``, or ``STEP``)."""
+    base = np.asarray(neutral, np.float32)
+    D = np.asarray(deltas, np.float32)
+    _, F = _check(base[None], faces)
+    N = len(base)
+    if D.ndim != 3 or D.shape[1:] != (N, 3):
+        raise FxspaceError(f"deltas must be (K, {N}, 3) for this mesh; got {D.shape}")
+    if not np.all(np.isfinite(D)):
+        raise FxspaceError("deltas contain NaN/inf")
+    K = len(D)
+    if names is not None and len(names) != K:
+        raise FxspaceError(f"names must have one entry per shape ({K}); got {len(names)}")
+    W = None if weights is None else np.asarray(weights, np.float32)
+    if W is not None and (W.ndim != 2 or W.shape[1] != K or len(W) < 1):
+        raise FxspaceError(f"weights must be (frames, {K}); got {W.shape}")
+    if W is not None and not np.all(np.isfinite(W)):
+        raise FxspaceError("weights contain NaN/inf: fill or drop those frames first")
+    if not fps > 0:
+        raise FxspaceError(f"fps must be > 0; got {fps}")
+    if interpolation not in ("LINEAR", "STEP"):
+        raise FxspaceError(f"interpolation must be 'LINEAR' or 'STEP'; got {interpolation!r}")
     chunks: list[bytes] = []
     views, accessors = [], []
 
@@ -106,34 +151,37 @@ def write_gltf_morph(
         return {"componentType": 5126, "count": N, "type": "VEC3",
                 "min": a.min(0).tolist(), "max": a.max(0).tolist()}  # fmt: skip
 
-    base = V[0]
     pos = add(base, 34962, vec3(base))
     idx = add(F.astype("<u4").reshape(-1), 34963,
               {"componentType": 5125, "count": int(F.size), "type": "SCALAR"})  # fmt: skip
-    targets = []
-    for t in range(T):
-        d = (V[t] - base).astype(np.float32)
-        targets.append({"POSITION": add(d, 34962, vec3(d))})
-    times = (np.arange(T) / fps).astype(np.float32)
-    t_acc = add(times, None, {"componentType": 5126, "count": T, "type": "SCALAR",
-                              "min": [0.0], "max": [float(times[-1])]})  # fmt: skip
-    w_acc = add(np.eye(T, dtype=np.float32).reshape(-1), None,
-                {"componentType": 5126, "count": T * T, "type": "SCALAR"})  # fmt: skip
-    gltf = {
+    targets = [{"POSITION": add(d, 34962, vec3(d))} for d in D]
+    mesh: dict = {"primitives": [{"attributes": {"POSITION": pos}, "indices": idx,
+                                  "targets": targets}]}  # fmt: skip
+    if names is not None:
+        mesh["extras"] = {"targetNames": [str(n) for n in names]}
+    gltf: dict = {
         "asset": {"version": "2.0", "generator": "fxspace"},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "face"}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": pos}, "indices": idx,
-                                    "targets": targets}],
-                    "weights": [1.0] + [0.0] * (T - 1)}],
-        "animations": [{"name": str(name), "samplers": [
-            {"input": t_acc, "output": w_acc, "interpolation": "STEP"}],
-            "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}]}],
-        "buffers": [{"byteLength": sum(len(c) for c in chunks)}],
-        "bufferViews": views,
-        "accessors": accessors,
-    }  # fmt: skip
+        "meshes": [mesh],
+    }
+    if W is not None:
+        mesh["weights"] = W[0].tolist()
+        T = len(W)
+        times = (np.arange(T) / fps).astype(np.float32)
+        t_acc = add(times, None, {"componentType": 5126, "count": T, "type": "SCALAR",
+                                  "min": [0.0], "max": [float(times[-1])]})  # fmt: skip
+        w_acc = add(W.reshape(-1), None,
+                    {"componentType": 5126, "count": T * K, "type": "SCALAR"})  # fmt: skip
+        gltf["animations"] = [{"name": str(name), "samplers": [
+            {"input": t_acc, "output": w_acc, "interpolation": interpolation}],
+            "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}]}]  # fmt: skip
+    else:
+        mesh["weights"] = [0.0] * K
+    gltf["buffers"] = [{"byteLength": sum(len(c) for c in chunks)}]
+    gltf["bufferViews"] = views
+    gltf["accessors"] = accessors
     js = json.dumps(gltf, separators=(",", ":")).encode()
     js += b" " * ((-len(js)) % 4)
     binary = b"".join(chunks)
@@ -145,10 +193,61 @@ def write_gltf_morph(
     )  # fmt: skip
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_bytes(blob)
-    tmp.replace(p)
-    return p
+    return write_bytes_atomic(p, blob)
+
+
+class BlendShapes(NamedTuple):
+    """A blend-shape mesh read from a ``.glb``: ``neutral`` ``(N, 3)``, ``faces``
+    ``(F, 3)``, ``deltas`` ``(K, N, 3)`` (one per morph target), ``names`` (``K``, from
+    ``mesh.extras.targetNames``, else ``target_0`` …), ``weights`` ``(T, K)`` of the first
+    animation (``None`` when none) and its ``fps`` (0 when none)."""
+
+    neutral: np.ndarray
+    faces: np.ndarray
+    deltas: np.ndarray
+    names: tuple[str, ...]
+    weights: np.ndarray | None
+    fps: float
+
+
+def read_gltf_blendshapes(path: str | Path) -> BlendShapes:
+    """The first mesh primitive of a ``.glb`` with its morph targets as blend shapes
+    (see `BlendShapes`). A damaged file raises `CorruptFileError` naming it."""
+    p = Path(path)
+    if not p.is_file():
+        raise FxspaceError(f"{p}: no such file")
+    gltf, binary = _glb_parts(p)
+    try:
+        gmesh = gltf["meshes"][0]
+        prim = gmesh["primitives"][0]
+        pos_i, idx_i = prim["attributes"]["POSITION"], prim["indices"]
+    except (KeyError, IndexError, TypeError) as e:
+        raise CorruptFileError(
+            f"{p}: no mesh primitive with POSITION and indices ({e!r})"
+        ) from None
+    base = _accessor(gltf, binary, pos_i, p).astype(np.float64)
+    F = _accessor(gltf, binary, idx_i, p).astype(np.int64).reshape(-1, 3)
+    targets = prim.get("targets") or []
+    D = (
+        np.stack([_accessor(gltf, binary, t["POSITION"], p) for t in targets]).astype(np.float64)
+        if targets
+        else np.zeros((0,) + base.shape)
+    )
+    names = (gmesh.get("extras") or {}).get("targetNames") or [
+        f"target_{k}" for k in range(len(targets))
+    ]
+    W, fps = None, 0.0
+    for anim in gltf.get("animations") or []:
+        for ch in anim.get("channels", []):
+            if ch.get("target", {}).get("path") == "weights" and targets:
+                smp = anim["samplers"][ch["sampler"]]
+                times = _accessor(gltf, binary, smp["input"], p)
+                W = _accessor(gltf, binary, smp["output"], p).reshape(len(times), len(targets))
+                fps = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 0.0
+                break
+        if W is not None:
+            break
+    return BlendShapes(base, F, D, tuple(str(n) for n in names), W, fps)
 
 
 class MorphAnimation(NamedTuple):
@@ -222,25 +321,8 @@ def read_gltf_morph(path: str | Path) -> MorphAnimation:
 
 
 def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(vertices (N, 3), faces (F, 3))`` of a static OBJ mesh; polygons are fanned into
-    triangles, texture/normal indices ignored. A malformed line raises `CorruptFileError`
-    with its line number."""
-    p = Path(path)
-    if not p.is_file():
-        raise FxspaceError(f"{p}: no such file")
-    V, F = [], []
-    for n, line in enumerate(p.read_text(errors="replace").splitlines(), 1):
-        parts = line.split()
-        try:
-            if parts and parts[0] == "v":
-                V.append([float(x) for x in parts[1:4]])
-            elif parts and parts[0] == "f":
-                idx = [int(x.split("/")[0]) for x in parts[1:]]
-                idx = [i - 1 if i > 0 else len(V) + i for i in idx]
-                F += [[idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1)]
-        except ValueError as e:
-            raise CorruptFileError(f"{p}:{n}: malformed line ({e})") from None
-    Va, Fa = np.asarray(V, np.float64).reshape(-1, 3), np.asarray(F, np.int64).reshape(-1, 3)
-    if len(Va) == 0 or (len(Fa) and (Fa.min() < 0 or Fa.max() >= len(Va))):
-        raise CorruptFileError(f"{p}: no vertices, or a face refers to a missing vertex")
-    return Va, Fa
+    """``(vertices (N, 3), faces (F, 3))`` of a static OBJ mesh (``.obj`` or ``.obj.gz``);
+    polygons are fanned into triangles (`fxspace.io.read_obj_mesh` keeps the texture
+    coordinates too). A malformed file raises `CorruptFileError` naming it."""
+    m = read_obj_mesh(path)
+    return m.vertices, m.faces

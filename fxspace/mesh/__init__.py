@@ -62,6 +62,9 @@ from fxspace.mesh._ik_model import ik_model as ik_model
 from fxspace.mesh._ik_model import ik_objective as ik_objective
 from fxspace.mesh._ik_model import ik_residuals as ik_residuals
 from fxspace.mesh._ik_regularizers import IKRegularization as IKRegularization
+from fxspace.mesh._ik_regularizers import (
+    constraints_from_regularization as constraints_from_regularization,
+)
 from fxspace.mesh._ik_regularizers import ik_regularization as ik_regularization
 from fxspace.mesh._ik_solvers import BFGS as BFGS
 from fxspace.mesh._ik_solvers import DEFAULT_METHOD as DEFAULT_METHOD
@@ -109,6 +112,7 @@ __all__ = [
     "IK_STATUS",
     "IKRegularization",
     "ik_regularization",
+    "constraints_from_regularization",
     "IKConstraints",
     "NormalConstraint",
     "PlaneContact",

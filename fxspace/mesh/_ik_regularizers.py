@@ -1,8 +1,9 @@
 """Optional regularisers for mesh IK (the older interface to `fxspace.mesh.IKConstraints`).
 
-`ik_regularization` keeps working: `fxspace.solve_ik` turns an `IKRegularization` into
-the equivalent constraint blocks (`constraints_from_regularization`, the same objective),
-so every solver, LM included, takes all three terms.
+`ik_regularization` keeps working: `constraints_from_regularization` turns an
+`IKRegularization` into the equivalent constraint blocks (the same objective), which
+`fxspace.solve_ik` takes as ``constraints=``, so every solver, LM included, takes all
+three terms.
 
 Park, Kang & Kwon (§6, future work) note that positional constraints alone give unnatural
 poses with few markers and name normal constraints among the remedies. Three terms can be
@@ -28,7 +29,8 @@ Example:
 ```python
 reg = fx.mesh.ik_regularization(model, prior=1e-3, prior_to="previous", limits=1.0,
                                  limit=np.pi / 2)
-res = fx.solve_ik(model, targets, init=prev, regularization=reg)
+cons = fx.mesh.constraints_from_regularization(reg)
+res = fx.solve_ik(model, targets, init=prev, constraints=cons)
 ```
 """
 

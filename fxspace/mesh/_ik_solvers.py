@@ -19,9 +19,10 @@ an animation (``lax.scan``, warm-started). The solver is an object, passed as
 * `OptimistixLM` / `OptimistixGaussNewton`: optimistix's solvers on the residual vector
   (Jacobian by autodiff).
 
-The old string form ``method="lm"`` (``"bfgs"``, ``"adam"``, ``"optx_lm"``,
-``"optx_gn"``) with ``gradient=``, ``max_steps=``, ``rtol=``, ``atol=``,
-``learning_rate=`` keeps working: `solver_from_method` maps it onto the objects.
+Every solver supplies ``init / step / terminate / postprocess``; one loop, `_iterate`,
+drives them all (optimistix's pattern). A method *name* from a config
+(``"lm"``, ``"bfgs"``, ``"adam"``, ``"optx_lm"``, ``"optx_gn"``) becomes an object
+through `solver_from_method`; `solve_ik` itself takes only objects.
 
 Example:
 
@@ -36,7 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -53,7 +54,7 @@ from fxspace.mesh._ik_constraints import (
 )
 from fxspace.mesh._ik_gradients import GRADIENTS
 from fxspace.mesh._ik_model import IKModel, IKResult, ik_residuals
-from fxspace.mesh._ik_regularizers import IKRegularization, constraints_from_regularization
+from fxspace.mesh._ik_regularizers import IKRegularization
 from fxspace.mesh._skinning import Pose
 from fxspace.results import check_result, result_from_flags
 
@@ -119,6 +120,18 @@ class LevenbergMarquardt:
         if self.tau is not None:
             check_scalar(self.tau, "tau", low=0.0, low_open=True)
 
+    def init(self, pb, skip):
+        return _lm_init(pb, self, skip)
+
+    def step(self, pb, state):
+        return _lm_step(pb, self, state)
+
+    def terminate(self, state):
+        return state[6]
+
+    def postprocess(self, pb, state, steps):
+        return _lm_postprocess(pb, self, state, steps)
+
 
 @dataclasses.dataclass(frozen=True)
 class BFGS:
@@ -132,6 +145,18 @@ class BFGS:
 
     def __post_init__(self):
         _check_common(self)
+
+    def init(self, pb, skip):
+        return _bfgs_init(pb, self, skip)
+
+    def step(self, pb, state):
+        return _bfgs_step(pb, self, state)
+
+    def terminate(self, state):
+        return state[5]
+
+    def postprocess(self, pb, state, steps):
+        return _bfgs_postprocess(pb, self, state, steps)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,6 +174,18 @@ class Adam:
         _check_common(self)
         check_scalar(self.learning_rate, "learning_rate", low=0.0, low_open=True)
 
+    def init(self, pb, skip):
+        return _adam_init(pb, self, skip)
+
+    def step(self, pb, state):
+        return _adam_step(pb, self, state)
+
+    def terminate(self, state):
+        return state[2] | state[3]
+
+    def postprocess(self, pb, state, steps):
+        return _adam_postprocess(pb, self, state, steps)
+
 
 @dataclasses.dataclass(frozen=True)
 class OptimistixLM:
@@ -161,6 +198,18 @@ class OptimistixLM:
     def __post_init__(self):
         _check_common(self)
 
+    def init(self, pb, skip):
+        return _optx_init(pb, self, skip)
+
+    def step(self, pb, state):
+        return state
+
+    def terminate(self, state):
+        return jnp.asarray(True)
+
+    def postprocess(self, pb, state, steps):
+        return _optx_postprocess(pb, self, state, steps)
+
 
 @dataclasses.dataclass(frozen=True)
 class OptimistixGaussNewton:
@@ -172,6 +221,18 @@ class OptimistixGaussNewton:
 
     def __post_init__(self):
         _check_common(self)
+
+    def init(self, pb, skip):
+        return _optx_init(pb, self, skip)
+
+    def step(self, pb, state):
+        return state
+
+    def terminate(self, state):
+        return jnp.asarray(True)
+
+    def postprocess(self, pb, state, steps):
+        return _optx_postprocess(pb, self, state, steps)
 
 
 Solver = LevenbergMarquardt | BFGS | Adam | OptimistixLM | OptimistixGaussNewton
@@ -225,6 +286,7 @@ class _Problem:
         self.model, self.cons, self.targets = model, cons, targets
         self.init, self.normals = init, normals
         self.nj = model.ancestors.shape[0]
+        self.target_norm = jnp.sqrt(jnp.sum(targets * targets))
         scale = model.length_scale
         self.sv = jnp.concatenate(
             [jnp.ones(3 * self.nj, targets.dtype), jnp.full(3, scale, targets.dtype)]
@@ -250,14 +312,79 @@ class _Problem:
         return obj, g * sv, h * (sv[:, None] * sv[None, :])
 
 
+def _ftol(solver, pb: _Problem, obj: Array) -> Array:
+    """The decrease of ``F`` below which a step counts as none: ``rtol · F``, floored at
+    what rounding lets the dtype resolve. A residual ``r = p − t`` of positions of size
+    ``|t|`` carries an error ``ε|t|`` (cancellation), so ``F = Σ r²`` is known to about
+    ``2 ε Σ |r||t| ≤ 2 ε √F ‖t‖``. In float32 near a minimum that is far above
+    ``1e-6 · F``: the steps there were rejected as rounding noise until the damping blew
+    up (CesiumMan, 120 markers, from rest: 26 LM iterations and ``stalled`` in float32
+    against 13.7 and ``successful`` in float64); in float64 the floor never binds."""
+    eps = float(jnp.finfo(obj.dtype).eps)
+    return jnp.maximum(solver.rtol * obj, 2.0 * eps * pb.target_norm * jnp.sqrt(obj))
+
+
 def _diagonal(h: Array) -> Array:
     """``diag(h)`` as a strided slice (``jnp.diagonal`` is a gather with an index table)."""
     return h.reshape(-1)[:: h.shape[0] + 1]
 
 
-def _lm_step(pb: _Problem, solver: LevenbergMarquardt, abs_obj, hmax, c):
-    """One Levenberg–Marquardt trial step (see `_solve_lm`); returns the new carry."""
-    z, g, h, obj, mu, nu, step, _, _, _ = c
+class _Outcome(NamedTuple):
+    """What `postprocess` hands back: the pose in scaled coordinates, the step count,
+    the flags, and the objective at the end and at the start where the solver knows it
+    without another forward pass (``None`` otherwise)."""
+
+    z: Array
+    steps: Array
+    converged: Array
+    stalled: Array
+    objective: tuple[Array, Array] | None = None
+
+
+def _iterate(pb: _Problem, solver: Solver, skip) -> _Outcome:
+    """The one loop of every IK solver (after optimistix's ``iterate``): ``state =
+    solver.init(pb, skip)``, then ``solver.step`` while fewer than ``max_steps`` steps
+    were taken and ``solver.terminate(state)`` is false, then ``solver.postprocess``.
+    ``skip`` (non-finite input) starts the loop finished: no ``lax.cond`` (XLA:CPU runs a
+    conditional's branch as a task on its thread pool, a thread hop per call)."""
+    state = solver.init(pb, jnp.asarray(skip, bool))
+
+    def cond(c):
+        k, s = c
+        return (k < solver.max_steps) & ~solver.terminate(s)
+
+    def body(c):
+        k, s = c
+        return k + 1, solver.step(pb, s)
+
+    k, state = jax.lax.while_loop(cond, body, (jnp.asarray(0, jnp.int32), state))
+    return solver.postprocess(pb, state, k)
+
+
+# --- Levenberg–Marquardt ---------------------------------------------------------------
+
+
+def _lm_init(pb: _Problem, solver: LevenbergMarquardt, skip):
+    abs_obj = pb.abs_tolerance(solver.atol)
+    z0 = _flat(pb.init) / pb.sv
+    obj0, g0, h0 = pb.normal_equations(z0)
+    hmax = jnp.maximum(jnp.max(_diagonal(h0)), jnp.finfo(z0.dtype).tiny)
+    done0 = (obj0 <= abs_obj) & ~skip
+    false = jnp.asarray(False)
+    if solver.tau is None:  # warm start (RMS residual < 1 % of L): Gauss–Newton at once
+        near = obj0 < (0.01 * pb.model.length_scale) ** 2 * pb.targets.shape[0]
+        tau = jnp.where(near, 1e-6, 1e-3)
+    else:
+        tau = solver.tau
+    two = jnp.asarray(2.0, z0.dtype)
+    # z, g, H, obj, mu, nu, done, converged, stalled, (obj0, hmax, abs_obj)
+    return (z0, g0, h0, obj0, tau * hmax, two, done0 | skip, done0, false, (obj0, hmax, abs_obj))
+
+
+def _lm_step(pb: _Problem, solver: LevenbergMarquardt, c):
+    """One Levenberg–Marquardt trial step (see `LevenbergMarquardt`); the new state."""
+    z, g, h, obj, mu, nu, _, _, _, const = c
+    _, hmax, abs_obj = const
     eye = np.eye(z.shape[0], dtype=z.dtype)  # a literal: no kernel builds it
     # H is symmetric: no symmetrising pass, and LAPACK's column-major operand is the
     # transpose, i.e. H as it lies (no transposing copy); NaN where not positive definite
@@ -284,57 +411,26 @@ def _lm_step(pb: _Problem, solver: LevenbergMarquardt, abs_obj, hmax, c):
     dz_max, g_excess = jnp.max(jnp.stack([jnp.abs(dz), jnp.abs(g2) - 1e-8 * dg]), axis=1)
     stationary = g_excess <= 0.0
     small_step = dz_max <= 1e-12
+    # MINPACK's ftol test (`_ftol`): an accepted step's decrease below the tolerance, or
+    # a rejected step's actual and predicted changes both below it (|F − F'| is rounding
+    # noise near the minimum: float32 rejected every step there until μ blew up)
+    tol = _ftol(solver, pb, obj)
     conv = (
         (o2 <= abs_obj)
-        | (ok & (obj - objn <= solver.rtol * obj))
+        | (ok & (obj - objn <= tol))
+        | ((pred <= tol) & (jnp.abs(obj - objn) <= tol))
         | (small_step & (ok | stationary))
         | (ok & (dz_max <= solver.xtol))
     )
     stuck = ~conv & (~jnp.isfinite(mu2) | (mu2 > 1e16 * hmax) | small_step)
-    return (z2, g2, h2, o2, mu2, nu2, step + 1, conv | stuck, conv, stuck)
+    return (z2, g2, h2, o2, mu2, nu2, conv | stuck, conv, stuck, const)
 
 
-def _solve_lm(pb: _Problem, solver: LevenbergMarquardt, skip=False):
-    """Levenberg–Marquardt in scaled coordinates ``z = (θ, τ / L)``, Levenberg damping
-    ``(JᵀJ + μ I) Δz = −Jᵀr`` with ``μ₀ = τ · max diag(JᵀJ)`` and Nielsen's update of
-    ``μ`` with the floor 1/5 (``μ ← μ · max(1/5, 1 − (2ρ − 1)³)`` on success; Nielsen's
-    own floor is 1/3), Cholesky solves; ``skip``: take no step (non-finite input). Returns
-    the pose, steps, converged, stalled and the objective at the end and at the start.
+def _lm_postprocess(pb: _Problem, solver: LevenbergMarquardt, c, steps) -> _Outcome:
+    return _Outcome(c[0], steps, c[7], c[8], (c[3], c[9][0]))
 
-    Why ``μ I`` and not Marquardt's ``μ diag(JᵀJ)``: measured on CesiumMan, Fox and
-    RiggedSimple (5–120 markers, cold starts), the diagonal scaling stalls in long valleys
-    (CesiumMan 120 markers: 21 vs 13 iterations to the same vertex error; Fox 50 markers:
-    vertex error 0.34 vs 3e-6) — the scaled coordinates make one ``μ`` fit angles and the
-    translation alike. Why the floor 1/5: from rest the steps are accepted with ``ρ ≈ 1``
-    and the damping, not the model, limits them (``μ`` falls by the floor at every step).
-    Measured on the same meshes (5–120 markers from two random views, cold and warm, 30
-    frames each): 13.1 iterations on average against 14.6 with 1/3 at the same vertex
-    errors; CesiumMan, 120 markers, from rest: 11.2 against 13.0. The floor 1/10 takes
-    fewer still (12.2; 10.1) but its rtol-1e-3 stops land further above the minimum on a
-    noisy CesiumMan frame (1.2 % vs 0.3 %, `tests/mesh/test_ik_solvers.py`). Every trial
-    point costs one evaluation of the normal equations (accepted steps reuse it).
-    """
-    abs_obj = pb.abs_tolerance(solver.atol)
-    skip = jnp.asarray(skip, bool)
-    z0 = _flat(pb.init) / pb.sv
-    obj0, g0, h0 = pb.normal_equations(z0)
-    hmax = jnp.maximum(jnp.max(_diagonal(h0)), jnp.finfo(z0.dtype).tiny)
-    done0 = (obj0 <= abs_obj) & ~skip
-    false = jnp.asarray(False)
-    # carry: z, g, H, obj, mu, nu, step, done, converged, stalled
-    if solver.tau is None:  # warm start (RMS residual < 1 % of L): Gauss–Newton at once
-        near = obj0 < (0.01 * pb.model.length_scale) ** 2 * pb.targets.shape[0]
-        tau = jnp.where(near, 1e-6, 1e-3)
-    else:
-        tau = solver.tau
-    c0 = (z0, g0, h0, obj0, tau * hmax, jnp.asarray(2.0, z0.dtype), 0, done0 | skip, done0, false)
-    out = jax.lax.while_loop(
-        lambda c: (c[6] < solver.max_steps) & ~c[7],
-        partial(_lm_step, pb, solver, abs_obj, hmax),
-        c0,
-    )
-    # the objective at the end and at the start (the result's, without a forward pass)
-    return pb.pose(out[0]), out[6], out[8], out[9], (out[3], obj0)
+
+# --- BFGS ------------------------------------------------------------------------------
 
 
 def _line_search(pb: _Problem, gradient: str, z, f, g, d):
@@ -353,8 +449,21 @@ def _line_search(pb: _Problem, gradient: str, z, f, g, d):
     return alpha, fn, gn, ok
 
 
-def _bfgs_step(pb: _Problem, solver: BFGS, abs_obj, c0_scale, c):
-    z, f, g, h, step, _, _, _ = c
+def _bfgs_init(pb: _Problem, solver: BFGS, skip):
+    abs_obj = pb.abs_tolerance(solver.atol)
+    z0 = _flat(pb.init) / pb.sv
+    f0, g0 = pb.value_and_grad(solver.gradient, z0)
+    c0_scale = 0.1 / jnp.maximum(jnp.max(jnp.abs(g0)), 1e-30)
+    h0 = jnp.eye(z0.shape[0], dtype=z0.dtype) * c0_scale
+    done0 = (f0 <= abs_obj) & ~skip
+    false = jnp.asarray(False)
+    # z, f, g, H, first, done, converged, stalled, (abs_obj, c0_scale)
+    return (z0, f0, g0, h0, jnp.asarray(True), done0 | skip, done0, false, (abs_obj, c0_scale))
+
+
+def _bfgs_step(pb: _Problem, solver: BFGS, c):
+    z, f, g, h, first, _, _, _, const = c
+    abs_obj, c0_scale = const
     eye = jnp.eye(z.shape[0], dtype=z.dtype)
     d = -h @ g
     descent = g @ d < 0
@@ -365,7 +474,7 @@ def _bfgs_step(pb: _Problem, solver: BFGS, abs_obj, c0_scale, c):
     ys = y @ s
     # the matrix the update starts from: H, or c₀ I after a restart, or (yᵀs / yᵀy) I
     # after the first step (one select of the n × n matrix per step)
-    rescale = (step == 0) & (ys > 0)
+    rescale = first & (ys > 0)
     gamma = jnp.where(rescale, ys / jnp.maximum(y @ y, 1e-300), c0_scale)
     h = jnp.where(~descent | rescale, eye * gamma, h)
     rho = 1.0 / jnp.where(ys > 0, ys, 1.0)
@@ -376,35 +485,45 @@ def _bfgs_step(pb: _Problem, solver: BFGS, abs_obj, c0_scale, c):
     z2 = jnp.where(ok, z + s, z)
     f2 = jnp.where(ok, fn, f)
     g2 = jnp.where(ok, gn, g)
-    conv = ok & ((f2 <= abs_obj) | (f - f2 <= solver.rtol * f))
-    return z2, f2, g2, h2, step + 1, conv | ~ok, conv, ~ok
+    conv = ok & ((f2 <= abs_obj) | (f - f2 <= _ftol(solver, pb, f)))
+    return z2, f2, g2, h2, jnp.asarray(False), conv | ~ok, conv, ~ok, const
 
 
-def _solve_bfgs(pb: _Problem, solver: BFGS):
-    """BFGS in scaled coordinates ``z = (θ, τ / L)``, backtracking Armijo line search.
-
-    Each trial point costs one forward pass + one gradient of the chosen form (value and
-    gradient together); the inverse Hessian ``H`` starts as ``0.1 / ‖∇E‖_∞ · I`` (first
-    step: at most 0.1 rad), is rescaled by ``yᵀs / yᵀy`` after the first step and updated
-    by ``H ← (I − ρ s yᵀ) H (I − ρ y sᵀ) + ρ s sᵀ`` (in its ``O(n²)`` form) when ``yᵀs > 0``.
-    """
-    abs_obj = pb.abs_tolerance(solver.atol)
-    z0 = _flat(pb.init) / pb.sv
-    f0, g0 = pb.value_and_grad(solver.gradient, z0)
-    c0_scale = 0.1 / jnp.maximum(jnp.max(jnp.abs(g0)), 1e-30)
-    h0 = jnp.eye(z0.shape[0], dtype=z0.dtype) * c0_scale
-    done0 = f0 <= abs_obj
-    false = jnp.asarray(False)
-    # carry: z, f, g, H, step, done, converged, stalled
-    out = jax.lax.while_loop(
-        lambda c: (c[4] < solver.max_steps) & ~c[5],
-        partial(_bfgs_step, pb, solver, abs_obj, c0_scale),
-        (z0, f0, g0, h0, 0, done0, done0, false),
-    )
-    return pb.pose(out[0]), out[4], out[6], out[7]
+def _bfgs_postprocess(pb: _Problem, solver: BFGS, c, steps) -> _Outcome:
+    return _Outcome(c[0], steps, c[6], c[7])
 
 
-def _solve_optx(pb: _Problem, solver):
+# --- Adam ------------------------------------------------------------------------------
+
+
+def _adam_init(pb: _Problem, solver: Adam, skip):
+    import optax
+
+    z0 = _flat(pb.init) / pb.sv  # z = (θ, τ / L): one learning rate fits both blocks
+    # z, optimiser state, converged, skip
+    return z0, optax.adam(solver.learning_rate).init(z0), jnp.asarray(False), skip
+
+
+def _adam_step(pb: _Problem, solver: Adam, c):
+    import optax
+
+    z, state, _, skip = c
+    obj, g = pb.value_and_grad(solver.gradient, z)
+    upd, state = optax.adam(solver.learning_rate).update(g, state, z)
+    # converged when the objective before this update was already below the tolerance
+    return optax.apply_updates(z, upd), state, obj <= pb.abs_tolerance(solver.atol), skip
+
+
+def _adam_postprocess(pb: _Problem, solver: Adam, c, steps) -> _Outcome:
+    return _Outcome(c[0], steps, c[2], jnp.asarray(False))
+
+
+# --- optimistix ------------------------------------------------------------------------
+
+
+def _optx_init(pb: _Problem, solver, skip):
+    """optimistix runs its own ``iterate`` here (its solvers' init/step/terminate); the
+    outer loop then has nothing left to do (``terminate`` is true at once)."""
     import optimistix as optx
 
     def fn(pose, args):
@@ -412,39 +531,16 @@ def _solve_optx(pb: _Problem, solver):
 
     tol = dict(rtol=solver.rtol, atol=solver.atol * pb.model.length_scale)
     cls = optx.LevenbergMarquardt if isinstance(solver, OptimistixLM) else optx.GaussNewton
+    steps = jnp.where(skip, 0, solver.max_steps)
     sol = optx.least_squares(fn, cls(**tol), pb.init, max_steps=solver.max_steps, throw=False)
-    ok = sol.result == optx.RESULTS.successful
-    return sol.value, sol.stats["num_steps"], ok, jnp.asarray(False)
+    ok = (sol.result == optx.RESULTS.successful) & ~skip
+    z = jnp.where(skip, _flat(pb.init), _flat(sol.value)) / pb.sv
+    n = jnp.minimum(jnp.asarray(sol.stats["num_steps"], jnp.int32), steps)
+    return z, n, ok
 
 
-def _solve_adam(pb: _Problem, solver: Adam):
-    import optax
-
-    abs_obj = pb.abs_tolerance(solver.atol)
-    opt = optax.adam(solver.learning_rate)
-    # optimise z = (θ, τ / L), so one learning rate fits both blocks
-    z0 = _flat(pb.init) / pb.sv
-
-    def body(c):
-        z, state, step, _ = c
-        obj, g = pb.value_and_grad(solver.gradient, z)
-        upd, state = opt.update(g, state, z)
-        # converged when the objective before this update was already below the tolerance
-        return optax.apply_updates(z, upd), state, step + 1, obj <= abs_obj
-
-    c0 = (z0, opt.init(z0), 0, jnp.asarray(False))
-    z, _, steps, conv = jax.lax.while_loop(lambda c: (c[2] < solver.max_steps) & ~c[3], body, c0)
-    return pb.pose(z), steps, conv, jnp.asarray(False)
-
-
-def _dispatch(pb: _Problem, solver: Solver):
-    if isinstance(solver, LevenbergMarquardt):
-        return _solve_lm(pb, solver)
-    if isinstance(solver, BFGS):
-        return _solve_bfgs(pb, solver)
-    if isinstance(solver, Adam):
-        return _solve_adam(pb, solver)
-    return _solve_optx(pb, solver)
+def _optx_postprocess(pb: _Problem, solver, c, steps) -> _Outcome:
+    return _Outcome(c[0], c[1], c[2], jnp.asarray(False))
 
 
 def _result(model, cons, pose, targets, init, normals, steps, result, solver) -> IKResult:
@@ -471,40 +567,25 @@ def _solve(model, cons, targets, init, normals, solver):
     finite_in = jnp.all(jnp.isfinite(targets)) & jnp.all(jnp.isfinite(_flat(init)))
     if normals is not None:
         finite_in = finite_in & jnp.all(jnp.isfinite(normals))
-
     safe_t = jnp.where(finite_in, targets, 0.0)
     safe_n = None if normals is None else jnp.where(finite_in, normals, 0.0)
-
-    def run():
-        pb = _Problem(model, cons, safe_t, init, safe_n)
-        pose, steps, conv, stalled = _dispatch(pb, solver)
-        return pose, jnp.asarray(steps, jnp.int32), jnp.asarray(conv), jnp.asarray(stalled)
-
-    def skip():
-        f = jnp.asarray(False)
-        return init, jnp.asarray(0, jnp.int32), f, f
-
-    if isinstance(solver, LevenbergMarquardt):
-        # no lax.cond: XLA:CPU runs a conditional's branch as a task on its thread pool, a
-        # thread hop per call; the loop starts finished instead (no step on bad input)
-        safe_init = jax.tree_util.tree_map(lambda a: jnp.where(finite_in, a, 0.0), init)
-        pb = _Problem(model, cons, safe_t, safe_init, safe_n)
-        pose, steps, conv, stalled, (obj_end, obj0) = _solve_lm(pb, solver, skip=~finite_in)
-        pose = jax.tree_util.tree_map(lambda a, b: jnp.where(finite_in, a, b), pose, init)
-        steps = jnp.asarray(steps, jnp.int32)
-    else:
-        pose, steps, conv, stalled = jax.lax.cond(finite_in, run, skip)
+    safe_init = jax.tree_util.tree_map(lambda a: jnp.where(finite_in, a, 0.0), init)
+    pb = _Problem(model, cons, safe_t, safe_init, safe_n)
+    out = _iterate(pb, solver, ~finite_in)
+    pose = jax.tree_util.tree_map(lambda a, b: jnp.where(finite_in, a, b), pb.pose(out.z), init)
     finite_out = jnp.all(jnp.isfinite(_flat(pose)))
     pose = jax.tree_util.tree_map(lambda a, b: jnp.where(finite_out, a, b), pose, init)
     result = result_from_flags(
-        converged=conv,
+        converged=out.converged,
         nonfinite_input=~finite_in,
         nonfinite_output=finite_in & ~finite_out,
-        stalled=stalled,
+        stalled=out.stalled,
     )
-    if isinstance(solver, LevenbergMarquardt) and all(block is None for block in cons):
+    steps = jnp.asarray(out.steps, jnp.int32)
+    if out.objective is not None and all(block is None for block in cons):
         # E at the returned pose is the solver's own (no forward pass again): at the last
         # iterate, or at the start when that pose is replaced; NaN for non-finite input
+        obj_end, obj0 = out.objective
         obj = jnp.where(finite_in, jnp.where(finite_out, obj_end, obj0), jnp.nan)
         rms = jnp.sqrt(obj / targets.shape[0])
         stats = {"max_steps": jnp.asarray(solver.max_steps, jnp.int32), "objective": obj}
@@ -523,51 +604,37 @@ def _track(model, cons, targets, init, normals, solver):
     return out
 
 
-_LEGACY = ("method", "gradient", "max_steps", "rtol", "atol", "learning_rate")
+def _pick_solver(solver) -> Solver:
+    if solver is None:
+        return LevenbergMarquardt()
+    if not isinstance(solver, _SOLVERS):
+        raise FxspaceError(
+            "solver must be fx.mesh.LevenbergMarquardt(...), BFGS(...), Adam(...), "
+            f"OptimistixLM(...) or OptimistixGaussNewton(...); got {solver!r} "
+            "(a method name from a config: fx.mesh.solver_from_method(name, ...))"
+        )
+    return solver
 
 
-def _pick_solver(solver, legacy: dict) -> Solver:
-    given = {k: v for k, v in legacy.items() if v is not None and k in _LEGACY}
-    if solver is not None:
-        if given:
-            raise FxspaceError(
-                f"pass either solver= or the old keywords {sorted(given)}, not both "
-                "(e.g. solver=fx.mesh.BFGS(rtol=1e-3))"
-            )
-        if not isinstance(solver, _SOLVERS):
-            raise FxspaceError(
-                "solver must be fx.mesh.LevenbergMarquardt(...), BFGS(...), Adam(...), "
-                f"OptimistixLM(...) or OptimistixGaussNewton(...); got {solver!r}"
-            )
-        return solver
-    method = given.pop("method", DEFAULT_METHOD)
-    if method not in METHODS:
-        raise FxspaceError(f"method must be one of {METHODS}, got {method!r}")
-    if "gradient" in given and given["gradient"] not in GRADIENTS:
-        raise FxspaceError(f"gradient must be one of {GRADIENTS}, got {given['gradient']!r}")
-    return solver_from_method(method, **given)
-
-
-def _pick_constraints(model: IKModel, constraints, regularization) -> IKConstraints:
-    if regularization is not None:
-        if constraints is not None:
-            raise FxspaceError("pass either constraints= or regularization=, not both")
-        if not isinstance(regularization, IKRegularization):
-            raise FxspaceError("regularization must come from fxspace.mesh.ik_regularization(...)")
-        return constraints_from_regularization(regularization)
+def _pick_constraints(constraints) -> IKConstraints:
     if constraints is None:
         return IKConstraints()
+    if isinstance(constraints, IKRegularization):
+        raise FxspaceError(
+            "constraints must be an IKConstraints; turn an ik_regularization(...) into one "
+            "with fx.mesh.constraints_from_regularization(reg)"
+        )
     if not isinstance(constraints, IKConstraints):
         raise FxspaceError("constraints must come from fxspace.mesh.ik_constraints(...)")
     return constraints
 
 
-def _prepare(model, targets, init, solver, constraints, normals, legacy, frames: bool):
+def _prepare(model, targets, init, solver, constraints, normals, frames: bool):
     """Checked arguments of `_solve` / `_track` (shared by the public entry points)."""
     if not isinstance(model, IKModel):
         raise FxspaceError("model must be an IKModel from fxspace.ik_model(mesh, markers)")
-    solver = _pick_solver(solver, legacy)
-    cons = _pick_constraints(model, constraints, legacy.get("regularization"))
+    solver = _pick_solver(solver)
+    cons = _pick_constraints(constraints)
     if not isinstance(targets, jax.Array):  # (jnp.asarray costs ~15 µs even on an Array)
         targets = jnp.asarray(targets)
     nk = model.marker_joints.shape[0]
@@ -578,13 +645,21 @@ def _prepare(model, targets, init, solver, constraints, normals, legacy, frames:
         )
     if not jnp.issubdtype(targets.dtype, jnp.floating) or targets.dtype == jnp.float16:
         raise FxspaceError(f"targets must be float32 or float64, got dtype {targets.dtype}")
+    # the precision of the solve: the model's where it is wider (float32 targets against a
+    # float64 model, JAX's default dtype under jax_enable_x64, solve in float64: the
+    # loop's carry keeps one dtype, and float32 stopping tests take more iterations)
+    dtype = jnp.promote_types(model.marker_skin.dtype, targets.dtype)
+    if targets.dtype != dtype:
+        targets = targets.astype(dtype)
     nj = model.ancestors.shape[0]
     if init is None:
-        init = Pose(jnp.zeros((nj, 3), targets.dtype), jnp.zeros((3,), targets.dtype))
+        init = Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
     elif (
         not isinstance(init, Pose) or init.angles.shape != (nj, 3) or init.translation.shape != (3,)
     ):
         raise FxspaceError(f"init must be a Pose with angles ({nj}, 3) and translation (3,)")
+    elif init.angles.dtype != dtype or init.translation.dtype != dtype:
+        init = Pose(jnp.asarray(init.angles, dtype), jnp.asarray(init.translation, dtype))
     if cons.normal is not None:
         if normals is None:
             raise FxspaceError("the normal constraint needs target_normals (one row per marker)")
@@ -609,13 +684,6 @@ def solve_ik(
     constraints: IKConstraints | None = None,
     target_normals: Float[Array, "normals 3"] | None = None,
     throw: bool = False,
-    method: Method | None = None,
-    gradient: str | None = None,
-    max_steps: int | None = None,
-    rtol: float | None = None,
-    atol: float | None = None,
-    learning_rate: float | None = None,
-    regularization: IKRegularization | None = None,
 ) -> IKResult:
     """Pose that brings the markers to ``targets``: ``argmin_θ E(θ)`` (eq. (1)) plus the
     constraints, one frame.
@@ -633,9 +701,6 @@ def solve_ik(
       solver takes every block.
     - `target_normals`: ``(K_n, 3)`` unit target normals when a normal constraint is on.
     - `throw`: raise `FxspaceError` when the result is not ``RESULTS.successful``.
-    - `method`, `gradient`, `max_steps`, `rtol`, `atol`, `learning_rate`: the old string
-      form of `solver` (see `solver_from_method`); `regularization`: the old form of
-      `constraints` (`fxspace.mesh.ik_regularization`).
 
     **Returns:** `fxspace.IKResult` (pose, RMS residual, objective, ``num_steps``,
     ``result``, ``stats``; ``converged`` and ``status`` for old callers). Targets or an
@@ -644,11 +709,7 @@ def solve_ik(
 
     Example: ``res = fx.solve_ik(model, targets); res.pose, bool(res.converged)``.
     """
-    legacy = dict(
-        zip(_LEGACY, (method, gradient, max_steps, rtol, atol, learning_rate), strict=True)
-    )
-    legacy["regularization"] = regularization
-    args = _prepare(model, targets, init, solver, constraints, target_normals, legacy, False)
+    args = _prepare(model, targets, init, solver, constraints, target_normals, False)
     res = _solve(*args)
     return check_result(res.result, throw, "solve_ik", res)
 
@@ -662,13 +723,6 @@ def track_ik(
     constraints: IKConstraints | None = None,
     target_normals: Float[Array, "frames normals 3"] | None = None,
     throw: bool = False,
-    method: Method | None = None,
-    gradient: str | None = None,
-    max_steps: int | None = None,
-    rtol: float | None = None,
-    atol: float | None = None,
-    learning_rate: float | None = None,
-    regularization: IKRegularization | None = None,
 ) -> IKResult:
     """`solve_ik` frame by frame along ``targets``, each frame warm-started from the last.
 
@@ -677,10 +731,6 @@ def track_ik(
     A frame with NaN targets keeps the previous pose (``RESULTS.nonfinite_input``) and
     the next frame starts from there; ``throw=True`` raises naming the first such frame.
     """
-    legacy = dict(
-        zip(_LEGACY, (method, gradient, max_steps, rtol, atol, learning_rate), strict=True)
-    )
-    legacy["regularization"] = regularization
-    args = _prepare(model, targets, init, solver, constraints, target_normals, legacy, True)
+    args = _prepare(model, targets, init, solver, constraints, target_normals, True)
     res = _track(*args)
     return check_result(res.result, throw, "track_ik", res)

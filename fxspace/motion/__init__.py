@@ -2,8 +2,8 @@
 k-NN blending over sampled parameter spaces, incremental time-warping (eq. 1) with the two
 clocks aligned by eqs. 2–3, upper/lower-body splicing and the §3.2 Horn re-placement, all in
 one pure per-frame step (`synthesize_step`); continuous, steerable locomotion on top
-(`locomotion_step`, `run_session`; `scripted_session(config, schedule, seconds)` and
-`session_parameters(config)` run a config's controller without a browser).
+(`locomotion_step`, `run_session`; the config-level session that reads a TOML and its
+clips is `fxspace.pipelines.scripted_session`, a layer above).
 
 Quaternions are ``(w, x, y, z)``; lengths are metres; see `Motion`. The rotation helpers
 re-exported here live in `fxspace.rotations`.
@@ -27,6 +27,7 @@ from fxspace.motion._fk import fk_arrays as fk_arrays
 from fxspace.motion._fk import forward_kinematics as forward_kinematics
 from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
+from fxspace.motion._horn import absolute_rotation as absolute_rotation
 from fxspace.motion._horn import apply_rigid as apply_rigid
 from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
 from fxspace.motion._locomotion import LocomotionState as LocomotionState
@@ -121,6 +122,7 @@ __all__ = [
     "forward_kinematics",
     "RigidTransform",
     "absolute_orientation",
+    "absolute_rotation",
     "apply_rigid",
     "euler_to_quat",
     "matrix_to_quat",
@@ -195,18 +197,4 @@ __all__ = [
     "session_controls",
     "session_turn_table",
     "smooth_controls",
-    "scripted_session",
-    "session_parameters",
 ]
-
-# Stable names (issue 22) that need the clip readers (fxspace.io, a layer above): the
-# config-level session lives with the pipeline that builds the set-up; these are aliases.
-_SESSION_ALIASES = ("scripted_session", "session_parameters")
-
-
-def __getattr__(name: str):
-    if name in _SESSION_ALIASES:
-        import fxspace.pipelines.parametric_synthesis as _ps
-
-        return getattr(_ps, name)
-    raise AttributeError(f"module 'fxspace.motion' has no attribute {name!r}")

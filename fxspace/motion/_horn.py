@@ -11,7 +11,7 @@ from fxspace._validate import _is_tracer, as_float_array
 from fxspace.errors import FxspaceError
 from fxspace.rotations import quat_to_matrix
 
-__all__ = ["absolute_orientation", "RigidTransform", "apply_rigid"]
+__all__ = ["absolute_orientation", "absolute_rotation", "RigidTransform", "apply_rigid"]
 
 
 class RigidTransform(NamedTuple):
@@ -66,6 +66,33 @@ def absolute_orientation(
     q = vecs[:, -1]
     R = quat_to_matrix(q)
     return RigidTransform(R, dbar - R @ sbar)
+
+
+def absolute_rotation(
+    src: Float[Array, "k 3"],
+    dst: Float[Array, "k 3"],
+    weights: Float[Array, " k"] | None = None,
+) -> Float[Array, "3 3"]:
+    """Rotation about the origin minimising ``Σ_k w_k ||R src_k − dst_k||²`` (no
+    translation): Horn's quaternion of the largest eigenvalue of ``N(M)`` with the
+    *uncentred* ``M = Σ w src dstᵀ`` (Horn 1987 §4; the centroids of §2 are what a
+    translation would absorb). Ha & Han §3.2 re-place the upper samples this way: both
+    point clouds in the root frame, one rotation about the root. Needs 2 non-parallel
+    points for a unique answer. Batched via ``jax.vmap``."""
+    src = as_float_array(src, "src", finite="allow")
+    dst = as_float_array(dst, "dst", finite="allow")
+    if src.ndim != 2 or src.shape[-1] != 3 or src.shape != dst.shape:
+        raise FxspaceError(f"src and dst must both be (k, 3), got {src.shape} and {dst.shape}")
+    if src.shape[0] < 2:
+        raise FxspaceError(f"absolute_rotation needs at least 2 point pairs, got {src.shape[0]}")
+    w = jnp.ones(src.shape[0], src.dtype) if weights is None else jnp.asarray(weights, src.dtype)
+    if w.shape != src.shape[:1]:
+        raise FxspaceError(f"weights must have shape ({src.shape[0]},), got {w.shape}")
+    sc = jnp.maximum(jnp.max(jnp.abs(src)), jnp.max(jnp.abs(dst)))
+    sc = jnp.where(sc > 0, sc, 1.0)
+    S = jnp.einsum("k,ka,kb->ab", w / jnp.sum(w), src / sc, dst / sc)
+    _, vecs = jnp.linalg.eigh(horn_matrix(S))
+    return quat_to_matrix(vecs[:, -1])
 
 
 def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:

@@ -98,6 +98,7 @@ class SetupSpace:
     max_active: int = 3
     posture_transfer: float = 1.0
     splice: str = "heck"  # "heck": spatial alignment + posture transfer; "heading"
+    replace: str = "rotation"  # §3.2: "rotation" about the root (as printed) or "rigid"
     min_slope: float = 0.05
 
 
@@ -285,6 +286,7 @@ def prepare_setup(
         k_replace=space.k_replace,
         posture_transfer=space.posture_transfer,
         splice=space.splice,
+        replace=space.replace,
         concentration=space.concentration,
         max_active=space.max_active,
         min_slope=space.min_slope,

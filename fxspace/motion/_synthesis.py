@@ -23,7 +23,7 @@ from jaxtyping import Array, Float
 from fxspace._validate import check_scalar
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
-from fxspace.motion._horn import absolute_orientation, apply_rigid
+from fxspace.motion._horn import absolute_orientation, absolute_rotation, apply_rigid
 from fxspace.motion._splice import heading_quat, heck_splice, splice_pose, torso_joints
 from fxspace.motion._timewarp import advance_clock, align_clocks, interp_curve, invert_curve
 from fxspace.rotations import quat_conj, quat_rotate
@@ -57,7 +57,9 @@ class SynthesisSpaces:
     ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
     walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``splice`` (``"heck"``:
     `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
-    ``torso`` (`torso_joints`, used by ``"heck"``).
+    ``torso`` (`torso_joints`, used by ``"heck"``), ``replace`` (§3.2's re-placement:
+    ``"rotation"``, one rotation about the root as printed; ``"rigid"``, rotation and
+    translation, Horn's full absolute orientation).
     """
 
     lower: ExampleSet
@@ -83,6 +85,7 @@ class SynthesisSpaces:
     min_slope: float
     splice: str = "heck"
     torso: tuple[int, ...] = ()
+    replace: str = "rotation"
 
 
 jax.tree_util.register_dataclass(
@@ -93,7 +96,7 @@ jax.tree_util.register_dataclass(
     ],
     meta_fields=[
         "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
-        "knn_k", "min_slope", "splice", "torso",
+        "knn_k", "min_slope", "splice", "torso", "replace",
     ],
 )  # fmt: skip
 
@@ -170,12 +173,16 @@ def exact_upper_params(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Flo
 @jax.jit
 def replace_samples(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, "S 3"]:
     """§3.2 re-placement: the real parameters ``p_1..p_k`` of the first ``k = k_replace``
-    samples for the new lower blend, Horn's rigid transform taking the stored ``ṗ_1..ṗ_k``
-    onto them (least squares), applied to all ``n`` stored ``ṗ_i``. O(k) splices + O(n)."""
+    samples for the new lower blend (root frame), then, as printed, the rotation ``R``
+    about the root that takes the stored ``ṗ_1..ṗ_k`` closest to them (Horn, least
+    squares), applied to all ``n`` stored ``ṗ_i`` (``sp.replace == "rotation"``, the
+    default); ``"rigid"`` fits a translation too. O(k) splices + O(n)."""
     k = sp.k_replace
     real = jax.vmap(lambda w: upper_param_of(sp, w_lower, w))(sp.upper_weights[:k])
-    tf = absolute_orientation(sp.upper_params[:k], real)
-    return apply_rigid(tf, sp.upper_params)
+    if sp.replace == "rigid":
+        return apply_rigid(absolute_orientation(sp.upper_params[:k], real), sp.upper_params)
+    R = absolute_rotation(sp.upper_params[:k], real)
+    return sp.upper_params @ R.T
 
 
 def _lower_weights(sp, lower_param):
@@ -366,6 +373,7 @@ def build_spaces(
     concentration: float = 0.5,
     max_active: int = 3,
     min_slope: float = 0.05,
+    replace: str = "rotation",
 ) -> SynthesisSpaces:
     """Sample both parameter spaces (Kovar & Gleicher 2004: ``n_samples`` random sparse
     blends, the examples first) and evaluate their parameters in one vmapped call each: the
@@ -379,6 +387,10 @@ def build_spaces(
     WU = sample_blend_weights(kU, EU, max(n_samples, EU), concentration, max_active)
     if splice not in ("heck", "heading"):
         raise ValueError(f"splice must be 'heck' or 'heading', got {splice!r}")
+    if replace not in ("rotation", "rigid"):
+        raise ValueError(
+            f"replace must be 'rotation' (§3.2 as printed) or 'rigid', got {replace!r}"
+        )
     if upper_joint >= 0 and not 3 <= k_replace <= WU.shape[0]:
         raise ValueError(f"k_replace must lie in [3, {WU.shape[0]}], got {k_replace}")
     dtype = jnp.result_type(float)
@@ -407,6 +419,7 @@ def build_spaces(
         min_slope=float(min_slope),
         splice=splice,
         torso=torso_joints(tuple(int(p) for p in parents), mask, int(spine)),
+        replace=replace,
     )
     return _sample_params(sp)
 

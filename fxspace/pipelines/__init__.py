@@ -39,6 +39,11 @@ from fxspace.config import (
     expand_sweep,
     load_toml,
 )
+
+# the config-level motion session (a TOML and its clips in, poses out): pipelines, not
+# motion, since it reads the clips (fxspace.io, a layer above motion)
+from fxspace.pipelines.parametric_synthesis import scripted_session as scripted_session  # noqa: E402
+from fxspace.pipelines.parametric_synthesis import session_parameters as session_parameters  # noqa: E402,E501
 from fxspace.runs import (
     MANIFEST,
     active_run,
@@ -46,6 +51,7 @@ from fxspace.runs import (
     read_status,
     reset_cache,
     run_key,
+    run_lock,
     update_meta,
     write_json_atomic,
     write_meta,
@@ -54,6 +60,8 @@ from fxspace.runs import (
 )
 
 __all__ = [
+    "scripted_session",
+    "session_parameters",
     "Pipeline",
     "PipelineConfig",
     "PipelineError",
@@ -63,6 +71,7 @@ __all__ = [
     "run_dict",
     "load_pipeline",
     "available",
+    "sweep_config",
 ]
 
 _NAME = re.compile(r"^[a-z_][a-z0-9_]*$")
@@ -272,17 +281,38 @@ def _refuse_overwrite(plan: list[tuple], out: Path, force: bool) -> None:
                 )
 
 
-def _clean_tree(out: Path) -> None:
-    """``--force``: delete the files fxspace wrote in ``out`` and its sub-folders (an old
-    run or sweep), so no old figure or array sits beside the new results."""
+def _clean_tree(out: Path, plan: list[tuple] = ()) -> None:
+    """``--force``: delete the files fxspace wrote in ``out`` (when it is itself an old
+    run) and in this config's own run folders, so no old figure or array sits beside
+    the new results. Any other run nested under ``out`` is never touched."""
     if not out.is_dir():
         return
-    for d in [out, *sorted(p for p in out.iterdir() if p.is_dir())]:
+    dirs = [out, *(p[1] for p in plan)]
+    for d in dict.fromkeys(dirs):
         if (d / MANIFEST).is_file():
             clean_run(d)
 
 
 def _run_one(
+    mod: Any,
+    run_dir: Path,
+    cfg: Any,
+    seed: int,
+    text: str,
+    experiment: str,
+    force: bool,
+    wait: float | None = 0.0,
+) -> Path:
+    """One run, holding its folder's lock (`fxspace.runs.run_lock`) throughout; the
+    overwrite checks are repeated under the lock (another process may have finished a
+    run of another config there meanwhile)."""
+    with run_lock(run_dir, wait=wait):
+        if not force:
+            _refuse_overwrite([(mod, run_dir, cfg, seed, text)], run_dir, False)
+        return _run_locked(mod, run_dir, cfg, seed, text, experiment, force)
+
+
+def _run_locked(
     mod: Any, run_dir: Path, cfg: Any, seed: int, text: str, experiment: str, force: bool
 ) -> Path:
     metrics_p = run_dir / "metrics.json"
@@ -342,7 +372,7 @@ def run_dict(
     plan = _plan(raw, out, None if base_dir is None else Path(base_dir))
     _refuse_overwrite(plan, out, force)
     if force:
-        _clean_tree(out)
+        _clean_tree(out, plan)
     return [
         _run_one(mod, run_dir, cfg, seed, text, raw["experiment"], force)
         for mod, run_dir, cfg, seed, text in plan
@@ -363,3 +393,6 @@ def run_config(path: str | Path, out: str | Path | None = None, force: bool = Fa
 
 def summary(run_dir: str | Path) -> dict[str, Any]:
     return json.loads((Path(run_dir) / "metrics.json").read_text())
+
+
+from fxspace.pipelines._sweep import sweep_config  # noqa: E402  (uses the names above)

@@ -45,6 +45,7 @@ from fxspace.mesh import (
     ancestor_table,
     animation_vertices,
     chain_mesh,
+    constraints_from_regularization,
     ik_gradient_factored,
     ik_gradient_naive,
     ik_model,
@@ -453,7 +454,8 @@ def _run_regularizers(cfg: Config, run_dir: Path, seed: int) -> dict:
             kw = dict(solver=BFGS(rtol=cfg.bfgs_rtol, max_steps=cfg.bfgs_steps))
             if reg is not None and reg.corners is not None:
                 kw["target_normals"] = nrm.astype(dtype)
-            tr = track_ik(model, targets, regularization=reg, **kw)
+            cons = None if reg is None else constraints_from_regularization(reg)
+            tr = track_ik(model, targets, constraints=cons, **kw)
             verr = jnp.linalg.norm(posed(tr.pose) - truth, axis=-1)
             errs[name].append(float(jnp.mean(verr)))
     save_figure_atomic(

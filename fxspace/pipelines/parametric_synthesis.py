@@ -82,6 +82,11 @@ class Config:
                 f"space.splice must be 'heck' (spatial alignment + posture transfer, Heck et "
                 f"al. 2006) or 'heading' (heading-relative spine copy), got {self.space.splice!r}"
             )
+        if self.space.replace not in ("rotation", "rigid"):
+            raise ConfigError(
+                f"space.replace must be 'rotation' (§3.2 as printed: one rotation about the "
+                f"root) or 'rigid' (rotation + translation), got {self.space.replace!r}"
+            )
         if not 0.0 <= self.space.posture_transfer <= 1.0:
             raise ConfigError("space.posture_transfer must lie in [0, 1]")
         if self.space.knn_k < 2:
@@ -377,6 +382,9 @@ def _stage_targets(st: M.Setup, cfg: Config, qL, wq_u) -> dict:
     )
     exact_f = jax.jit(lambda w: M.exact_upper_params(sp, w))
     replace_f = jax.jit(lambda w: M.replace_samples(sp, w))
+    # the other §3.2 variant, for the measured difference (rotation vs rotation + shift)
+    other = "rigid" if sp.replace == "rotation" else "rotation"
+    other_f = jax.jit(lambda w: M.replace_samples(dataclasses.replace(sp, replace=other), w))
 
     @jax.jit
     def reach(wL, pU, params):
@@ -398,6 +406,7 @@ def _stage_targets(st: M.Setup, cfg: Config, qL, wq_u) -> dict:
                     float(jnp.linalg.norm(repl - exact, axis=1).mean()),
                     float(jnp.linalg.norm(repl - exact, axis=1).max()),
                     float(jnp.linalg.norm(sp.upper_params - exact, axis=1).mean()),
+                    float(jnp.linalg.norm(other_f(wL) - exact, axis=1).mean()),
                 ]
             )
     m = {
@@ -416,6 +425,8 @@ def _stage_targets(st: M.Setup, cfg: Config, qL, wq_u) -> dict:
             replacement_error_mean_m=float(r[:, 3].mean()),
             replacement_error_max_m=float(r[:, 4].max()),
             stale_sample_error_mean_m=float(r[:, 5].mean()),
+            replace=sp.replace,
+            **{f"replacement_error_{other}_mean_m": float(r[:, 6].mean())},
         )
     return m
 

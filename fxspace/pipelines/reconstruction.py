@@ -94,6 +94,7 @@ class Config:
     n_init: int = 20
     max_points: int = 1000
     refine_steps: int = 10
+    cluster_method: str = "kernel"
     fit_steps: int = 300
     fit_support: int = 3
     fit_smoothness: float = 1e-4
@@ -106,6 +107,7 @@ class Config:
     character_first: str = ""
     character_last: str = ""
     character_vertices: int = 3000
+    head: str = "face/ict"
     gltf_mesh: str = "CesiumMan"
     gltf_frames: int = 150
     gltf_clusters: int = 25
@@ -125,6 +127,12 @@ class Config:
             raise ConfigError(
                 f"n_frames/thin = {self.n_frames // self.thin} too short for n_segments="
                 f"{self.n_segments}"
+            )
+        if self.cluster_method not in ("kernel", "hybrid"):
+            raise ConfigError(
+                f"cluster_method must be 'kernel' (kernel k-means to the end, the paper's) or "
+                f"'hybrid' (kernel k-means on a subset, Euclidean steps for the rest), got "
+                f"{self.cluster_method!r}"
             )
         if self.segment_criterion not in ("elbow", "bic"):
             raise ConfigError(
@@ -154,6 +162,8 @@ def _path(name: str) -> Path:
 def data_files(cfg: Config) -> list[Path]:
     """The files a run reads (for its content key)."""
     files = [] if cfg.file == SYNTHETIC else [_path(cfg.file)]
+    if cfg.head and cfg.file != SYNTHETIC and _path(cfg.head).is_dir():
+        files += sorted(p for p in _path(cfg.head).iterdir() if p.is_file())
     for f in (cfg.character if cfg.character not in ("", "standin") else "",
               cfg.character_markers, cfg.character_first, cfg.character_last):  # fmt: skip
         if f:
@@ -222,7 +232,7 @@ def _sweep(S, cfg: Config, key) -> list[dict]:
     for c, g in progress(grid, desc="(clusters, γ) sweep"):
         model, km = fit_control_points(
             S, min(c, S.shape[1]), gamma=g, key=key, n_init=cfg.n_init,
-            max_points=cfg.max_points, refine_steps=cfg.refine_steps,
+            max_points=cfg.max_points, refine_steps=cfg.refine_steps, method=cfg.cluster_method,
         )  # fmt: skip
         err = float(reconstruction_error(S, reconstruct(model)))
         rows.append({
@@ -241,7 +251,7 @@ def _scene(cfg: Config, X, n_segments: int, c: int, g: float, key) -> dict:
         fit = fit_scene(
             X, c, n_segments=n_segments, min_length=cfg.min_length, segment_on=cfg.segment_on,
             gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
-            refine_steps=cfg.refine_steps, show_progress=show,
+            refine_steps=cfg.refine_steps, method=cfg.cluster_method, show_progress=show,
         )  # fmt: skip
         reconstruct_scene(fit.model).block_until_ready()
         return fit
@@ -284,9 +294,9 @@ def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     raise ConfigError(f"character mesh {path}: use an .obj or .glb file")
 
 
-def _character(cfg: Config, M: np.ndarray, names, scene, X0) -> dict:
+def _character(cfg: Config, M: np.ndarray, names, scene, X0, keys) -> dict:
     """Stage ``character``: the target face driven by the capture through the control
-    points (`fxspace.drive_character`)."""
+    points, carrying the animator's edits ``keys`` (`fxspace.drive_character`)."""
     if cfg.character == "standin":
         ch = standin_character(M[0], cfg.character_vertices)
     else:
@@ -295,8 +305,10 @@ def _character(cfg: Config, M: np.ndarray, names, scene, X0) -> dict:
         first = _read_mesh(_path(cfg.character_first))[0] if cfg.character_first else None
         last = _read_mesh(_path(cfg.character_last))[0] if cfg.character_last else None
         ch = character(V, F, mv, first, last)
-    Y = drive_character(ch, scene, M, X0)
-    return {"vertices": Y, "faces": ch.faces, "rest": ch.vertices}
+    Y = drive_character(ch, scene, M, X0, edits=keys)
+    Y0 = drive_character(ch, scene, M, X0)  # unedited, to report what the edit moved
+    moved = np.linalg.norm(Y - Y0, axis=2).max(0)
+    return {"vertices": Y, "faces": ch.faces, "rest": ch.vertices, "edit_moved": moved}
 
 
 def _gltf_source(cfg: Config, key) -> dict:
@@ -315,7 +327,12 @@ def _gltf_source(cfg: Config, key) -> dict:
     a, b = segments_from_boundaries(seg.boundaries)[int(np.argmax(errs))]
     S = X[a : b + 1]
     model, _ = fit_control_points(
-        S, min(cfg.gltf_clusters, S.shape[1]), key=key, n_init=cfg.n_init, max_points=cfg.max_points
+        S,
+        min(cfg.gltf_clusters, S.shape[1]),
+        key=key,
+        n_init=cfg.n_init,
+        max_points=cfg.max_points,
+        method=cfg.cluster_method,  # type: ignore[arg-type]
     )
     err = float(reconstruction_error(S, reconstruct(model)))
     return {
@@ -390,10 +407,13 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
         controls=jnp.asarray(rf["controls"]), weights=jnp.asarray(rf["weights"])
     )
     ch = None
+    keys = _edit_keys(cfg, scene, names, dense["marker_vertex"], si)
     if cfg.character:
         X0 = np.asarray(X[0])
         ch = cached_arrays(
-            run_dir, "character", _say("character", lambda: _character(cfg, M, names, scene, X0))
+            run_dir,
+            "character",
+            _say("character", lambda: _character(cfg, M, names, scene, X0, keys)),
         )
     gl = (
         cached(run_dir, "gltf_source", _say("gltf_source", lambda: _gltf_source(cfg, key)))
@@ -402,27 +422,76 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     )
     ctx = dict(cfg=cfg, run_dir=run_dir, M=M, names=names, rate=rate, units=units,
                dense=dense, sg=sg, X=X, scene=scene, errs=errs, si=si, fitted=fitted,
-               rf=rf, rows=rows, c=c, g=g, sc=sc, ch=ch, gl=gl)  # fmt: skip
+               rf=rf, rows=rows, c=c, g=g, sc=sc, ch=ch, gl=gl, keys=keys)  # fmt: skip
     outputs = _write_outputs(ctx)
     return _metrics(ctx, outputs)
+
+
+def _head_outputs(cfg: Config, run_dir: Path, M, Me, names, rate: float, keys) -> dict:
+    """The real head (a blend-shape rig, the ICT Face Model by default) driven by the
+    *edited* markers: bound from the first frame, per-frame ARKit-named weights solved
+    (`fxspace.face`), written as ``head.glb`` (morph targets + the weight animation) and
+    ``head_weights.csv``; the unedited solve and the rigid-only residual beside it."""
+    from fxspace.face import (
+        bind_markers,
+        read_rig,
+        solve_weights,
+        write_rig_gltf,
+        write_weights_csv,
+    )
+
+    print("[reconstruction] the head: binding the markers, solving the weights …", flush=True)
+    rig = read_rig(_path(cfg.head))
+    b = bind_markers(rig, M[0], names)
+    edited = solve_weights(rig, b, Me)
+    plain = solve_weights(rig, b, M)
+    rigid = solve_weights(rig, b, M, expressions=False)
+    write_rig_gltf(run_dir / "head.glb", rig, edited.weights, fps=rate, name="edited")
+    write_weights_csv(run_dir / "head_weights.csv", edited.weights, rig.names, fps=rate)
+    f = keys[0].frame
+    dw = np.abs(np.asarray(edited.weights[f]) - np.asarray(plain.weights[f]))
+    mm = np.asarray(b.distance) / b.scale
+    return {
+        "rig": cfg.head, "files": ["head.glb", "head_weights.csv"],
+        "n_shapes": rig.num_shapes, "n_vertices": rig.num_vertices,
+        "binding_distance_median": float(np.median(mm)),
+        "binding_distance_max": float(mm.max()),
+        "residual_mean": float(np.nanmean(np.asarray(plain.residual))),
+        "residual_rigid_only_mean": float(np.nanmean(np.asarray(rigid.residual))),
+        "converged_fraction": float(np.mean(np.asarray(plain.converged))),
+        "edit_frame": int(f), "edit_weight_change_max": float(dw.max()),
+        "edit_weight_changed_most": rig.names[int(np.argmax(dw))],
+        "units": "the capture's (residuals and binding distances)",
+    }  # fmt: skip
+
+
+def _edit_keys(cfg: Config, scene, names, mv, si: int) -> list:
+    """The demonstration edit: a key at the middle of the most complex segment moving the
+    region under ``edit_marker`` by ``edit_offset_mm`` (the editor's saved keys)."""
+    a, b = segments_from_boundaries(scene.boundaries)[si]
+    vi = int(mv[names.index(cfg.edit_marker)]) if cfg.edit_marker in names else int(mv[0])
+    return [FaceKey(a + (b - a) // 2, vi, tuple(float(v) for v in cfg.edit_offset_mm))]
 
 
 def _write_outputs(ctx: dict) -> dict:
     """The edit (``edits.json``), ``scene.npz`` for the editor, the edited sequence, the
     character's glTF, and the figures."""
     from fxspace.io import MarkerSequence, read_gltf_morph, write_gltf_morph, write_trc
+    from fxspace.runs import unrecorded
 
     cfg, run_dir, scene, X, M = ctx["cfg"], ctx["run_dir"], ctx["scene"], ctx["X"], ctx["M"]
-    names, dense, si = ctx["names"], ctx["dense"], ctx["si"]
-    a, b = segments_from_boundaries(scene.boundaries)[si]
+    names, dense, keys = ctx["names"], ctx["dense"], ctx["keys"]
     mv = dense["marker_vertex"]
-    vi = int(mv[names.index(cfg.edit_marker)]) if cfg.edit_marker in names else int(mv[0])
-    keys = [FaceKey(a + (b - a) // 2, vi, tuple(float(v) for v in cfg.edit_offset_mm))]
+    vi = keys[0].vertex
     Xh = np.asarray(reconstruct_scene(scene))
     Xe = edited_vertices(scene, keys)
     moved = np.linalg.norm(Xe - Xh, axis=2).max(0) > 1e-9
-    save_edits(run_dir / "edits.json", keys, n_frames=scene.n_frames,
-               n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist())  # fmt: skip
+    if not (run_dir / "edits.json").exists():  # the animator's saved keys are theirs:
+        with unrecorded():  # never in the manifest, never overwritten by a rerun
+            save_edits(
+                run_dir / "edits.json", keys, n_frames=scene.n_frames,
+                n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist(),
+            )  # fmt: skip
     save_npz_atomic(run_dir / "scene.npz", original=np.asarray(X, np.float32),
                     faces=dense["faces"], marker_vertex=mv, marker_names=np.asarray(names),
                     markers=M, rate=np.float64(ctx["rate"]), gamma=np.float64(ctx["g"]),
@@ -432,6 +501,8 @@ def _write_outputs(ctx: dict) -> dict:
                     faces=dense["faces"], boundaries=scene.boundaries, markers=Me)  # fmt: skip
     write_trc(run_dir / "edited_markers.trc", MarkerSequence(Me, names, ctx["rate"], ctx["units"]))
     out = {"keys": keys, "moved": int(moved.sum()), "Xe": Xe, "vi": vi}
+    if cfg.head and cfg.file != SYNTHETIC:
+        out["head"] = _head_outputs(cfg, run_dir, M, Me, names, ctx["rate"], keys)
     if ctx["ch"] is not None:
         Y = ctx["ch"]["vertices"]
         p = write_gltf_morph(run_dir / "character.glb", Y, ctx["ch"]["faces"], ctx["rate"],
@@ -442,6 +513,9 @@ def _write_outputs(ctx: dict) -> dict:
             "source": cfg.character,
             "reloaded_max_abs_diff": float(np.abs(back.vertices - Y).max()),
             "reloaded_fps": back.fps,
+            "carries_edits": True,
+            "edit_moved_vertices": int((ctx["ch"]["edit_moved"] > 1e-9).sum()),
+            "edit_moved_max": float(ctx["ch"]["edit_moved"].max()),
         }  # fmt: skip
     _figures(ctx, out)
     return out
@@ -550,6 +624,7 @@ def _metrics(ctx: dict, out: dict) -> dict:
                     "ratio_segments_le_0.11": bool(np.all(errs.ratio <= 0.11)),
                     "scene_pipeline_le_18s": pipe_s <= 18.0},
         "character": out.get("character", {}),
+        "head": out.get("head", {}),
         "paper": PAPER,
         "gltf": ctx["gl"],
     }  # fmt: skip

@@ -264,7 +264,12 @@ def write_navigation_animation(
 
     anim = animation.FuncAnimation(fig, update, frames=len(sel), blit=False)
     fps = float(play.fps) * len(sel) / max(K, 1)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    import os
+    import tempfile
+
+    fd, tmp_name = tempfile.mkstemp(prefix=".fx", suffix=path.suffix, dir=path.parent)
+    os.close(fd)  # a unique short temp name beside the target (never NAME.tmp)
+    tmp = Path(tmp_name)
     try:
         if path.suffix == ".mp4":
             anim.save(tmp, writer=animation.FFMpegWriter(fps=fps), dpi=dpi)

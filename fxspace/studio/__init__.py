@@ -36,7 +36,10 @@ from fxspace.studio._server import read_run_config
 
 __all__ = [
     "APPS",
+    "OPENS_CONFIG",
+    "MESH_SUFFIXES",
     "app_for",
+    "opens_directly",
     "experiment_of",
     "serve",
     "EditorController",
@@ -69,8 +72,29 @@ APPS: dict[str, str] = {
 }
 
 
+#: experiments whose app builds what it shows from the config itself (one mesh and its
+#: markers for the IK studio): ``fxspace studio CONFIG`` opens them without running the
+#: paper's whole experiment first (that stays ``fxspace run CONFIG``)
+OPENS_CONFIG: frozenset[str] = frozenset({"mesh_ik"})
+
+#: files the IK studio opens as they are (a skinned mesh)
+MESH_SUFFIXES: tuple[str, ...] = (".glb", ".gltf")
+
+
+def opens_directly(target: str | Path) -> bool:
+    """True when ``fxspace studio TARGET`` needs no run first: a run folder, a skinned
+    mesh file, or a config of an experiment in `OPENS_CONFIG`."""
+    p = Path(target)
+    if p.is_dir() or p.suffix.lower() in MESH_SUFFIXES:
+        return True
+    return experiment_of(p) in OPENS_CONFIG
+
+
 def experiment_of(target: str | Path) -> str:
-    """The ``experiment`` of a run folder (its ``config.toml``) or a config file."""
+    """The ``experiment`` of a run folder (its ``config.toml``) or a config file; a
+    ``.glb`` / ``.gltf`` file is a mesh for the ``mesh_ik`` app."""
+    if Path(target).suffix.lower() in MESH_SUFFIXES:
+        return "mesh_ik"
     cfg, raw = read_run_config(target)
     exp = raw.get("experiment")
     if not isinstance(exp, str):

@@ -29,6 +29,26 @@ def test_own_face_as_character_reproduces_the_model(capture):
     assert err < 0.1, err
 
 
+def test_the_character_carries_the_edits(capture):
+    """Issue 30.5: the animator's face-anchored key moves the character too; the own face
+    as the character takes exactly the edited scene's displacement at its vertices, and
+    nothing moves outside the key's frames and region."""
+    pos, surf, X, scene = capture
+    ch = character(surf.vertices, surf.faces, surf.marker_vertex)
+    key = fx.controlpoints.FaceKey(20, int(surf.marker_vertex[3]), (0.0, 0.05, 0.02))
+    Y0 = drive_character(ch, scene, pos, X[0])
+    Y = drive_character(ch, scene, pos, X[0], edits=[key])
+    D = fx.controlpoints.edit_displacements(scene, [key])
+    nn = np.argmin(((surf.vertices[:, None] - X[0][None]) ** 2).sum(-1), 1)
+    from fxspace.controlpoints._character import similarity
+
+    s, Q, _ = similarity(pos[0], surf.vertices[surf.marker_vertex])
+    np.testing.assert_allclose(Y - Y0, s * D[:, nn] @ Q.T, atol=1e-9)
+    assert np.linalg.norm(Y[20] - Y0[20], axis=1).max() > 0.01
+    still = np.linalg.norm(D, axis=2).max(0)[nn] == 0
+    np.testing.assert_allclose(Y[:, still], Y0[:, still], atol=1e-12)
+
+
 def test_standin_meets_the_artist_frames_and_moves_like_the_actor(capture):
     pos, surf, X, scene = capture
     st = standin_character(pos[0], 150, proportions=(1.2, 0.85, 1.3))

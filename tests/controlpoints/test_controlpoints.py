@@ -164,3 +164,54 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
         assert (run_dir / name).is_file()
     seq = fx.io.read_markers(run_dir / "edited_markers.trc")
     assert seq.positions.shape == (150, 41, 3)
+    # the character and the real head carry the animator's edit (issue 30.5)
+    assert m["character"]["carries_edits"] and m["character"]["edit_moved_vertices"] > 0
+    if (data_dir / "face" / "ict").is_dir():
+        h = m["head"]
+        assert h["n_shapes"] == 53 and h["residual_mean"] < h["residual_rigid_only_mean"]
+        assert h["edit_weight_change_max"] > 0.01 and h["converged_fraction"] > 0.5
+        bs = fx.io.read_gltf_blendshapes(run_dir / "head.glb")
+        W, names, _ = fx.face.read_weights_csv(run_dir / "head_weights.csv")
+        assert bs.names == names and "jawOpen" in names
+        np.testing.assert_allclose(bs.weights, W, atol=1e-5)
+
+
+def test_kernel_kmeans_to_the_end_is_a_fixed_point(rng):
+    """Issue 31.3: with more vertices than ``max_points`` the default (``method="kernel"``)
+    runs kernel k-means on every vertex to its fixed point: one more kernel k-means step
+    from the final labels changes none. The hybrid (Euclidean steps after the subset) is
+    a named option and, on a noisy scene, ends on a different partition."""
+    from fxspace.controlpoints._model import _features, _pad_frames, frame_bucket
+
+    T, k, per = 14, 4, 60
+    t = np.linspace(0, 1, T)[:, None, None]
+    base = rng.normal(size=(k * per, 3))
+    paths = rng.normal(size=(k, 3)) * 2.0
+    lab = np.repeat(np.arange(k), per)
+    X = base[None] + np.sin(np.pi * t) * paths[lab][None] + rng.normal(0, 0.6, (T, k * per, 3))
+    key = jax.random.key(0)
+    m, km = fx.fit_control_points(X, k, key=key, n_init=4, max_points=60)
+    mh, _ = fx.fit_control_points(X, k, key=key, n_init=4, max_points=60, method="hybrid")
+    assert km.labels.shape == (k * per,) and km.result == fx.RESULTS.successful
+    F = _features(_pad_frames(np.asarray(X), frame_bucket(T)), jnp.asarray(T))
+    gamma = float(fx.median_gamma(F))
+    again = fx.kernel_kmeans(F, k, gamma, key=key, init=m.labels[None], max_steps=1)
+    np.testing.assert_array_equal(np.asarray(again.labels), np.asarray(m.labels))
+    np.testing.assert_array_equal(np.asarray(km.labels), np.asarray(m.labels))
+    assert mh.labels.shape == m.labels.shape
+    with pytest.raises(fx.errors.FxspaceError, match="method"):
+        fx.fit_control_points(X, k, key=key, method="lloyd")
+
+
+def test_fit_scene_passes_its_segment_criterion_on(rng):
+    """``fit_scene(n_segments="auto")`` chooses the count by its ``segment_criterion``
+    (it used to fall back to segment_motion's BIC whatever the caller wanted)."""
+    T, N = 60, 30
+    t = np.arange(T)[:, None, None]
+    X = np.where(t < 20, 0.0, np.where(t < 40, 1.0, -0.5)) * np.ones((1, N, 3))
+    X = X + rng.normal(0, 0.02, (T, N, 3))
+    for crit in ("elbow", "bic"):
+        fit = fx.fit_scene(X, 3, n_segments="auto", segment_criterion=crit, n_init=2,
+                           key=jax.random.key(0))  # fmt: skip
+        ref = fx.segment_motion(jnp.asarray(X), "auto", criterion=crit)
+        np.testing.assert_array_equal(fit.segmentation.boundaries, ref.boundaries)

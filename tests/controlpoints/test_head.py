@@ -11,7 +11,7 @@ from fxspace.controlpoints._head import _rbf
 
 @pytest.fixture(scope="module")
 def face():
-    f = fx.io.synthetic_face(seed=2)
+    f = fx.synthetic.synthetic_face(seed=2)
     return np.asarray(f.sequence.positions, np.float64), list(f.sequence.names)
 
 

@@ -124,7 +124,7 @@ def test_grid_spans_connecting_to_largest_distance(rng):
 
 
 def test_expression_space_on_synthetic_face():
-    face = fx.io.synthetic_face(n_markers=24, n_frames=150, seed=1)
+    face = fx.synthetic.synthetic_face(n_markers=24, n_frames=150, seed=1)
     pos = face.sequence.positions
     P = fx.pairwise_distances(fx.distance_features(pos))
     t0 = float(fx.connecting_threshold(P))

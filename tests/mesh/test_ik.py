@@ -129,7 +129,7 @@ def test_known_pose_recovered(toy, rng):
     m, model = toy
     true = random_pose(rng, m.num_joints, 0.25, 0.1)
     targets = fx.ik_markers(model, true)
-    res = fx.solve_ik(model, targets, max_steps=100)
+    res = fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(max_steps=100))
     assert bool(res.converged) and float(res.residual) < 1e-6
     # up to the null space: the skinned mesh is recovered, and the angle error lies in the
     # null space of the marker Jacobian
@@ -144,7 +144,9 @@ def test_known_pose_recovered_cesium_man(data_dir, rng):
     m = fx.io.read_gltf(data_dir / "mesh" / "CesiumMan.glb")
     model = fx.ik_model(m, both_views(m, 120, 120))
     true = random_pose(rng, m.num_joints, 0.15, 0.02)
-    res = fx.solve_ik(model, fx.ik_markers(model, true), max_steps=100)
+    res = fx.solve_ik(
+        model, fx.ik_markers(model, true), solver=fx.mesh.solver_from_method(max_steps=100)
+    )
     assert bool(res.converged)
     err = np.abs(np.asarray(fx.pose_vertices(m, res.pose) - fx.pose_vertices(m, true))).max()
     assert err < 1e-3 * np.ptp(m.vertices, axis=0).max()
@@ -156,7 +158,11 @@ def test_solvers_reduce_the_objective(toy, rng, method):
     true = random_pose(rng, m.num_joints, 0.2, 0.05)
     targets = fx.ik_markers(model, true)
     e0 = float(fx.ik_objective(model, fx.rest_pose(m), targets))
-    res = fx.solve_ik(model, targets, method=method, max_steps=200 if method != "adam" else 300)
+    res = fx.solve_ik(
+        model,
+        targets,
+        solver=fx.mesh.solver_from_method(method, max_steps=200 if method != "adam" else 300),
+    )
     assert isinstance(res, fx.IKResult)
     assert 0 < int(res.num_steps) <= 300
     assert float(res.objective) < (1e-10 if method != "adam" else 1e-2) * e0
@@ -169,7 +175,9 @@ def test_adam_with_each_gradient_agrees(toy, rng):
     m, model = toy
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.2, 0.05))
     out = [
-        fx.solve_ik(model, targets, method="adam", gradient=g, max_steps=20)
+        fx.solve_ik(
+            model, targets, solver=fx.mesh.solver_from_method("adam", gradient=g, max_steps=20)
+        )
         for g in ("naive", "factored", "autodiff")
     ]
     for r in out[1:]:
@@ -181,9 +189,11 @@ def test_solve_vmap_vs_loop(toy, rng):
     targets = jnp.stack(
         [fx.ik_markers(model, random_pose(rng, m.num_joints, 0.2, 0.05)) for _ in range(3)]
     )
-    res = jax.vmap(lambda t: fx.solve_ik(model, t, max_steps=40))(targets)
+    res = jax.vmap(
+        lambda t: fx.solve_ik(model, t, solver=fx.mesh.solver_from_method(max_steps=40))
+    )(targets)
     for i in range(3):
-        one = fx.solve_ik(model, targets[i], max_steps=40)
+        one = fx.solve_ik(model, targets[i], solver=fx.mesh.solver_from_method(max_steps=40))
         assert _rel(fx.Pose(res.pose.angles[i], res.pose.translation[i]), one.pose) < 1e-8
         assert int(res.num_steps[i]) == int(one.num_steps)
 
@@ -193,8 +203,8 @@ def test_solve_eager_matches_jit(toy, rng):
     m, model = toy
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.2, 0.05))[None]
     with jax.disable_jit():
-        eager = fx.solve_ik(model, targets[0], max_steps=2)
-    jitted = fx.solve_ik(model, targets[0], max_steps=2)
+        eager = fx.solve_ik(model, targets[0], solver=fx.mesh.solver_from_method(max_steps=2))
+    jitted = fx.solve_ik(model, targets[0], solver=fx.mesh.solver_from_method(max_steps=2))
     assert _rel(eager.pose, jitted.pose) < 1e-8
 
 
@@ -207,11 +217,11 @@ def test_track_is_warm_started_solve(toy, rng):
             for i in range(4)
         ]
     )
-    tr = fx.track_ik(model, frames, max_steps=40)
+    tr = fx.track_ik(model, frames, solver=fx.mesh.solver_from_method(max_steps=40))
     assert tr.residual.shape == (4,) and bool(jnp.all(tr.converged))
     pose = fx.rest_pose(m)
     for i in range(4):
-        r = fx.solve_ik(model, frames[i], pose, max_steps=40)
+        r = fx.solve_ik(model, frames[i], pose, solver=fx.mesh.solver_from_method(max_steps=40))
         pose = r.pose
         assert _rel(fx.Pose(tr.pose.angles[i], tr.pose.translation[i]), pose) < 1e-8
     # warm starts need fewer steps than the first frame from rest
@@ -224,11 +234,11 @@ def test_boundary_errors(toy):
     with pytest.raises(FxspaceError, match="targets must have shape"):
         fx.solve_ik(model, targets[:5])
     with pytest.raises(FxspaceError, match="method must be one of"):
-        fx.solve_ik(model, targets, method="newton")
+        fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method("newton"))
     with pytest.raises(FxspaceError, match="gradient must be one of"):
-        fx.solve_ik(model, targets, method="adam", gradient="magic")
+        fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method("adam", gradient="magic"))
     with pytest.raises(FxspaceError, match="max_steps"):
-        fx.solve_ik(model, targets, max_steps=0)
+        fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(max_steps=0))
     with pytest.raises(FxspaceError, match="init must be a Pose"):
         fx.solve_ik(model, targets, fx.rest_pose(3))
     with pytest.raises(FxspaceError, match="frames, markers, 3"):

@@ -99,12 +99,24 @@ def test_normal_constraint_moves_the_lm_solution(toy, rng):
     tn = fx.mesh.marker_normals(nc.corners, true)
     targets = fx.ik_markers(model, true)
     cons = fx.mesh.ik_constraints(model, normal=nc)
-    a = fx.solve_ik(model, targets, max_steps=100)
-    b = fx.solve_ik(model, targets, max_steps=100, constraints=cons, target_normals=tn)
+    a = fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(max_steps=100))
+    b = fx.solve_ik(
+        model,
+        targets,
+        constraints=cons,
+        target_normals=tn,
+        solver=fx.mesh.solver_from_method(max_steps=100),
+    )
     assert b.result == fx.RESULTS.successful
     np.testing.assert_allclose(fx.mesh.marker_normals(nc.corners, b.pose), tn, atol=1e-5)
     # the wrong normals pull the pose away from the marker fit
-    c = fx.solve_ik(model, targets, max_steps=100, constraints=cons, target_normals=-tn)
+    c = fx.solve_ik(
+        model,
+        targets,
+        constraints=cons,
+        target_normals=-tn,
+        solver=fx.mesh.solver_from_method(max_steps=100),
+    )
     assert float(jnp.abs(c.pose.angles - a.pose.angles).max()) > 1e-2
 
 
@@ -139,13 +151,26 @@ def test_solver_objects_and_the_string_alias(toy, rng):
         rtol=1e-3, gradient="naive"
     )
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.3, 0.05))
-    a = fx.solve_ik(model, targets, method="lm", rtol=1e-3, atol=1e-8, max_steps=20)
+    a = fx.solve_ik(
+        model, targets, solver=fx.mesh.solver_from_method("lm", rtol=1e-3, atol=1e-8, max_steps=20)
+    )
     b = fx.solve_ik(model, targets, solver=lm)
     np.testing.assert_array_equal(a.pose.angles, b.pose.angles)
     jitted = jax.jit(lambda t: fx.solve_ik(model, t, solver=lm).pose.angles)
     np.testing.assert_allclose(jitted(targets), b.pose.angles, atol=1e-12)
-    with pytest.raises(FxspaceError, match="either solver= or the old keywords"):
-        fx.solve_ik(model, targets, solver=lm, method="bfgs")
+    # the old keyword front is gone: a method name goes through solver_from_method
+    for old in ("method", "gradient", "max_steps", "rtol", "atol", "learning_rate"):
+        with pytest.raises(TypeError, match=old):
+            fx.solve_ik(model, targets, **{old: "bfgs" if old == "method" else 10})
+        with pytest.raises(TypeError, match=old):
+            fx.track_ik(model, targets[None], **{old: "bfgs" if old == "method" else 10})
+    with pytest.raises(TypeError, match="regularization"):
+        fx.solve_ik(model, targets, regularization=None)
+    reg = fx.mesh.ik_regularization(model, prior=1e-3)
+    with pytest.raises(FxspaceError, match="constraints_from_regularization"):
+        fx.solve_ik(model, targets, constraints=reg)
+    with pytest.raises(FxspaceError, match="solver_from_method"):
+        fx.solve_ik(model, targets, solver="bfgs")
     with pytest.raises(FxspaceError, match="max_steps must be >= 1"):
         fx.mesh.BFGS(max_steps=0)
     with pytest.raises(FxspaceError, match="max_steps must be an integer"):

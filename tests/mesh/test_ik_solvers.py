@@ -28,7 +28,11 @@ def test_bfgs_recovers_a_known_pose(toy, rng, gradient):
     m, _, model = toy
     true = random_pose(rng, m.num_joints, 0.25, 0.1)
     targets = fx.ik_markers(model, true)
-    res = fx.solve_ik(model, targets, method="bfgs", gradient=gradient, max_steps=400, rtol=0)
+    res = fx.solve_ik(
+        model,
+        targets,
+        solver=fx.mesh.solver_from_method("bfgs", gradient=gradient, max_steps=400, rtol=0),
+    )
     assert bool(res.converged) and int(res.status) == 0
     assert float(res.residual) < 1e-6
     err = np.abs(np.asarray(fx.pose_vertices(m, res.pose) - fx.pose_vertices(m, true))).max()
@@ -51,8 +55,14 @@ def test_bfgs_matches_scipy_on_a_non_exact_problem(toy, rng):
         method="BFGS",
         options={"gtol": 1e-10, "maxiter": 2000},
     )
-    ours = fx.solve_ik(model, targets, method="bfgs", max_steps=1000, rtol=1e-14, atol=0.0)
-    lm = fx.solve_ik(model, targets, max_steps=200, rtol=1e-14, atol=0.0)
+    ours = fx.solve_ik(
+        model,
+        targets,
+        solver=fx.mesh.solver_from_method("bfgs", max_steps=1000, rtol=1e-14, atol=0.0),
+    )
+    lm = fx.solve_ik(
+        model, targets, solver=fx.mesh.solver_from_method(max_steps=200, rtol=1e-14, atol=0.0)
+    )
     assert float(ours.objective) <= ref.fun * (1 + 1e-6) + 1e-12
     np.testing.assert_allclose(float(ours.objective), float(lm.objective), rtol=1e-5)
 
@@ -92,13 +102,15 @@ def test_lm_matches_minpack_on_cesium_man(data_dir, rng):
         )
         return 2.0 * out.cost  # scipy's cost is ½ Σ r²
 
-    ours = fx.solve_ik(model, targets, max_steps=1000, rtol=1e-10, atol=0.0)
+    ours = fx.solve_ik(
+        model, targets, solver=fx.mesh.solver_from_method(max_steps=1000, rtol=1e-10, atol=0.0)
+    )
     assert bool(ours.converged), IK_STATUS[int(ours.status)]
     obj = float(ours.objective)
     assert obj <= minpack(np.zeros(3 * nj + 3)) * (1 + 1e-9)
     np.testing.assert_allclose(minpack(_flat(ours.pose)), obj, rtol=1e-6)
     # the tolerance the experiments use stops far earlier, within 1 % of that objective
-    quick = fx.solve_ik(model, targets, rtol=1e-3)
+    quick = fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(rtol=1e-3))
     assert bool(quick.converged) and int(quick.num_steps) < int(ours.num_steps)
     assert float(quick.objective) <= obj * 1.01
 
@@ -109,11 +121,20 @@ def test_lm_at_a_minimum_is_converged_not_stalled(toy, rng):
     m, _, model = toy
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.2, 0.05))
     targets = targets + jnp.asarray(rng.normal(0, 0.05, targets.shape))
-    best = fx.solve_ik(model, targets, max_steps=300, rtol=1e-14, atol=0.0)
-    again = fx.solve_ik(model, targets, best.pose, max_steps=50, rtol=1e-14, atol=0.0)
+    best = fx.solve_ik(
+        model, targets, solver=fx.mesh.solver_from_method(max_steps=300, rtol=1e-14, atol=0.0)
+    )
+    again = fx.solve_ik(
+        model,
+        targets,
+        best.pose,
+        solver=fx.mesh.solver_from_method(max_steps=50, rtol=1e-14, atol=0.0),
+    )
     assert bool(again.converged), IK_STATUS[int(again.status)]
     far = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.8, 0.3))
-    one = fx.solve_ik(model, far, max_steps=1, rtol=1e-14, atol=0.0)
+    one = fx.solve_ik(
+        model, far, solver=fx.mesh.solver_from_method(max_steps=1, rtol=1e-14, atol=0.0)
+    )
     assert not bool(one.converged) and IK_STATUS[int(one.status)] == "max_steps"
 
 
@@ -121,7 +142,9 @@ def test_bfgs_gradient_forms_take_the_same_steps(toy, rng):
     m, _, model = toy
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.2, 0.05))
     out = [
-        fx.solve_ik(model, targets, method="bfgs", gradient=g, max_steps=30)
+        fx.solve_ik(
+            model, targets, solver=fx.mesh.solver_from_method("bfgs", gradient=g, max_steps=30)
+        )
         for g in ("factored", "naive", "autodiff")
     ]
     for r in out[1:]:
@@ -134,15 +157,21 @@ def test_bfgs_jit_vmap_and_track(toy, rng):
     targets = jnp.stack(
         [fx.ik_markers(model, random_pose(rng, m.num_joints, 0.2, 0.05)) for _ in range(3)]
     )
-    res = jax.vmap(lambda t: fx.solve_ik(model, t, method="bfgs", max_steps=60))(targets)
+    res = jax.vmap(
+        lambda t: fx.solve_ik(model, t, solver=fx.mesh.solver_from_method("bfgs", max_steps=60))
+    )(targets)
     for i in range(3):
-        one = fx.solve_ik(model, targets[i], method="bfgs", max_steps=60)
+        one = fx.solve_ik(
+            model, targets[i], solver=fx.mesh.solver_from_method("bfgs", max_steps=60)
+        )
         assert _rel(fx.Pose(res.pose.angles[i], res.pose.translation[i]), one.pose) < 1e-8
-    tr = fx.track_ik(model, targets, method="bfgs", max_steps=60)
+    tr = fx.track_ik(model, targets, solver=fx.mesh.solver_from_method("bfgs", max_steps=60))
     assert tr.status.shape == (3,)
     pose = fx.rest_pose(m)
     for i in range(3):
-        pose = fx.solve_ik(model, targets[i], pose, method="bfgs", max_steps=60).pose
+        pose = fx.solve_ik(
+            model, targets[i], pose, solver=fx.mesh.solver_from_method("bfgs", max_steps=60)
+        ).pose
     assert _rel(fx.Pose(tr.pose.angles[-1], tr.pose.translation[-1]), pose) < 1e-8
 
 
@@ -151,17 +180,21 @@ def test_non_finite_targets_are_reported_not_converged(toy, method):
     m, _, model = toy
     targets = np.array(fx.ik_markers(model, fx.rest_pose(m)))
     targets[3, 1] = np.nan
-    res = fx.solve_ik(model, targets, method=method)
+    res = fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(method))
     assert not bool(res.converged)
     assert fx.mesh.IK_STATUS[int(res.status)] == "non_finite"
     assert int(res.num_steps) == 0
     assert np.all(np.asarray(res.pose.angles) == 0)  # the initial pose, flagged as such
     targets[3, 1] = np.inf
-    assert not bool(fx.solve_ik(model, targets, method=method).converged)
+    assert not bool(
+        fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(method)).converged
+    )
     init = fx.rest_pose(m)
     init = fx.Pose(init.angles.at[0, 0].set(jnp.nan), init.translation)
     good = fx.ik_markers(model, fx.rest_pose(m))
-    assert int(fx.solve_ik(model, good, init, method=method).status) == 2
+    assert (
+        int(fx.solve_ik(model, good, init, solver=fx.mesh.solver_from_method(method)).status) == 2
+    )
 
 
 def test_track_skips_a_nan_frame_and_recovers(toy, rng):
@@ -169,7 +202,7 @@ def test_track_skips_a_nan_frame_and_recovers(toy, rng):
     base = random_pose(rng, m.num_joints, 0.2, 0.05)
     frames = np.stack([np.asarray(fx.ik_markers(model, base))] * 3)
     frames[1, 0] = np.nan
-    tr = fx.track_ik(model, frames, max_steps=60)
+    tr = fx.track_ik(model, frames, solver=fx.mesh.solver_from_method(max_steps=60))
     assert [bool(c) for c in tr.converged] == [True, False, True]
     assert int(tr.status[1]) == 2
     assert (
@@ -220,20 +253,40 @@ def test_regularizer_gradient_matches_autodiff_and_fd(toy, rng):
 def test_regularizers_do_what_they_say(toy, rng):
     m, ms, model = toy
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.5, 0.05))
-    free = fx.solve_ik(model, targets, max_steps=100)
+    free = fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method(max_steps=100))
     strong = fx.mesh.ik_regularization(model, prior=1e6)
-    held = fx.solve_ik(model, targets, max_steps=100, regularization=strong)
+    held = fx.solve_ik(
+        model,
+        targets,
+        solver=fx.mesh.solver_from_method(max_steps=100),
+        constraints=fx.mesh.constraints_from_regularization(strong),
+    )
     assert float(jnp.abs(held.pose.angles).max()) < 1e-3 < float(jnp.abs(free.pose.angles).max())
     lim = fx.mesh.ik_regularization(model, limits=1e4, limit=0.2)
     for method in ("lm", "bfgs"):
-        r = fx.solve_ik(model, targets, method=method, max_steps=300, regularization=lim)
+        r = fx.solve_ik(
+            model,
+            targets,
+            solver=fx.mesh.solver_from_method(method, max_steps=300),
+            constraints=fx.mesh.constraints_from_regularization(lim),
+        )
         assert float(jnp.abs(r.pose.angles).max()) < 0.21
     nreg = fx.mesh.ik_regularization(model, normal=1.0, mesh=m, markers=ms)
     tn = jnp.zeros_like(targets)
     with pytest.raises(FxspaceError, match="target_normals must have shape"):
-        fx.solve_ik(model, targets, regularization=nreg, target_normals=tn[:3])
+        fx.solve_ik(
+            model,
+            targets,
+            target_normals=tn[:3],
+            constraints=fx.mesh.constraints_from_regularization(nreg),
+        )
     with pytest.raises(FxspaceError, match="target_normals"):
-        fx.solve_ik(model, targets, method="bfgs", regularization=nreg)
+        fx.solve_ik(
+            model,
+            targets,
+            solver=fx.mesh.solver_from_method("bfgs"),
+            constraints=fx.mesh.constraints_from_regularization(nreg),
+        )
     with pytest.raises(FxspaceError, match=">= 0"):
         fx.mesh.ik_regularization(model, prior=-1.0)
 
@@ -244,9 +297,17 @@ def test_regularized_minimum_and_normal_constraint(toy, rng):
     targets = fx.ik_markers(model, random_pose(rng, m.num_joints, 0.5, 0.05))
     # LM and BFGS agree on the regularised minimum
     mild = fx.mesh.ik_regularization(model, prior=1e-2)
-    a = fx.solve_ik(model, targets, max_steps=200, rtol=1e-14, atol=0, regularization=mild)
+    a = fx.solve_ik(
+        model,
+        targets,
+        solver=fx.mesh.solver_from_method(max_steps=200, rtol=1e-14, atol=0),
+        constraints=fx.mesh.constraints_from_regularization(mild),
+    )
     b = fx.solve_ik(
-        model, targets, method="bfgs", max_steps=1000, rtol=1e-14, atol=0, regularization=mild
+        model,
+        targets,
+        solver=fx.mesh.solver_from_method("bfgs", max_steps=1000, rtol=1e-14, atol=0),
+        constraints=fx.mesh.constraints_from_regularization(mild),
     )
     np.testing.assert_allclose(float(a.objective), float(b.objective), rtol=1e-5)
     # the normal constraint: BFGS with target normals of the true pose
@@ -256,10 +317,9 @@ def test_regularized_minimum_and_normal_constraint(toy, rng):
     r = fx.solve_ik(
         model,
         fx.ik_markers(model, true),
-        method="bfgs",
-        max_steps=400,
-        regularization=nreg,
         target_normals=tn,
+        solver=fx.mesh.solver_from_method("bfgs", max_steps=400),
+        constraints=fx.mesh.constraints_from_regularization(nreg),
     )
     assert float(r.residual) < 1e-4
 
@@ -269,3 +329,36 @@ def test_dtype_rejected_at_the_boundary(toy):
     t = np.asarray(fx.ik_markers(model, fx.rest_pose(m)))
     with pytest.raises(FxspaceError, match="float32 or float64"):
         fx.solve_ik(model, t.astype(np.float16))
+
+
+def test_float32_solves_like_float64_and_converges(data_dir):
+    """The call a user makes with float32 targets (issue 31.6): against a float64 model
+    the solve runs in float64 (init=None used to fail: float32 carry, float64 step); an
+    all-float32 model stops ``successful`` in about the float64 iterations (it rejected
+    every step near the minimum as rounding noise until the damping blew up: 26
+    iterations and ``stalled`` on CesiumMan, 120 markers, from rest)."""
+    mesh = fx.io.read_gltf(data_dir / "mesh" / "CesiumMan.glb")
+    anim = mesh.animation_names[0]
+    ms = fx.place_markers(mesh.vertices, mesh.faces, 120, (0.3, -0.2, -1.0), seed=0)
+    model = fx.ik_model(mesh, ms)
+    t = np.linspace(*mesh.animation_range(anim), 6)
+    truth = jnp.asarray(fx.mesh.animation_vertices(mesh, anim, t))
+    T64 = fx.marker_positions(truth, mesh.faces, ms)
+    f32 = jax.tree_util.tree_map(
+        lambda a: a.astype(jnp.float32) if jnp.issubdtype(a.dtype, jnp.floating) else a, model
+    )
+    steps64, steps32 = [], []
+    for tgt in T64:
+        r64 = fx.solve_ik(model, tgt)
+        mixed = fx.solve_ik(model, tgt.astype(jnp.float32))
+        r32 = fx.solve_ik(f32, tgt.astype(jnp.float32))
+        assert mixed.pose.angles.dtype == jnp.float64
+        np.testing.assert_allclose(mixed.pose.angles, r64.pose.angles, atol=1e-5)
+        assert r64.result == fx.RESULTS.successful
+        assert r32.result == fx.RESULTS.successful, r32.result
+        assert r32.pose.angles.dtype == jnp.float32
+        # the same minimum, to float32's resolution of the marker fit
+        assert float(r32.residual) <= 1.01 * float(r64.residual) + 1e-6
+        steps64.append(int(r64.num_steps))
+        steps32.append(int(r32.num_steps))
+    assert np.mean(steps32) <= 1.3 * np.mean(steps64), (steps32, steps64)

@@ -164,3 +164,17 @@ def test_fig2_problem_and_replacement():
     with pytest.raises(ValueError, match="splice"):
         fx.motion.build_spaces(exL, exU, np.linspace(0, 15, 20), PARENTS, OFFSETS,
                                n_samples=10, splice="naive", **kw)  # fmt: skip
+    # §3.2 as printed (the default): one rotation about the root, so every re-placed
+    # sample keeps its distance from the root (the root stays where it is); the full
+    # rigid transform (an option) shifts them and is no closer to exact re-sampling here
+    assert sp.replace == "rotation"
+    repl = np.asarray(fx.motion.replace_samples(sp, w_new))
+    before = np.linalg.norm(np.asarray(sp.upper_params), axis=1)
+    np.testing.assert_allclose(np.linalg.norm(repl, axis=1), before, rtol=1e-6)
+    rigid = dataclasses.replace(sp, replace="rigid")
+    e_rigid = np.linalg.norm(np.asarray(fx.motion.replace_samples(rigid, w_new) - exact), axis=1)
+    assert e_rigid.mean() < 0.25 * e_stale.mean()
+    assert abs(e_rigid.mean() - e_repl.mean()) < 0.5 * e_repl.mean()
+    with pytest.raises(ValueError, match="replace"):
+        fx.motion.build_spaces(exL, exU, np.linspace(0, 15, 20), PARENTS, OFFSETS,
+                               n_samples=10, replace="shift", **kw)  # fmt: skip

@@ -87,3 +87,22 @@ def test_errors():
         fx.absolute_orientation(np.zeros((2, 3)), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="weights"):
         fx.absolute_orientation(np.zeros((4, 3)), np.zeros((4, 3)), weights=np.ones(3))
+
+
+def test_absolute_rotation_matches_scipy_align_vectors():
+    """Rotation about the origin only (Ha & Han §3.2): the same R as scipy's
+    Rotation.align_vectors (Kabsch without centring), and exact on rotated points."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(12, 3))
+    R_true = Rotation.from_rotvec([0.3, -0.5, 0.9]).as_matrix()
+    dst = src @ R_true.T
+    np.testing.assert_allclose(fx.motion.absolute_rotation(src, dst), R_true, atol=1e-10)
+    noisy = dst + rng.normal(0, 0.05, dst.shape) + 0.3  # a shift it must not absorb
+    w = rng.uniform(0.5, 2.0, 12)
+    ref, _ = Rotation.align_vectors(noisy, src, weights=w)
+    np.testing.assert_allclose(fx.motion.absolute_rotation(src, noisy, w), ref.as_matrix(),
+                               atol=1e-9)  # fmt: skip
+    R = np.asarray(fx.motion.absolute_rotation(src, noisy))
+    assert abs(np.linalg.det(R) - 1.0) < 1e-12

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from fxspace import motion as M
+from fxspace import pipelines as fx_pipelines
 from fxspace.pipelines import parametric_synthesis as ps
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -32,7 +33,7 @@ def _example_positions(st):
 @pytest.mark.parametrize("config", ["mood_walk.toml", "block_walk.toml"])
 def test_sixty_second_steered_session_never_jumps(data_dir, config):
     cfg = ROOT / "configs" / config
-    params = M.session_parameters(cfg)
+    params = fx_pipelines.session_parameters(cfg)
     assert "turn" in params and "alpha" in params
     lo, hi = params["turn"]
     assert lo < -10 and hi > 10  # the walk-turn clips: both ways, tens of degrees per second
@@ -46,7 +47,7 @@ def test_sixty_second_steered_session_never_jumps(data_dir, config):
     rng = np.random.default_rng(7)
     schedule = [(2.0 * k, {**{n: float(rng.uniform(a, b)) for n, (a, b) in drawn.items()},
                            **fixed}) for k in range(30)]  # fmt: skip
-    X, fps, names = M.scripted_session(cfg, schedule, 60.0)
+    X, fps, names = fx_pipelines.scripted_session(cfg, schedule, 60.0)
     assert X.shape == (int(round(60 * fps)), len(names), 3) and np.isfinite(X).all()
     root_step = np.linalg.norm(np.diff(X[:, 0], axis=0), axis=1)
     assert root_step.max() <= 2.0 * np.median(root_step)

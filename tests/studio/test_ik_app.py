@@ -140,3 +140,30 @@ def test_browser_ik_studio(mesh, tmp_path, chromium):
     np.testing.assert_allclose(
         fx.mesh.animation_vertices(back, "fxspace", [0.0])[0], ctl.vertices, atol=1e-4 * size
     )
+
+
+def test_studio_opens_a_mesh_ik_config_without_running_it(data_dir, tmp_path, monkeypatch):
+    """``fxspace studio configs/mesh_ik.toml`` builds only what the app shows (one mesh):
+    the five-model experiment is not run first (issue 31.9), and a ``.glb`` opens as it
+    is (it used to be read as a TOML)."""
+    from pathlib import Path
+
+    import fxspace.pipelines as pipelines
+    from fxspace.cli import studio_target
+    from fxspace.studio import experiment_of, load_ik_mesh, opens_directly
+
+    def boom(*a, **k):
+        raise AssertionError("the mesh_ik experiment must not run before the app opens")
+
+    monkeypatch.setattr(pipelines, "run_config", boom)
+    cfg = Path(__file__).resolve().parents[2] / "configs" / "mesh_ik.toml"
+    assert opens_directly(cfg)
+    assert studio_target(cfg, tmp_path / "run") == cfg
+    assert not (tmp_path / "run").exists()
+    mesh, anim = load_ik_mesh(cfg)
+    assert mesh.num_joints > 1 and anim == "Anim_0"
+    glb = data_dir / "mesh" / "RiggedSimple.glb"
+    assert experiment_of(glb) == "mesh_ik" and studio_target(glb) == glb
+    # a config of an experiment whose app needs its run is still run first
+    nav = cfg.with_name("navigation.toml")
+    assert not opens_directly(nav)

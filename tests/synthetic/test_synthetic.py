@@ -9,14 +9,12 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import spearmanr
 
 from fxspace.errors import FxspaceError
-from fxspace.io import (
+from fxspace.io import MarkerSequence, read_markers, write_trc
+from fxspace.synthetic import (
     EXPRESSION_MODES,
-    MarkerSequence,
     expression_displacement,
     face_layout,
-    read_markers,
     synthetic_face,
-    write_trc,
 )
 
 
