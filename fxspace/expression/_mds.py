@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import as_float_array, check_int
+from fxspace._validate import as_float_array, check_distance_matrix, check_int
 from fxspace.errors import FxspaceError
 
 __all__ = ["MDSResult", "classical_mds", "double_centre", "top_eigh", "pearson_score"]
@@ -74,6 +74,11 @@ def _top_eigh_primal(B: Array, k: int, method: str) -> tuple[Array, Array, Array
     if method == "eigh":
         w, V = jnp.linalg.eigh(B)
         return w[::-1][:k], _fix_signs(V[:, ::-1][:, :k]), jnp.zeros((), jnp.int32)
+    if method == "lobpcg" and n < 5 * (k + _EXTRA):
+        raise FxspaceError(
+            f"method='lobpcg' needs at least {5 * (k + _EXTRA)} points for {k} dimensions "
+            f"(got n={n}); use method='eigh' or 'auto' for small matrices"
+        )
     if method == "lobpcg":
         # imported here: jax.experimental.sparse loads scipy.sparse (import fxspace stays light)
         from jax.experimental.sparse.linalg import lobpcg_standard
@@ -136,6 +141,7 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "aut
     D = as_float_array(D, "D", ndim=2, min_frames=2)  # NaN/inf rejected when concrete
     if D.shape[0] != D.shape[1]:
         raise FxspaceError(f"D must be a square (n, n) distance matrix, got shape {D.shape}")
+    check_distance_matrix(D, "D")
     dim = check_int(dim, "dim", low=1, high=D.shape[0] - 1)
     if method not in ("auto", "eigh", "lobpcg"):
         raise FxspaceError(f"method must be 'auto', 'eigh' or 'lobpcg', got {method!r}")

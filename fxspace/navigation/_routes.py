@@ -285,6 +285,11 @@ def navigate(
 ) -> list[Route]:
     """Scripted navigation: pick ``centres`` at ``level`` and refine automatically down to
     ``to_level`` (default the finest). Returns the route at every level visited."""
+    if isinstance(centres, str | bytes) or np.asarray(centres).dtype.kind not in "iu":
+        raise NavigationError(
+            f"centres must be integer centre indices, got {centres!r}; pass ints (a float "
+            "such as 0.9 is never rounded)"
+        )
     last = len(h.levels) - 1 if to_level is None else int(to_level)
     if not level <= last < len(h.levels):
         raise NavigationError(f"to_level must be in [{level}, {len(h.levels) - 1}], got {to_level}")
