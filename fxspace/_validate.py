@@ -58,6 +58,9 @@ __all__ = [
     "missing_report",
     "describe_missing",
     "check_readable",
+    "check_distance_matrix",
+    "check_scale",
+    "check_memory",
 ]
 
 FinitePolicy = Literal["raise", "nan", "allow"]
@@ -319,8 +322,18 @@ def check_key(key: Any, name: str = "key") -> Any:
         raise FxspaceError(f"{name} must be a JAX PRNG key, got {key!r}; {fix}")
     dt = getattr(key, "dtype", None)
     if dt is not None and jax.dtypes.issubdtype(dt, jax.dtypes.prng_key):
+        if key.shape != ():
+            raise FxspaceError(
+                f"{name} must be one PRNG key, got a batch of shape {tuple(key.shape)}; "
+                f"pass one key (e.g. {name}[0]) or jax.vmap over the batch"
+            )
         return key
     a = np.asarray(key) if dt is None else key
+    if a.dtype == np.uint32 and a.ndim > 1 and a.shape[-1:] == (2,):
+        raise FxspaceError(
+            f"{name} must be one PRNG key of shape (2,), got a batch of shape "
+            f"{tuple(a.shape)}; pass one key (e.g. {name}[0]) or jax.vmap over the batch"
+        )
     if a.dtype != np.uint32 or a.shape[-1:] != (2,):
         raise FxspaceError(
             f"{name} must be a JAX PRNG key (uint32[2]), got {a.dtype} of shape "
@@ -378,11 +391,28 @@ def check_readable(path: Any, what: str = "file") -> Path:
     """``path`` as a `Path` if it is a readable file, else the precise
     ``OSError``: ``FileNotFoundError`` (absent), ``IsADirectoryError`` (a directory, not a
     file) or ``PermissionError`` (not readable) — never a misleading "corrupt"."""
+    import errno
+    import os
+    import stat
+
     p = Path(path)
-    if p.is_dir():
+    try:
+        st = os.stat(p)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise FxspaceError(f"{p}: symlink loop (the link points back to itself)") from None
+        if e.errno == errno.ENOTDIR:
+            raise FileNotFoundError(f"{what} not found: {p} (a parent is not a folder)") from None
+        if e.errno == errno.ENOENT:
+            if p.is_symlink():
+                raise FileNotFoundError(f"{what} not found: {p} (a dangling symlink)") from None
+            raise FileNotFoundError(f"{what} not found: {p}") from None
+        raise
+    if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(f"{p} is a directory, not a {what}")
-    if not p.exists():
-        raise FileNotFoundError(f"{what} not found: {p}")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a named pipe (FIFO)" if stat.S_ISFIFO(st.st_mode) else "not a regular file"
+        raise FxspaceError(f"{p} is {kind}, not a {what}; pass a regular file (not read)")
     try:
         with p.open("rb"):
             pass
@@ -588,3 +618,88 @@ def checked(fn: Any) -> Any:
 
     wrapper.__fxspace_checked__ = True  # type: ignore[attr-defined]
     return wrapper
+
+
+def check_distance_matrix(
+    D: Any, name: str, *, allow_inf: bool = False, rtol: float = 1e-4
+) -> None:
+    """A concrete ``(n, n)`` distance matrix must be symmetric and non-negative (NaN is
+    left to the caller's finite policy; ``allow_inf`` lets ``inf`` mark "no edge").
+    Traced matrices pass. Raises a `FxspaceError` naming ``name``, the worst entry and
+    the fix."""
+    if _is_tracer(D):
+        return
+    a = np.asarray(D)
+    if a.ndim != 2 or a.shape[0] != a.shape[1]:
+        raise FxspaceError(f"{name} must be a square (n, n) matrix, got shape {a.shape}")
+    with np.errstate(invalid="ignore"):
+        neg = a < 0
+    if neg.any():
+        i, j = np.argwhere(neg)[0]
+        raise FxspaceError(
+            f"{name} must be non-negative (distances); {name}[{i}, {j}] = {a[i, j]:g}"
+        )
+    fin = np.isfinite(a) & np.isfinite(a.T)
+    both_inf = np.isinf(a) & np.isinf(a.T)
+    diff = np.where(fin, np.abs(a - a.T), 0.0)
+    scale = np.where(fin, np.maximum(np.abs(a), np.abs(a.T)), 0.0)
+    bad = (diff > rtol * scale + 1e-6 * (np.max(scale) if scale.size else 0.0)) | (
+        np.isinf(a) != np.isinf(a.T)
+    ) & ~both_inf
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise FxspaceError(
+            f"{name} must be symmetric (distances); {name}[{i}, {j}] = {a[i, j]:g} but "
+            f"{name}[{j}, {i}] = {a[j, i]:g}; symmetrise it, e.g. ({name} + {name}.T) / 2"
+        )
+    if not allow_inf and np.isinf(a).any():
+        i, j = np.argwhere(np.isinf(a))[0]
+        raise FxspaceError(f"{name} must be finite; {name}[{i}, {j}] = {a[i, j]:g}")
+
+
+def check_scale(x: Any, name: str, power: int = 2) -> None:
+    """The largest finite magnitude of a concrete ``x`` raised to ``power`` (squared
+    distances: 2) must be finite in its dtype; else a `FxspaceError` with the number and the
+    fix (rescale), never a result computed from overflowed values."""
+    if _is_tracer(x):
+        return
+    a = np.asarray(x)
+    if a.size == 0 or a.dtype.kind != "f":
+        return
+    fin = a[np.isfinite(a)]
+    if fin.size == 0:
+        return
+    m = float(np.max(np.abs(fin)))
+    dt = np.dtype(jax.dtypes.canonicalize_dtype(a.dtype))  # float64 runs as float32 w/o x64
+    big = float(np.finfo(dt).max)
+    if (
+        m > 0
+        and power * np.log10(m) + np.log10(max(a.shape[-1] if a.ndim else 1, 1))
+        >= np.log10(big) - 1
+    ):
+        raise FxspaceError(
+            f"{name} is too large to compute with in {dt} (max |{name}| = {m:.3g}: its "
+            f"squares overflow to inf); rescale {name}, e.g. divide by its standard deviation"
+        )
+
+
+def check_memory(n_bytes: float, what: str, fix: str, limit: float | None = None) -> None:
+    """Refuse, before allocating, an array of ``n_bytes`` that cannot fit: more than
+    ``limit`` (default: half of the machine's memory) raises a `FxspaceError` naming
+    the size in GiB, ``what`` it is for and the ``fix``."""
+    if limit is None:
+        limit = _total_memory() / 2
+    if not np.isfinite(n_bytes) or n_bytes > limit:
+        raise FxspaceError(
+            f"{what} would need {n_bytes / 2**30:.3g} GiB (more than {limit / 2**30:.3g} GiB "
+            f"available); {fix}"
+        )
+
+
+def _total_memory() -> float:
+    import os
+
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 16.0 * 2**30

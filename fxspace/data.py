@@ -40,6 +40,20 @@ def data_path(*parts: str) -> Path:
             raise DataNotFoundError(f"{p} does not exist")
         return p
     root = data_root()
+    env = os.environ.get(ENV_VAR)
+    if root is None and env:
+        e = Path(env).expanduser()
+        why = (
+            "is a file, not a folder"
+            if e.is_file()
+            else "does not exist"
+            if not e.exists()
+            else "is not a folder"
+        )
+        raise DataNotFoundError(
+            f"{ENV_VAR}={env} {why}; point {ENV_VAR} at the folder that holds face/, "
+            "body/ and mesh/"
+        )
     if root is None:
         raise DataNotFoundError(
             f"real capture data not found: set {ENV_VAR} to the folder that holds face/, "

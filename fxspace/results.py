@@ -37,7 +37,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from equinox._enum import EnumerationItem  # the item type; equinox exports no public name
 
 from fxspace.errors import FxspaceError
 
@@ -45,8 +44,10 @@ __all__ = [
     "RESULTS",
     "check_result",
     "is_successful",
+    "result_code",
     "result_from_flags",
     "result_message",
+    "result_messages",
     "where_result",
 ]
 
@@ -87,11 +88,42 @@ def is_successful(result: Any) -> jax.Array:
     return result == RESULTS.successful
 
 
+_MEMBERS = (
+    "successful",
+    "max_steps_reached",
+    "nonfinite_input",
+    "nonfinite_output",
+    "stalled",
+    "disconnected",
+)
+
+
+def result_code(result: Any) -> jax.Array:
+    """The integer code(s) of a `RESULTS` item (any batch shape): its one pytree leaf,
+    read through the public pytree API (never equinox's private fields)."""
+    (leaf,) = jax.tree_util.tree_leaves(result)
+    return jnp.asarray(leaf)
+
+
+def result_messages() -> dict[int, str]:
+    """``{code: message}`` for every `RESULTS` member (``""`` for ``successful``)."""
+    return {int(result_code(getattr(RESULTS, n))): RESULTS[getattr(RESULTS, n)] for n in _MEMBERS}
+
+
 def where_result(pred: Any, a: Any, b: Any) -> Any:
     """``RESULTS.where`` for any shape of ``pred`` (elementwise, broadcasting): a batch
-    of results (e.g. one per frame under ``vmap``) stays one enumeration item."""
-    value = jnp.where(jnp.asarray(pred, bool), a._value, b._value).astype(jnp.int32)
-    return EnumerationItem(value, RESULTS)
+    of results (e.g. one per frame under ``vmap``) stays one enumeration item. Built from
+    equinox's public ``RESULTS.where`` (scalar) mapped over the batch."""
+    pred = jnp.asarray(pred, bool)
+    shape = jnp.broadcast_shapes(pred.shape, result_code(a).shape, result_code(b).shape)
+    if shape == ():
+        return RESULTS.where(pred, a, b)
+
+    def flat(item):
+        return jax.tree_util.tree_map(lambda v: jnp.broadcast_to(v, shape).reshape(-1), item)
+
+    out = jax.vmap(RESULTS.where)(jnp.broadcast_to(pred, shape).reshape(-1), flat(a), flat(b))
+    return jax.tree_util.tree_map(lambda v: v.reshape(shape), out)
 
 
 def result_from_flags(
@@ -127,26 +159,20 @@ def check_result(result: Any, throw: bool, what: str, value: Any = None) -> Any:
     if not throw:
         return value
     if _is_concrete(result):
-        raw = np.asarray(result._value)
-        bad = np.flatnonzero(raw.reshape(-1) != RESULTS.successful._value)
+        raw = np.asarray(result_code(result))
+        bad = np.flatnonzero(raw.reshape(-1) != int(result_code(RESULTS.successful)))
         if bad.size:
             idx = int(bad[0])
             code = int(raw.reshape(-1)[idx])
             where = f" (element {idx} of {raw.size})" if raw.ndim else ""
-            msg = _messages()[code]
+            msg = result_messages()[code]
             raise FxspaceError(f"{what}: {msg}{where}")
         return value
     if value is None:
         return value
-    msgs = _messages()
-    for code, msg in enumerate(msgs):
+    for code, msg in result_messages().items():
         if not msg:
             continue
-        pred = jnp.any(jnp.asarray(result._value) == code)
+        pred = jnp.any(result_code(result) == code)
         value = eqx.error_if(value, pred, f"{what}: {msg}")
     return value
-
-
-def _messages() -> list[str]:
-    n = len(RESULTS._index_to_message)
-    return [RESULTS._index_to_message[i] for i in range(n)]

@@ -27,7 +27,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import _is_tracer, as_float_array, check_finite, check_scalar, checked
+from fxspace._validate import (
+    _is_tracer,
+    as_float_array,
+    check_finite,
+    check_key,
+    check_scalar,
+    checked,
+)
 from fxspace.errors import FxspaceError
 from fxspace.results import check_result, result_from_flags
 
@@ -358,6 +365,8 @@ def fuzzy_cmeans(
             f"n_clusters={n_clusters} exceeds n_samples={n}: fuzzy c-means needs at most one "
             "centre per sample; lower n_clusters or pass more data"
         )
+    if key is not None:
+        check_key(key, "key")  # one key (a batch of keys: vmap over it)
     m = check_scalar(m, "m (fuzzifier)", low=1.0, low_open=True)
     tol = check_scalar(tol, "tol", low=0.0)
     if int(max_steps) < 0:

@@ -30,6 +30,7 @@ from fxspace._validate import (
     check_finite,
     check_int,
     check_scalar,
+    check_scale,
     checked,
 )
 from fxspace.errors import FxspaceError
@@ -226,7 +227,18 @@ def kernel_kmeans_gram(
         labels0 = None
         mode = init
     else:
-        labels0 = jnp.asarray(init, jnp.int32).reshape(-1, K.shape[0])
+        lab = np.asarray(init)
+        if lab.dtype.kind not in "iu" or lab.size == 0 or lab.size % K.shape[0]:
+            raise FxspaceError(
+                f"init labels must be integers of shape (n_init, n={K.shape[0]}); got "
+                f"{lab.dtype} of shape {lab.shape}"
+            )
+        if lab.min() < 0 or lab.max() >= n_clusters:
+            raise FxspaceError(
+                f"init labels must lie in [0, n_clusters - 1 = {n_clusters - 1}]; got values "
+                f"from {lab.min()} to {lab.max()}"
+            )
+        labels0 = jnp.asarray(lab, jnp.int32).reshape(-1, K.shape[0])
         n_init = labels0.shape[0]
         mode = "labels"
     res = _kkm_core(K, int(n_clusters), key, int(n_init), int(max_steps), mode, labels0)
@@ -352,6 +364,7 @@ def kernel_kmeans(
     ```
     """
     X = as_float_array(X, "X", axes=("n_points", "n_features"), finite="allow")
+    check_scale(X, "X")  # squared distances overflowing to inf: refuse, never "converged"
     if throw and not _is_tracer(X):
         check_finite(X, "X")  # names where the NaN/inf are
     n = X.shape[0]

@@ -325,6 +325,13 @@ def _prepare(Y, lam_l1, lam_tv, weights=None):
         if w_np is not None:
             if np.any(w_np < 0):
                 raise FxspaceError("weights must be >= 0 (0 marks a missing frame)")
+            empty = ~np.any(w_np.reshape(w_np.shape[0], -1) > 0, axis=0)
+            if empty.any():
+                raise FxspaceError(
+                    f"weights are 0 on every frame of {int(empty.sum())} channel(s) (first: "
+                    f"{int(np.flatnonzero(empty)[0])}): nothing to fit there; give at least one "
+                    "frame of each channel a weight > 0, or drop those channels"
+                )
             bad = ~np.isfinite(y_np) & (w_np > 0)
             if bad.any():
                 raise FxspaceError(

@@ -34,7 +34,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
-from fxspace._validate import as_float_array, check_indices, check_int, check_scalar, checked
+from fxspace._validate import (
+    as_float_array,
+    check_indices,
+    check_int,
+    check_scalar,
+    check_scale,
+    checked,
+)
 from fxspace.cluster import KernelKMeansResult, kernel_kmeans, median_gamma
 from fxspace.errors import FxspaceError
 
@@ -240,9 +247,12 @@ def fit_control_points(
     with ``method="kernel"``; the subset with ``"hybrid"``).
     """
     X = _check_X(X)
+    check_scale(X, "X")  # overflow of the squared residuals: refuse, never "converged"
     T, N, _ = X.shape
     n_clusters = check_int(n_clusters, "n_clusters", low=1)
     n_init = check_int(n_init, "n_init", low=1)
+    if max_points is not None:
+        max_points = check_int(max_points, "max_points", low=max(1, n_clusters))
     if not 1 <= n_clusters <= N:
         raise FxspaceError(f"n_clusters must be in [1, {N}] (vertices); got {n_clusters}")
     if method not in ("kernel", "hybrid"):

@@ -193,7 +193,7 @@ def segment_motion(
     **Returns:** `Segmentation`. Cost: one fused-lasso solve over
     ``lam_grid × n_components`` channels of length T.
     """
-    X = jnp.asarray(X)
+    X = as_float_array(X, "X")  # NaN/inf named as such, finite input never called so
     if X.ndim < 1 or X.shape[0] < 2:
         raise FxspaceError(f"X must have at least 2 frames along axis 0; got shape {X.shape}")
     T = int(X.shape[0])
@@ -219,7 +219,8 @@ def segment_motion(
     Z = motion_summary(X, n_components)
     if on == "velocity":  # piecewise-constant velocity = piecewise-linear motion
         Z = jnp.concatenate([jnp.zeros_like(Z[:1]), jnp.diff(Z, axis=0)], axis=0)
-        Z = Z / jnp.maximum(jnp.std(Z), 1e-300)
+        sd = jnp.std(Z)
+        Z = jnp.where(sd > 0, Z / jnp.where(sd > 0, sd, 1.0), 0.0)  # a still take: Z = 0
     if n_segments is None:
         lams = np.array([float(lam)])
     else:

@@ -37,6 +37,7 @@ from fxspace._validate import checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 from fxspace.expression._mds import MDSResult, _fix_signs, double_centre
 from fxspace.expression._sparse import NeighbourGraph, dijkstra_csr
+from fxspace.results import result_from_flags
 
 __all__ = [
     "LandmarkGeodesics",
@@ -285,7 +286,8 @@ def _landmark_mds(D: Array, lm: Array, dim: int) -> MDSResult:
     basis = landmark_basis(D[:, lm], dim)
     X = place_frames(basis, D.T)
     ok = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(basis.eigenvalues))
-    return MDSResult(X, basis.eigenvalues, jnp.zeros((), jnp.int32), ok)
+    result = result_from_flags(converged=True, nonfinite_output=~ok)
+    return MDSResult(X, basis.eigenvalues, jnp.zeros((), jnp.int32), result)
 
 
 @jax.jit

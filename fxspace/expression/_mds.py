@@ -16,15 +16,16 @@ O(n³) per embedding axis, and runs only when differentiating).
 from __future__ import annotations
 
 from functools import partial
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import as_float_array, check_int
+from fxspace._validate import as_float_array, check_distance_matrix, check_int
 from fxspace.errors import FxspaceError
+from fxspace.results import is_successful, result_from_flags
 
 __all__ = ["MDSResult", "classical_mds", "double_centre", "top_eigh", "pearson_score"]
 
@@ -42,14 +43,20 @@ class MDSResult(NamedTuple):
     - `embedding`: ``(n, dim)`` coordinates ``V_k Λ_k^{1/2}``.
     - `eigenvalues`: ``(dim,)`` top eigenvalues of ``B`` (descending).
     - `num_steps`: eigensolver iterations (0 for the dense ``eigh``).
-    - `converged`: False when the eigensolver ran out of iterations or the input or the
-      output holds NaN/inf (checked under ``jit``, where no error can be raised).
+    - `result`: a `fxspace.RESULTS` member: ``nonfinite_input`` / ``nonfinite_output``
+      when the input or the output holds NaN/inf (checked under ``jit``, where no error can
+      be raised), ``max_steps_reached`` when the eigensolver ran out of iterations.
+    - `converged` (derived): ``result == RESULTS.successful``.
     """
 
     embedding: Float[Array, "n dim"]
     eigenvalues: Float[Array, " dim"]
     num_steps: Int[Array, ""]
-    converged: Bool[Array, ""]
+    result: Any
+
+    @property
+    def converged(self) -> Bool[Array, ""]:
+        return is_successful(self.result)
 
 
 def double_centre(D: Float[Array, "n n"]) -> Float[Array, "n n"]:
@@ -74,6 +81,11 @@ def _top_eigh_primal(B: Array, k: int, method: str) -> tuple[Array, Array, Array
     if method == "eigh":
         w, V = jnp.linalg.eigh(B)
         return w[::-1][:k], _fix_signs(V[:, ::-1][:, :k]), jnp.zeros((), jnp.int32)
+    if method == "lobpcg" and n < 5 * (k + _EXTRA):
+        raise FxspaceError(
+            f"method='lobpcg' needs at least {5 * (k + _EXTRA)} points for {k} dimensions "
+            f"(got n={n}); use method='eigh' or 'auto' for small matrices"
+        )
     if method == "lobpcg":
         # imported here: jax.experimental.sparse loads scipy.sparse (import fxspace stays light)
         from jax.experimental.sparse.linalg import lobpcg_standard
@@ -136,6 +148,7 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "aut
     D = as_float_array(D, "D", ndim=2, min_frames=2)  # NaN/inf rejected when concrete
     if D.shape[0] != D.shape[1]:
         raise FxspaceError(f"D must be a square (n, n) distance matrix, got shape {D.shape}")
+    check_distance_matrix(D, "D")
     dim = check_int(dim, "dim", low=1, high=D.shape[0] - 1)
     if method not in ("auto", "eigh", "lobpcg"):
         raise FxspaceError(f"method must be 'auto', 'eigh' or 'lobpcg', got {method!r}")
@@ -143,9 +156,13 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "aut
     pos = lam > 0
     scale = jnp.where(pos, jnp.sqrt(jnp.where(pos, lam, 1.0)), 0.0)
     X = V * scale[None, :]
-    ok = jnp.all(jnp.isfinite(D)) & jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(lam))
-    converged = ok & (steps < _LOBPCG_STEPS)
-    return MDSResult(X, lam, steps, converged)
+    out_ok = jnp.all(jnp.isfinite(X)) & jnp.all(jnp.isfinite(lam))
+    result = result_from_flags(
+        converged=steps < _LOBPCG_STEPS,
+        nonfinite_input=~jnp.all(jnp.isfinite(D)),
+        nonfinite_output=~out_ok,
+    )
+    return MDSResult(X, lam, steps, result)
 
 
 def pearson_score(D: Float[Array, "n n"], embedding: Float[Array, "n dim"]) -> Array:

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from fxspace._validate import checked
+from fxspace._validate import check_index, checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 
 __all__ = [
@@ -289,10 +289,7 @@ def sparse_shortest_path(graph: NeighbourGraph, i: int, j: int) -> np.ndarray:
     from scipy.sparse.csgraph import dijkstra
 
     n = graph.num_frames
-    for name, v in (("i", i), ("j", j)):
-        if not (0 <= int(v) < n):
-            raise FxspaceError(f"{name}={v} is out of range for a graph of {n} frames")
-    i, j = int(i), int(j)
+    i, j = check_index(i, "i", n), check_index(j, "j", n)  # a float or NaN is refused
     if i == j:
         return np.asarray([i], dtype=np.int64)
     d, pred = dijkstra(to_scipy(graph), directed=False, indices=i, return_predecessors=True)

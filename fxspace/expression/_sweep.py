@@ -16,7 +16,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import as_float_array, check_choice, check_int, check_scalar
+from fxspace._validate import (
+    as_float_array,
+    check_choice,
+    check_distance_matrix,
+    check_int,
+    check_scalar,
+)
 from fxspace.errors import FxspaceError
 from fxspace.expression._geodesic import (
     _BLOCKED_FROM,
@@ -140,6 +146,7 @@ def threshold_sweep(
     P = as_float_array(pairwise, "pairwise", ndim=2, finite="allow")
     if P.ndim != 2 or P.shape[0] != P.shape[1]:
         raise FxspaceError(f"pairwise must be a square (n, n) matrix, got shape {P.shape}")
+    check_distance_matrix(P, "pairwise", allow_inf=True)
     th = _as_thresholds(thresholds, P.dtype)
     dim = check_int(dim, "dim", low=1)
     if batch_size is not None:

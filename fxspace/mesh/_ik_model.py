@@ -32,7 +32,7 @@ from jaxtyping import Array, Bool, Float, Int
 from fxspace.errors import FxspaceError
 from fxspace.mesh._markers import MarkerSet, marker_influences
 from fxspace.mesh._skinning import Pose, ancestor_table, chain_bases
-from fxspace.results import RESULTS
+from fxspace.results import RESULTS, result_code, result_messages
 from fxspace.rotations import quat_normalize, quat_to_matrix
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -118,9 +118,9 @@ _STATUS_OF_RESULT = {
 
 
 def _status_table() -> np.ndarray:
-    table = np.ones(len(RESULTS._index_to_message), np.int32)
+    table = np.ones(len(result_messages()), np.int32)
     for name, code in _STATUS_OF_RESULT.items():
-        table[int(getattr(RESULTS, name)._value)] = code
+        table[int(result_code(getattr(RESULTS, name)))] = code
     return table
 
 
@@ -161,7 +161,7 @@ class IKResult(NamedTuple):
     @property
     def status(self) -> Int[Array, ...]:
         """The old integer status (an index into `IK_STATUS`), derived from ``result``."""
-        return jnp.asarray(_STATUS_TABLE)[jnp.asarray(self.result._value)]
+        return jnp.asarray(_STATUS_TABLE)[result_code(self.result)]
 
 
 def _quaternion_to_matrix_np(q: np.ndarray) -> np.ndarray:

@@ -670,6 +670,14 @@ def _prepare(model, targets, init, solver, constraints, normals, frames: bool):
             raise FxspaceError(
                 f"target_normals must have shape {lead + (kn, 3)}, got {normals.shape}"
             )
+        if not isinstance(normals, jax.core.Tracer):
+            nrm = np.linalg.norm(np.asarray(normals), axis=-1)
+            if not np.all(nrm > 1e-6):
+                bad = np.argwhere(~(nrm > 1e-6))[0].tolist()
+                raise FxspaceError(
+                    f"target_normals must be non-zero, finite unit vectors; row {bad} has "
+                    f"length {nrm[tuple(bad)]:g}"
+                )
     elif normals is not None:
         raise FxspaceError("target_normals given without a normal constraint; add one first")
     return model, cons, targets, init, normals, solver

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import _is_tracer, as_float_array, check_indices
+from fxspace._validate import _is_tracer, as_float_array, check_indices, check_int
 from fxspace.errors import FxspaceError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -113,8 +113,11 @@ def place_markers(
 
     **Returns:** a `MarkerSet`. Runs on the host (numpy), at set-up time.
     """
-    v = np.asarray(vertices, dtype=np.float64)
+    v = np.asarray(as_float_array(vertices, "vertices"), dtype=np.float64)  # NaN: blamed here
     f = np.asarray(faces)
+    num_markers = check_int(num_markers, "num_markers", low=1)
+    if not isinstance(seed, np.random.Generator):
+        seed = check_int(seed, "seed", low=0)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
         raise FxspaceError(f"vertices must be (V, 3) and faces (F, 3); got {v.shape}, {f.shape}")
     d = np.asarray(view_dir, dtype=np.float64)

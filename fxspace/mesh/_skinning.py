@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from fxspace._validate import _is_tracer, as_float_array, check_indices, checked
+from fxspace._validate import _is_tracer, as_float_array, check_indices, check_int, checked
 from fxspace.errors import FxspaceError
 from fxspace.rotations import euler_to_matrix as _euler_to_matrix
 from fxspace.rotations import (
@@ -274,7 +274,17 @@ def rest_vertices(mesh: SkinnedMesh) -> np.ndarray:
 
 def rest_pose(num_joints: int | SkinnedMesh, dtype=None) -> Pose:
     """The zero `Pose` (rest rotations, no translation)."""
-    nj = num_joints if isinstance(num_joints, int) else num_joints.num_joints
+    if isinstance(num_joints, int | np.integer) and not isinstance(num_joints, bool):
+        nj = check_int(num_joints, "num_joints", low=0)
+    elif hasattr(num_joints, "num_joints"):
+        nj = num_joints.num_joints
+    elif hasattr(num_joints, "ancestors"):  # an IKModel
+        nj = int(num_joints.ancestors.shape[0])
+    else:
+        raise FxspaceError(
+            "num_joints must be a joint count, a SkinnedMesh or an IKModel, got "
+            f"{type(num_joints).__name__}"
+        )
     dtype = dtype or jnp.result_type(float)
     return Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
 

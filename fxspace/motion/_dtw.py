@@ -72,7 +72,13 @@ def dtw_cost_matrix(a: Float[Array, "n d"], b: Float[Array, "m d"]) -> Float[Arr
     Both sequences are divided by their largest magnitude before squaring (and the result
     multiplied back), so float32 frames at 1e-25 or 1e18 neither underflow nor overflow
     in the intermediate products; NaN frames give NaN rows/columns."""
-    a, b = _check_frames(a, b, ndim=2)
+    c, sc = _scaled_cost_matrix(*_check_frames(a, b, ndim=2))
+    return c * sc**2
+
+
+def _scaled_cost_matrix(a, b):
+    """``(C / sc², sc)``: the squared distances of `dtw_cost_matrix` divided by the
+    squared common scale (finite for any finite input), and that scale."""
     sc = jnp.maximum(jnp.max(jnp.abs(jnp.where(jnp.isfinite(a), a, 0.0))),
                      jnp.max(jnp.abs(jnp.where(jnp.isfinite(b), b, 0.0))))  # fmt: skip
     sc = jax.lax.stop_gradient(jnp.where(sc > 0, sc, 1.0))
@@ -80,7 +86,7 @@ def dtw_cost_matrix(a: Float[Array, "n d"], b: Float[Array, "m d"]) -> Float[Arr
     aa = jnp.sum(a * a, axis=-1)
     bb = jnp.sum(b * b, axis=-1)
     ab = jnp.matmul(a, b.T, precision=jax.lax.Precision.HIGHEST)
-    return jnp.maximum(aa[:, None] + bb[None, :] - 2.0 * ab, 0.0) * sc**2
+    return jnp.maximum(aa[:, None] + bb[None, :] - 2.0 * ab, 0.0), sc
 
 
 def _check_frames(a, b, ndim: int):
@@ -201,9 +207,11 @@ def dtw_padded(
     rows_a = jnp.all(jnp.isfinite(a), axis=-1) | (jnp.arange(n) >= nv)
     rows_b = jnp.all(jnp.isfinite(b), axis=-1) | (jnp.arange(m) >= mv)
     bad = ~(jnp.all(rows_a) & jnp.all(rows_b))
-    acc = _accumulate(dtw_cost_matrix(a, b), nv, mv)
-    cost = jnp.where(bad, jnp.nan, jnp.sqrt(acc[nv + mv - 2, nv - 1]))
-    result = result_from_flags(converged=True, nonfinite_input=bad)
+    c, sc = _scaled_cost_matrix(a, b)  # scaled: frames at 1e30 neither overflow nor
+    acc = _accumulate(c, nv, mv)  # give an inf cost with a meaningless path
+    cost = jnp.where(bad, jnp.nan, jnp.sqrt(acc[nv + mv - 2, nv - 1]) * sc)
+    overflow = ~bad & ~jnp.isfinite(cost)  # the cost itself beyond the dtype's range
+    result = result_from_flags(converged=True, nonfinite_input=bad, nonfinite_output=overflow)
     steps = jnp.asarray(n + m - 1, jnp.int32)
     if not with_path:
         stats = {"max_steps": steps, "path_length": jnp.zeros((), jnp.int32)}

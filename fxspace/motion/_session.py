@@ -33,6 +33,7 @@ from fxspace.motion._locomotion import (
     turn_to_lower_param,
     world_positions,
 )
+from fxspace.motion._session_checks import check_session_args
 
 __all__ = [
     "session_controls",
@@ -165,6 +166,7 @@ def run_session(
     smoothing_s = check_scalar(smoothing_s, "smoothing_s", low=0.0)
     sp, skel = setup.spaces, setup.skeleton
     fps = float(skel.rate)
+    schedule = check_session_args(schedule, seconds, fps, len(skel.parents))
     if table is None and _walks(setup):
         table = session_turn_table(setup)
     controls = session_controls(setup, table)

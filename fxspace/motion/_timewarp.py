@@ -23,11 +23,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from fxspace._validate import checked
+from fxspace.errors import FxspaceError
 from fxspace.motion._blend import warp_times
 
 __all__ = [
@@ -93,6 +95,17 @@ def warp_slopes(warps: Float[Array, "E N"], u: Float[Array, ""]) -> Float[Array,
     return warps[:, i0 + 1] - warps[:, i0]
 
 
+def _check_clock_args(w, dt, min_slope) -> None:
+    """Concrete weights must be >= 0, ``dt`` > 0 and ``min_slope`` > 0 (NaN passes: NaN
+    in gives NaN out); traced values pass."""
+    if not isinstance(w, jax.core.Tracer) and np.any(np.asarray(w) < 0):
+        raise FxspaceError(f"w must be >= 0 (blend weights), got {np.asarray(w).tolist()}")
+    if not isinstance(dt, jax.core.Tracer) and np.any(np.asarray(dt) <= 0):
+        raise FxspaceError(f"dt must be > 0 (real time per frame), got {dt!r}")
+    if not isinstance(min_slope, jax.core.Tracer) and np.any(np.asarray(min_slope) <= 0):
+        raise FxspaceError(f"min_slope must be > 0, got {min_slope!r}")
+
+
 @checked
 def advance_clock(
     u: Float[Array, ""],
@@ -119,8 +132,9 @@ def advance_clock(
     Example: two linear warps with slopes 0.5 and 2 and equal weights advance
     ``(0.5 · 2 + 0.5 · 0.5) · Δt = 1.25 Δt``.
     """
+    _check_clock_args(w, dt, min_slope)
     inv = 1.0 / jnp.maximum(warp_slopes(warps, u), min_slope)
-    return jnp.einsum("e,e->", w, inv) * dt
+    return jnp.where(jnp.isnan(u), jnp.nan, jnp.einsum("e,e->", w, inv) * dt)  # NaN in, NaN out
 
 
 @checked
@@ -136,8 +150,9 @@ def advance_clock_duration(
     output frame on average. **Not** the paper's eq. (1) (see `advance_clock`); kept
     as a named option for comparison. Two slopes 0.5 and 2 with equal weights give
     ``0.8 Δt``."""
+    _check_clock_args(w, dt, min_slope)
     rate = jnp.einsum("e,e->", w, jnp.maximum(warp_slopes(warps, u), min_slope))
-    return dt / jnp.maximum(rate, min_slope)
+    return jnp.where(jnp.isnan(u), jnp.nan, dt / jnp.maximum(rate, min_slope))
 
 
 @checked
@@ -163,6 +178,10 @@ def align_clocks(
 
     Example: ``λ(T) = 2T``, ``T_L = 3``, ``T_U = 4``, ``α = ½`` → ``T_U = 5``, ``T_L = 2.5``.
     """
+    if not isinstance(alpha, jax.core.Tracer):
+        a = np.asarray(alpha)
+        if a.dtype.kind not in "iuf" or np.any(~((a >= 0) & (a <= 1)) & ~np.isnan(a)):
+            raise FxspaceError(f"alpha must lie in [0, 1] (the user's control), got {alpha!r}")
     tu = alpha * interp_curve(lam, t_lower) + (1.0 - alpha) * t_upper  # eq. (2)
     tu = jnp.clip(tu, lam[0], lam[-1])
     return invert_curve(lam, tu), tu  # eq. (3)

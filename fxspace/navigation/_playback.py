@@ -15,7 +15,7 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from fxspace._validate import as_float_array, check_choice, check_scalar
+from fxspace._validate import as_float_array, check_choice, check_memory, check_scalar
 from fxspace.errors import FxspaceError
 
 __all__ = ["Playback", "playback", "rigid_align"]
@@ -101,6 +101,11 @@ def playback(
     if duration is None:
         duration = len(f) / rate
     duration = check_scalar(duration, "duration", low=0.0, low_open=True)
+    check_memory(  # estimated before anything is allocated
+        (duration * fps + 1) * 8 * (3 + int(np.prod(np.shape(positions)[1:]) or 1)),
+        f"a playback of {duration:g} s at {fps:g} fps",
+        "shorten duration or lower fps",
+    )
     xy = emb[f]
     P = pos[f]
     if align:

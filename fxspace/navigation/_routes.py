@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fxspace._validate import as_float_array, check_indices
+from fxspace._validate import as_float_array, check_indices, check_scalar
 from fxspace.errors import FxspaceError
 from fxspace.expression import shortest_path
 from fxspace.navigation._hierarchy import Hierarchy, Level
@@ -128,7 +128,8 @@ def path_candidates(
     xy = h.embedding
     if radius is None:
         radius = lv.radius if np.isfinite(lv.radius) else 0.0
-    p = xy[np.asarray(frames)]
+    radius = check_scalar(radius, "radius", low=0.0, high=1e150)
+    p = xy[check_indices(frames, "frames", xy.shape[0], min_len=1)]
     c = xy[lv.center_frames]
     d2 = np.sum((c[:, None, :] - p[None, :, :]) ** 2, axis=-1)  # (c, L)
     near = np.min(d2, axis=1) <= float(radius) ** 2
@@ -285,6 +286,11 @@ def navigate(
 ) -> list[Route]:
     """Scripted navigation: pick ``centres`` at ``level`` and refine automatically down to
     ``to_level`` (default the finest). Returns the route at every level visited."""
+    if isinstance(centres, str | bytes) or np.asarray(centres).dtype.kind not in "iu":
+        raise NavigationError(
+            f"centres must be integer centre indices, got {centres!r}; pass ints (a float "
+            "such as 0.9 is never rounded)"
+        )
     last = len(h.levels) - 1 if to_level is None else int(to_level)
     if not level <= last < len(h.levels):
         raise NavigationError(f"to_level must be in [{level}, {len(h.levels) - 1}], got {to_level}")

@@ -113,6 +113,14 @@ def app_for(experiment: str) -> Callable[..., Any]:
     return getattr(importlib.import_module(mod), fn)
 
 
+def check_port(port: Any) -> int:
+    """``port`` as an int in 0–65535 (0: any free port), else a `FxspaceError`."""
+    from fxspace._validate import check_int
+
+    return check_int(port, "port (0 picks a free one)", low=0, high=65535)
+
+
 def serve(target: str | Path, port: int = 8080, **kwargs: Any) -> Any:
     """``fxspace studio TARGET``: serve the app of the target's experiment."""
+    check_port(port)  # before any thread starts
     return app_for(experiment_of(target))(target, port=port, **kwargs)

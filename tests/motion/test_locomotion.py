@@ -126,9 +126,9 @@ def test_dtw_nan_frame_flags_the_result_and_gives_no_path():
         M.dtw(a, b, throw=True)
     # batched: the NaN pair is flagged, its neighbour is not
     res = M.dtw_batch(np.stack([a, np.nan_to_num(a)]), b)
-    assert np.asarray(res.result._value).tolist() == [
-        fx.RESULTS.nonfinite_input._value,
-        fx.RESULTS.successful._value,
+    assert np.asarray(fx.results.result_code(res.result)).tolist() == [
+        int(fx.results.result_code(fx.RESULTS.nonfinite_input)),
+        int(fx.results.result_code(fx.RESULTS.successful)),
     ]
     assert np.all(np.asarray(res.path[0]) == -1) and np.isfinite(float(res.cost[1]))
 
