@@ -134,7 +134,7 @@ def test_two_concurrent_sweeps_run_every_run_once(tmp_path):
     logs = [p.communicate(timeout=900)[0] for p in ps]
     assert [p.returncode for p in ps] == [0, 0], logs
     wrote = [ln for log in logs for ln in log.splitlines() if ln.startswith("[fxspace] wrote")]
-    assert sorted(wrote) == sorted(set(wrote)) and len(wrote) == 4  # each run exactly once
+    assert sorted(wrote) == sorted(set(wrote)) and len(wrote) == 4, logs  # each run once
     assert len(_metrics(out)) == 4
 
 
