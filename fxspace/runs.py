@@ -76,6 +76,8 @@ MANIFEST = ".fxspace-manifest"
 #: Name of a run folder's lock file (pid, host and time of the process running it).
 LOCK = ".fxspace-lock"
 
+# user-saved state: never deleted by a clean even where an older manifest lists it
+_USER_STATE = frozenset({"edits.json"})
 # the run folder being written by `run_dict` (files written under it are recorded)
 _ACTIVE: ContextVar[Path | None] = ContextVar("fxspace_active_run", default=None)
 # manifest path -> the relative paths already listed (so each path is appended once)
@@ -304,8 +306,8 @@ def _remove_listed(root: Path, keep: Callable[[str], bool]) -> list[str]:
     listed = manifest_files(root)
     removed, kept = [], []
     for rel in listed:
-        if _in_nested_run(root, rel):
-            continue  # another run's file (it has its own manifest): never ours to delete
+        if _in_nested_run(root, rel) or Path(rel).name in _USER_STATE:
+            continue  # another run's file, or the user's saved edits: never ours to delete
         if keep(rel):
             kept.append(rel)
             continue

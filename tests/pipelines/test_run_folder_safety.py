@@ -141,3 +141,16 @@ def test_writers_accept_a_255_character_name(tmp_path):
     seq = MarkerSequence(np.zeros((2, 1, 3)) + 1.0, ["a"], 60.0, "mm")
     p = write_trc(tmp_path / name, seq)
     assert np.allclose(read_markers(p).positions, 1.0)
+
+
+def test_user_state_is_never_in_the_manifest_nor_cleaned(tmp_path):
+    from fxspace.runs import active_run, clean_run, unrecorded, write_json_atomic
+
+    with active_run(tmp_path):
+        write_json_atomic(tmp_path / "metrics.json", {"a": 1})
+        with unrecorded():
+            write_json_atomic(tmp_path / "edits.json", {"keys": []})
+    assert manifest_files(tmp_path) == ["metrics.json"]
+    (tmp_path / MANIFEST).write_text("metrics.json\nedits.json\n")  # an older run's manifest
+    clean_run(tmp_path)
+    assert (tmp_path / "edits.json").is_file() and not (tmp_path / "metrics.json").exists()

@@ -134,5 +134,64 @@ def test_two_concurrent_sweeps_run_every_run_once(tmp_path):
     logs = [p.communicate(timeout=900)[0] for p in ps]
     assert [p.returncode for p in ps] == [0, 0], logs
     wrote = [ln for log in logs for ln in log.splitlines() if ln.startswith("[fxspace] wrote")]
-    assert sorted(wrote) == sorted(set(wrote)) and len(wrote) == 4  # each run exactly once
+    assert sorted(wrote) == sorted(set(wrote)) and len(wrote) == 4, logs  # each run once
     assert len(_metrics(out)) == 4
+
+
+def _free_port():
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_scheduler_survives_a_killed_worker(tmp_path):
+    """`dask scheduler` + two `dask worker`s on 127.0.0.1; one worker is killed while a run
+    is in progress; every run still completes, with the serial metrics."""
+    import signal
+    import time
+
+    pytest.importorskip("dask.distributed")
+    from fxspace.pipelines._sweep import WORKER_ENV
+
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    env = {**_env(), **WORKER_ENV}
+    bindir = Path(sys.executable).parent
+    procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True)]  # fmt: skip
+    try:
+        time.sleep(3)
+        for _ in range(2):
+            procs.append(subprocess.Popen(
+                [str(bindir / "dask"), "worker", addr, "--nthreads", "1", "--no-dashboard",
+                 "--host", "127.0.0.1"], env=env, stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL, start_new_session=True))  # fmt: skip
+        out = tmp_path / "o"
+        sweep = subprocess.Popen(
+            [sys.executable, "-m", "fxspace.cli", "sweep", str(EXAMPLE), "--scheduler", addr,
+             "--out", str(out)], env=_env(), stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)  # fmt: skip
+        t0 = time.time()
+        while time.time() - t0 < 300 and not list(out.glob("*/.fxspace-lock")):
+            time.sleep(0.2)
+        time.sleep(1.0)
+        os.killpg(procs[1].pid, signal.SIGKILL)  # one worker dies mid-run
+        log = sweep.communicate(timeout=900)[0]
+        assert sweep.returncode == 0, log[-3000:]
+        serial = tmp_path / "serial"
+        r = subprocess.run([sys.executable, "-m", "fxspace.cli", "sweep", str(EXAMPLE),
+                            "--engine", "serial", "--out", str(serial)], env=_env(),
+                           capture_output=True, text=True, timeout=900)  # fmt: skip
+        assert r.returncode == 0, r.stdout[-2000:]
+        assert len(_metrics(out)) == 4 and _metrics(out) == _metrics(serial)
+    finally:
+        for p in procs:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p.wait()
