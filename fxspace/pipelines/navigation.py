@@ -407,6 +407,8 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
         "num_levels": len(h.levels),
         "centres_per_level": list(h.sizes),
         "levels": levels,
+        # links the paper's ρ rule forbids, added so that every route connects (bridges)
+        "links_bridged": sum(lv["bridges"] or 0 for lv in levels),
         "iterations_split_start_total": warm,
         "iterations_cold_total": cold,
         "iterations_saved_by_warm_start": (cold - warm) if cold is not None else None,

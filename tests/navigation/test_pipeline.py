@@ -51,6 +51,8 @@ def test_threshold_from_its_own_sweep_by_the_papers_rule(tmp_path):
     for name in nav.STAGES:
         assert (d / "cache" / f"{name}.npz").is_file(), name
     assert m["path_is_graph_walk"] is True
+    # the links the paper's rule forbids, added to connect the routes, are counted
+    assert m["links_bridged"] == sum(lv["bridges"] or 0 for lv in m["levels"])
 
 
 def test_interrupted_after_the_sweep_resumes(tmp_path, monkeypatch):
