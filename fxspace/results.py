@@ -45,6 +45,7 @@ __all__ = [
     "check_result",
     "is_successful",
     "result_code",
+    "member_code",
     "result_from_flags",
     "result_message",
     "result_messages",
@@ -105,9 +106,18 @@ def result_code(result: Any) -> jax.Array:
     return jnp.asarray(leaf)
 
 
+def member_code(item: Any) -> int:
+    """A `RESULTS` member's integer code, read on the host with numpy: safe while tracing
+    and at import time (a ``jnp`` op there would start the XLA backend, which must wait
+    for ``jax.distributed.initialize``)."""
+    (leaf,) = jax.tree_util.tree_leaves(item)
+    return int(np.asarray(leaf))
+
+
 def result_messages() -> dict[int, str]:
-    """``{code: message}`` for every `RESULTS` member (``""`` for ``successful``)."""
-    return {int(result_code(getattr(RESULTS, n))): RESULTS[getattr(RESULTS, n)] for n in _MEMBERS}
+    """``{code: message}`` for every `RESULTS` member (``""`` for ``successful``); safe
+    to call while tracing (the codes are read on the host)."""
+    return {member_code(getattr(RESULTS, n)): RESULTS[getattr(RESULTS, n)] for n in _MEMBERS}
 
 
 def where_result(pred: Any, a: Any, b: Any) -> Any:
@@ -160,7 +170,7 @@ def check_result(result: Any, throw: bool, what: str, value: Any = None) -> Any:
         return value
     if _is_concrete(result):
         raw = np.asarray(result_code(result))
-        bad = np.flatnonzero(raw.reshape(-1) != int(result_code(RESULTS.successful)))
+        bad = np.flatnonzero(raw.reshape(-1) != member_code(RESULTS.successful))
         if bad.size:
             idx = int(bad[0])
             code = int(raw.reshape(-1)[idx])

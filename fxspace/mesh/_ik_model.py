@@ -32,7 +32,7 @@ from jaxtyping import Array, Bool, Float, Int
 from fxspace.errors import FxspaceError
 from fxspace.mesh._markers import MarkerSet, marker_influences
 from fxspace.mesh._skinning import Pose, ancestor_table, chain_bases
-from fxspace.results import RESULTS, result_code, result_messages
+from fxspace.results import RESULTS, member_code, result_code, result_messages
 from fxspace.rotations import quat_normalize, quat_to_matrix
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -120,7 +120,7 @@ _STATUS_OF_RESULT = {
 def _status_table() -> np.ndarray:
     table = np.ones(len(result_messages()), np.int32)
     for name, code in _STATUS_OF_RESULT.items():
-        table[int(result_code(getattr(RESULTS, name)))] = code
+        table[member_code(getattr(RESULTS, name))] = code
     return table
 
 

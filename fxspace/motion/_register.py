@@ -18,7 +18,14 @@ from fxspace.errors import FxspaceError
 from fxspace.motion._dtw import dtw, dtw_batch, warp_from_path
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._splice import heading_quat
-from fxspace.results import RESULTS, check_result, is_successful, result_code, result_from_flags
+from fxspace.results import (
+    RESULTS,
+    check_result,
+    is_successful,
+    member_code,
+    result_code,
+    result_from_flags,
+)
 from fxspace.rotations import quat_conj, quat_mul, quat_rotate
 
 __all__ = [
@@ -109,7 +116,7 @@ def register_examples(
     T = max(lens)
     F = np.stack([np.concatenate([f, np.repeat(f[-1:], T - len(f), 0)]) for f in features])
     res = _register(jnp.asarray(F[0]), jnp.asarray(F), jnp.asarray(lens), lens[0])
-    bad = np.asarray(result_code(res.result)) != int(result_code(RESULTS.successful))
+    bad = np.asarray(result_code(res.result)) != member_code(RESULTS.successful)
     warps = np.stack([smooth_warp(w, smooth, cyclic=cyclic) if not b else np.full(len(w), np.nan)
                       for w, b in zip(np.asarray(res.warps), bad, strict=True)])  # fmt: skip
     result = result_from_flags(converged=True, nonfinite_input=bool(bad.any()))
