@@ -154,9 +154,11 @@ def test_fig2_problem_and_replacement():
     e_repl = np.linalg.norm(np.asarray(fx.motion.replace_samples(sp, w_new) - exact), axis=1)
     e_stale = np.linalg.norm(np.asarray(sp.upper_params - exact), axis=1)
     assert e_repl.mean() > 1e-4  # not a rigid change any more
-    assert e_repl.mean() < 0.25 * e_stale.mean()  # measured: 14.5 mm vs 75 mm
-    # the heading-relative copy at full posture transfer is rigid: Horn is exact there
-    sh = dataclasses.replace(sp, splice="heading")
+    # §3.2's rotation about the root (the default): measured 19 mm vs 75 mm stale
+    assert e_repl.mean() < 0.35 * e_stale.mean()
+    # the heading-relative copy at full posture transfer moves the samples rigidly: Horn's
+    # rigid option is exact there
+    sh = dataclasses.replace(sp, splice="heading", replace="rigid")
     sh = dataclasses.replace(sh, upper_params=fx.motion.exact_upper_params(sh, sh.lower_w0))
     np.testing.assert_allclose(
         fx.motion.replace_samples(sh, w_new), fx.motion.exact_upper_params(sh, w_new), atol=2e-5
@@ -166,15 +168,14 @@ def test_fig2_problem_and_replacement():
                                n_samples=10, splice="naive", **kw)  # fmt: skip
     # §3.2 as printed (the default): one rotation about the root, so every re-placed
     # sample keeps its distance from the root (the root stays where it is); the full
-    # rigid transform (an option) shifts them and is no closer to exact re-sampling here
+    # rigid transform (an option) also follows a shift of the samples
     assert sp.replace == "rotation"
     repl = np.asarray(fx.motion.replace_samples(sp, w_new))
     before = np.linalg.norm(np.asarray(sp.upper_params), axis=1)
     np.testing.assert_allclose(np.linalg.norm(repl, axis=1), before, rtol=1e-6)
     rigid = dataclasses.replace(sp, replace="rigid")
     e_rigid = np.linalg.norm(np.asarray(fx.motion.replace_samples(rigid, w_new) - exact), axis=1)
-    assert e_rigid.mean() < 0.25 * e_stale.mean()
-    assert abs(e_rigid.mean() - e_repl.mean()) < 0.5 * e_repl.mean()
+    assert e_rigid.mean() < 0.25 * e_stale.mean()  # measured: 14.5 mm
     with pytest.raises(ValueError, match="replace"):
         fx.motion.build_spaces(exL, exU, np.linspace(0, 15, 20), PARENTS, OFFSETS,
                                n_samples=10, replace="shift", **kw)  # fmt: skip
