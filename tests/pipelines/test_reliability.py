@@ -317,7 +317,9 @@ def test_force_single_run_over_an_old_sweep(tmp_path):
     with pytest.raises(ConfigError, match="--force"):
         run_dict(dict(SMALL), dirs[0])  # a finished sweep run of another config
     run_dict(dict(SMALL), out, force=True)
-    assert not (dirs[1] / "metrics.json").exists() and not (dirs[0] / "metrics.json").exists()
+    # issue 33: --force on a parent folder leaves every nested run intact (it used to
+    # empty them); the single run is written beside them
+    assert (dirs[1] / "metrics.json").is_file() and (dirs[0] / "metrics.json").is_file()
     assert (dirs[0] / "notes.md").read_text() == "mine"
     assert (out / "metrics.json").is_file()
 
