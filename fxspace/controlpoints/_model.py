@@ -177,6 +177,12 @@ def control_point_model(
 
 
 def _check_X(X) -> Array:
+    if not isinstance(X, jax.Array):
+        a = np.asarray(X)
+        if a.dtype.kind not in "biuf":
+            raise FxspaceError(
+                f"X must be a numeric (frames, vertices, 3) array; got dtype {a.dtype}"
+            )
     X = jnp.asarray(X)
     if X.ndim != 3 or X.shape[2] != 3 or X.shape[0] < 3:
         raise FxspaceError(f"X must be (frames >= 3, vertices, 3); got {X.shape}")
