@@ -210,9 +210,9 @@ class BlendShapes(NamedTuple):
     fps: float
 
 
-def read_gltf_blendshapes(path: str | Path) -> BlendShapes:
-    """The first mesh primitive of a ``.glb`` with its morph targets as blend shapes
-    (see `BlendShapes`). A damaged file raises `CorruptFileError` naming it."""
+def _first_primitive(path: str | Path):
+    """``(path, gltf, binary, mesh, positions, triangles, morph targets)`` of a ``.glb``'s
+    first mesh primitive (the one home of that reading for both morph readers)."""
     p = Path(path)
     if not p.is_file():
         raise FxspaceError(f"{p}: no such file")
@@ -227,7 +227,13 @@ def read_gltf_blendshapes(path: str | Path) -> BlendShapes:
         ) from None
     base = _accessor(gltf, binary, pos_i, p).astype(np.float64)
     F = _accessor(gltf, binary, idx_i, p).astype(np.int64).reshape(-1, 3)
-    targets = prim.get("targets") or []
+    return p, gltf, binary, gmesh, base, F, prim.get("targets") or []
+
+
+def read_gltf_blendshapes(path: str | Path) -> BlendShapes:
+    """The first mesh primitive of a ``.glb`` with its morph targets as blend shapes
+    (see `BlendShapes`). A damaged file raises `CorruptFileError` naming it."""
+    p, gltf, binary, gmesh, base, F, targets = _first_primitive(path)
     D = (
         np.stack([_accessor(gltf, binary, t["POSITION"], p) for t in targets]).astype(np.float64)
         if targets
@@ -295,20 +301,7 @@ def read_gltf_morph(path: str | Path) -> MorphAnimation:
     """Read a .glb written by `write_gltf_morph` (or any .glb whose first mesh primitive
     has positions, triangle indices and optionally one morph target per frame): frame
     ``t`` = base + target ``t``. A damaged file raises `CorruptFileError` naming it."""
-    p = Path(path)
-    if not p.is_file():
-        raise FxspaceError(f"{p}: no such file")
-    gltf, binary = _glb_parts(p)
-    try:
-        prim = gltf["meshes"][0]["primitives"][0]
-        pos_i, idx_i = prim["attributes"]["POSITION"], prim["indices"]
-    except (KeyError, IndexError, TypeError) as e:
-        raise CorruptFileError(
-            f"{p}: no mesh primitive with POSITION and indices ({e!r})"
-        ) from None
-    base = _accessor(gltf, binary, pos_i, p).astype(np.float64)
-    F = _accessor(gltf, binary, idx_i, p).astype(np.int64).reshape(-1, 3)
-    targets = prim.get("targets") or []
+    p, gltf, binary, _, base, F, targets = _first_primitive(path)
     V = np.stack([base] + [base + _accessor(gltf, binary, t["POSITION"], p) for t in targets])
     V = V[1:] if targets else V
     fps, name = 0.0, ""

@@ -187,8 +187,25 @@ class Adam:
         return _adam_postprocess(pb, self, state, steps)
 
 
+class _Optimistix:
+    """The loop's methods for optimistix's solvers: optimistix runs its own ``iterate`` in
+    ``init``; the outer loop has nothing left to do (``terminate`` is true at once)."""
+
+    def init(self, pb, skip):
+        return _optx_init(pb, self, skip)
+
+    def step(self, pb, state):
+        return state
+
+    def terminate(self, state):
+        return jnp.asarray(True)
+
+    def postprocess(self, pb, state, steps):
+        return _optx_postprocess(pb, self, state, steps)
+
+
 @dataclasses.dataclass(frozen=True)
-class OptimistixLM:
+class OptimistixLM(_Optimistix):
     """optimistix's Levenberg–Marquardt on the residual vector (autodiff Jacobian)."""
 
     rtol: float = 1e-6
@@ -198,21 +215,9 @@ class OptimistixLM:
     def __post_init__(self):
         _check_common(self)
 
-    def init(self, pb, skip):
-        return _optx_init(pb, self, skip)
-
-    def step(self, pb, state):
-        return state
-
-    def terminate(self, state):
-        return jnp.asarray(True)
-
-    def postprocess(self, pb, state, steps):
-        return _optx_postprocess(pb, self, state, steps)
-
 
 @dataclasses.dataclass(frozen=True)
-class OptimistixGaussNewton:
+class OptimistixGaussNewton(_Optimistix):
     """optimistix's Gauss–Newton on the residual vector (autodiff Jacobian)."""
 
     rtol: float = 1e-6
@@ -221,18 +226,6 @@ class OptimistixGaussNewton:
 
     def __post_init__(self):
         _check_common(self)
-
-    def init(self, pb, skip):
-        return _optx_init(pb, self, skip)
-
-    def step(self, pb, state):
-        return state
-
-    def terminate(self, state):
-        return jnp.asarray(True)
-
-    def postprocess(self, pb, state, steps):
-        return _optx_postprocess(pb, self, state, steps)
 
 
 Solver = LevenbergMarquardt | BFGS | Adam | OptimistixLM | OptimistixGaussNewton
