@@ -9,7 +9,8 @@ marker on a face triangle), solves per-frame expression weights in ``[0, 1]`` an
 head's rigid motion (`solve_weights`: bounded least squares with a temporal term, all
 frames in one jitted batch, differentiable), and writes the weights out
 (`write_rig_gltf`: morph targets + weight animation; `write_weights_csv`;
-`transfer_weights` onto any rig with the same shape names).
+`transfer_weights` onto any rig with the same shape names), and poses the head where
+the capture is (`posed_vertices`: what the apps show).
 
 Layer: above `fxspace.io` (it reads OBJ and glTF through it), below the pipelines and
 apps.
@@ -22,6 +23,7 @@ take = fx.io.read_markers(fx.data.data_path("face", "animface_jaw.c3d"))
 b = fx.face.bind_markers(rig, take.positions[0], take.names)
 s = fx.face.solve_weights(rig, b, take.positions)        # .weights (T, 53), .residual (T, 41)
 fx.face.write_rig_gltf("jaw.glb", rig, s.weights, fps=take.fps)
+V = fx.face.posed_vertices(rig, b, s, frames=0)         # (N, 3): the head where the markers are
 ```
 """
 
@@ -34,6 +36,8 @@ from fxspace.face._export import read_weights_csv as read_weights_csv
 from fxspace.face._export import transfer_weights as transfer_weights
 from fxspace.face._export import write_rig_gltf as write_rig_gltf
 from fxspace.face._export import write_weights_csv as write_weights_csv
+from fxspace.face._pose import posed_vertices as posed_vertices
+from fxspace.face._pose import rest_vertices as rest_vertices
 from fxspace.face._rig import ICT_PARTS as ICT_PARTS
 from fxspace.face._rig import Rig as Rig
 from fxspace.face._rig import read_rig as read_rig
@@ -57,6 +61,8 @@ __all__ = [
     "FaceSolve",
     "solve_weights",
     "kabsch",
+    "posed_vertices",
+    "rest_vertices",
     "transfer_weights",
     "write_rig_gltf",
     "write_weights_csv",

@@ -116,8 +116,9 @@ class EditorController:
     """State: ``frame``, ``mode`` (one of `MODES`), ``keys`` (the edit history, `FaceKey`s),
     ``redo_keys``, ``playing``/``loop``, ``message``; sequences are cached per mode."""
 
-    def __init__(self, data: EditorData):
+    def __init__(self, data: EditorData, face=None):
         self.data = data
+        self.face = face  # the head shown (`RigFace`, `DenseFace`) or None: the surface
         self.frame = 0
         self.mode: str = "edited"
         self.keys: list[FaceKey] = []
@@ -189,6 +190,51 @@ class EditorController:
 
     def _invalidate(self) -> None:
         self._cache.pop("edited", None)
+        self._cache.pop("head:edited", None)
+
+    # -- the head ------------------------------------------------------------------------
+    @property
+    def has_rig(self) -> bool:
+        """Whether the head is a blend-shape rig (weights to show and export)."""
+        return self.face is not None and hasattr(self.face, "rig")
+
+    def head_markers(self, V: np.ndarray | None = None, frame: int | None = None,
+                     mode: str | None = None) -> np.ndarray:  # fmt: skip
+        """``(M, 3)`` markers that drive the head at ``frame`` when the shown surface there
+        is ``V`` (default: the shown mode's): the capture's markers moved as the surface
+        under them moved — from the model (``"control points"``) in the edited mode, so
+        the edited head is the capture plus the animator's edits (what the run's
+        ``head.glb`` carries), from the capture in the other modes."""
+        d = self.data
+        if d.markers is None or d.marker_vertex is None:
+            raise FxspaceError("this run kept no markers: the head cannot be driven")
+        mode = self.mode if mode is None else mode
+        t = self.frame if frame is None else int(frame)
+        V = self.sequence(mode)[t] if V is None else np.asarray(V)
+        ref = self.sequence("control points" if mode == "edited" else "original")[t]
+        mv = np.asarray(d.marker_vertex)
+        return np.asarray(d.markers[t], np.float64) + (V - ref)[mv].astype(np.float64)
+
+    def head_solve(self, mode: str | None = None):
+        """The rig's `FaceSolve` over the whole sequence of ``mode`` (cached; all frames in
+        one batch, with the temporal term), or None when the head is not a rig."""
+        if not self.has_rig:
+            return None
+        mode = self.mode if mode is None else mode
+        with self._lock:
+            key = f"head:{mode}"
+            if key not in self._cache:
+                d = self.data
+                ref = "control points" if mode == "edited" else "original"
+                mv = np.asarray(d.marker_vertex)
+                moved = self.sequence(mode)[:, mv] - self.sequence(ref)[:, mv]
+                self._cache[key] = self.face.solve(np.asarray(d.markers, np.float64) + moved)
+            return self._cache[key]
+
+    def head_weights(self, mode: str | None = None) -> np.ndarray | None:
+        """``(T, K)`` expression weights of the whole sequence (`head_solve`), or None."""
+        s = self.head_solve(mode)
+        return None if s is None else np.asarray(s.weights)
 
     def _save(self) -> None:
         if self.data.run_dir is not None:
@@ -339,7 +385,9 @@ class EditorController:
     def export(self, out_dir: str | Path, fmt: str = "gltf") -> list[Path]:
         """Write the edited sequence (``"gltf"``: one .glb with morph targets; ``"obj"`` /
         ``"ply"``: a file per frame) and the control-point data (``control_points.npz`` +
-        ``edits.json``)."""
+        ``edits.json``); with a rig head, also the rig with the edited sequence's weights
+        animated (``head.glb``: morph targets + weight animation) and the weights per frame
+        (``head_weights.csv``, the shapes' names as columns)."""
         from fxspace.io import write_gltf_morph, write_obj_sequence, write_ply_sequence
         from fxspace.runs import save_npz_atomic
 
@@ -357,6 +405,15 @@ class EditorController:
         paths.append(save_npz_atomic(out / "control_points.npz",
                                      **scene_to_arrays(self.data.scene)))  # fmt: skip
         paths.append(save_edits(out / _EDITS, self.keys, n_frames=self.n_frames))
+        if self.has_rig:  # the character carries the edits: the rig's weights, animated
+            from fxspace.face import write_rig_gltf, write_weights_csv
+
+            W = self.head_weights("edited")
+            rig = self.face.rig
+            paths.append(write_rig_gltf(out / "head.glb", rig, W, fps=self.data.rate,
+                                        name="edited"))  # fmt: skip
+            paths.append(write_weights_csv(out / "head_weights.csv", W, rig.names,
+                                           fps=self.data.rate))  # fmt: skip
         self.message = f"exported {len(paths)} files to {out}"
         return [Path(p) for p in paths]
 

@@ -2,7 +2,11 @@
 
 ``fxspace studio runs/reconstruction`` serves a viser page with:
 
-- the dense face of the current frame (shaded surface), playing or scrubbed on a timeline;
+- the current frame, playing or scrubbed on a timeline, as a real head (the ICT Face
+  Model's blend shapes, `fxspace.face`, with eyes and teeth; its weights and head motion
+  solved from the markers, which ride on the shown surface, so an edit changes the head
+  at once) or as the modelled dense surface itself; the weights' curves of the chosen
+  shapes over the sequence (the edited sequence's and the model's);
 - the control points of the current frame's segment, each with a transform gizmo:
   dragging shows the face follow live and, on release, writes a key on the face at this
   frame — any frame, segment boundaries included (saved to ``edits.json`` in the run
@@ -12,7 +16,8 @@
   and the edited sequence;
 - the paper's knobs (segments, control points, kernel width) and "Re-fit";
 - export of the edited sequence (glTF with morph targets, or OBJ/PLY per frame) with the
-  control-point data.
+  control-point data, and the head carrying the edits (``head.glb``: the rig's morph
+  targets with the weight animation; ``head_weights.csv``).
 
 The state lives in `EditorController` (``_edit_controller``); `EditorView` draws it and
 wires the page to it (its `EditorView.on_gizmo` is what a gizmo drag calls).
@@ -31,13 +36,13 @@ from fxspace.studio._edit_controller import (
     load_editor_data,
 )
 from fxspace.studio._server import (
-    DenseFace,
     Player,
     ServeOptions,
     attach_stop,
     new_server,
     run_until_interrupted,
     serialized,
+    studio_face,
 )
 
 __all__ = [
@@ -71,7 +76,9 @@ class EditorView:
         self.scale = 2.0 / max(float(np.ptp((V0 - self.mu) @ self.R[:2].T)), 1e-12)
         self.handles: list = []
         self.shown_segment = -1
-        self.head = _head_of(ctl.data)
+        self.head = ctl.face
+        self.shown_head: np.ndarray | None = None  # the head's vertices last drawn
+        self.curves = None
         self.face_nodes: dict = {}
         server.initial_camera.position = (0.0, 0.0, 2.8)
         server.initial_camera.look_at = (0.0, 0.0, 0.0)
@@ -117,6 +124,10 @@ class EditorView:
                 initial_value=ctl.data.gamma or 0.5,
             )  # fmt: skip
             self.refit_btn = gui.add_button("Re-fit")
+        if ctl.has_rig:
+            self.curve_dd = gui.add_dropdown("Weight curves", self._curve_choices(),
+                                             initial_value="most edited")  # fmt: skip
+            self.curve_dd.on_update(lambda _e: self.draw_curves())
         self.fmt_dd = gui.add_dropdown("Export as", ("gltf", "obj", "ply"), initial_value="gltf")
         self.export_btn = gui.add_button("Export edited sequence")
         self._wire()
@@ -142,6 +153,47 @@ class EditorView:
         self.clear_btn.on_click(act(ctl.clear_edits))
         self.refit_btn.on_click(act(self._refit))
         self.export_btn.on_click(act(self._export))
+
+    def _curve_choices(self) -> tuple[str, ...]:
+        return ("most edited", "most active", *self.ctl.face.names)
+
+    def curve_shapes(self) -> list[int]:
+        """The shapes whose weight curves are drawn: the chosen one, or the three that the
+        edits change most / that move most in the edited sequence."""
+        ctl, pick = self.ctl, str(self.curve_dd.value)
+        names = list(ctl.face.names)
+        if pick in names:
+            return [names.index(pick)]
+        W = np.nan_to_num(ctl.head_weights("edited"))
+        if pick == "most edited" and ctl.keys:
+            score = np.abs(W - np.nan_to_num(ctl.head_weights("control points"))).max(0)
+        else:
+            score = np.ptp(W, axis=0)
+        return [int(k) for k in np.argsort(-score)[:3]]
+
+    def draw_curves(self) -> None:
+        """The chosen shapes' weights over the sequence: edited (solid) and the model's
+        (dashed), the frame axis matching the timeline."""
+        if not self.ctl.has_rig:
+            return
+        ctl = self.ctl
+        ks = self.curve_shapes()
+        We, Wm = ctl.head_weights("edited"), ctl.head_weights("control points")
+        x = np.arange(ctl.n_frames, dtype=np.float64)
+        data, series = [x], [{"label": "frame"}]
+        palette = ("#d62728", "#1f77b4", "#2ca02c")
+        for c, k in enumerate(ks):
+            name = ctl.face.names[k]
+            data += [We[:, k].astype(np.float64), Wm[:, k].astype(np.float64)]
+            series += [{"label": f"{name} (edited)", "stroke": palette[c % 3], "width": 2},
+                       {"label": f"{name} (model)", "stroke": palette[c % 3], "width": 1,
+                        "dash": [4, 4]}]  # fmt: skip
+        if self.curves is not None:
+            self.curves.remove()
+        self.curves = self.server.gui.add_uplot(
+            tuple(data), tuple(series), title="Expression weights", aspect=1.6,
+            scales={"y": {"range": [0.0, 1.0]}},
+        )  # fmt: skip
 
     def _move_by_numbers(self) -> None:
         delta = np.asarray(self.cp_delta.value, np.float64) / self.scale @ self.R
@@ -175,16 +227,16 @@ class EditorView:
                 self.draw_face(V)
 
     def draw_face(self, V: np.ndarray | None = None) -> None:
-        """The shown frame: the modelled surface itself, or the studio's head (the face
-        the navigator shows, `DenseFace`) driven by the capture's markers moved as the
-        surface under them moved (so the edits show on the head too)."""
+        """The shown frame: the modelled surface itself, or the head (the face the
+        navigator shows: the rig, else the template) driven by the capture's markers
+        moved as the surface under them moved (`EditorController.head_markers`: the
+        edits show on the head at once)."""
         V = self.ctl.vertices() if V is None else V
         d = self.ctl.data
         if self.head is not None and str(self.face_dd.value) == "head":
-            t = self.ctl.frame
-            mk = d.markers[t] + (V - d.original[t])[np.asarray(d.marker_vertex)]
+            self.shown_head = self.head.vertices(self.ctl.head_markers(V))
             parts = [(f"/face/{n}", v, f, c) for n, v, f, c in self.head.meshes(
-                self.head.vertices(mk))]  # fmt: skip
+                self.shown_head)]  # fmt: skip
         else:
             parts = [("/face/surface", V, np.asarray(d.faces, np.int32), (230, 190, 170))]
         for name in set(self.face_nodes) - {p[0] for p in parts}:
@@ -227,20 +279,22 @@ class EditorView:
         self.draw_face()
         if controls:
             self.draw_controls()
+            self.draw_curves()
         self.status.content = self.ctl.status()
         if int(self.frame_slider.value) != self.ctl.frame:
             self.frame_slider.value = self.ctl.frame
 
 
-def _head_of(data: EditorData):
-    """The studio's head (`DenseFace`) for the run's markers, or None (no markers kept,
-    or the head cannot be fitted)."""
+def _head_of(data: EditorData, head: str | Path | None = "face/ict"):
+    """``(face, note)``: the head for the run's markers (`studio_face`: the rig at
+    ``head``, else the template head), or ``(None, why)`` when the run kept no markers or
+    no head can be fitted (the modelled surface is shown instead)."""
     if data.markers is None or data.marker_vertex is None:
-        return None
+        return None, "the run kept no markers: the surface is shown"
     try:
-        return DenseFace(data.markers[0], 2500, data.marker_names or None)
-    except Exception:  # the modelled surface is shown instead
-        return None
+        return studio_face(data.markers[0], data.marker_names or None, head)
+    except Exception as e:  # the modelled surface is shown instead, saying why
+        return None, f"no head ({e}): the surface is shown"
 
 
 def serve_editor(
@@ -253,16 +307,20 @@ def serve_editor(
     fps: float = 15.0,
     export_dir: str | Path | None = None,
     options: ServeOptions | None = None,
+    head: str | Path | None = "face/ict",
 ):
     """Serve the editor for ``data``; ``port=0`` picks a free port (or pass `options`, a
     `ServeOptions`, which wins over the keywords). With ``block=False`` returns
     ``(server, controller)`` at once (stop with ``server.stop()``); the page's
-    `EditorView` is ``server.fxspace_view``."""
+    `EditorView` is ``server.fxspace_view``. ``head``: the rig the head is (a path, or one
+    under the data root; the ICT Face Model by default; ``None``: the template head)."""
     o = options or ServeOptions(port, host, fps, block, environment_map)
+    face, note = _head_of(data, head)
     server = new_server(o.port, o.host, o.environment_map)
-    ctl = EditorController(data)
+    ctl = EditorController(data, face)
     out_dir = Path(export_dir) if export_dir else (data.run_dir or Path(".")) / "editor_export"
     view = EditorView(server, ctl, out_dir)
+    view.face_note = server.gui.add_markdown(f"_Face: {note}_")
     server.fxspace_view = view
 
     @serialized(server)
@@ -278,5 +336,12 @@ def serve_editor(
 
 
 def serve(target: str | Path, port: int = 8080, **kwargs):
-    """``fxspace studio TARGET`` for a reconstruction run (or its config)."""
-    return serve_editor(load_editor_data(target), port=port, **kwargs)
+    """``fxspace studio TARGET`` for a reconstruction run (or its config); the head is the
+    rig its config names (``head``, the ICT Face Model by default)."""
+    data = load_editor_data(target)
+    if data.run_dir is not None and (data.run_dir / "config.toml").is_file():
+        from fxspace.config import load_toml
+
+        kwargs.setdefault("head", load_toml(data.run_dir / "config.toml").get("head", "face/ict")
+                          or None)  # fmt: skip
+    return serve_editor(data, port=port, **kwargs)

@@ -19,9 +19,11 @@ the first time and read afterwards) and serves a viser page with:
 - keyboard shortcuts (`HOTKEYS`, viser command hotkeys; also in the command palette):
   space play/pause, U undo, ↑/↓ level up/down, Enter commit, I insert, R replace,
   Delete delete;
-- the face of the previewed / selected / playing frame: a smooth shaded head with eyes,
-  lips and a mouth opening (`fxspace.head_model`), driven only by the markers, beside
-  the markers.
+- the face of the previewed / selected / playing frame: a real head (the ICT Face
+  Model's blend shapes, `fxspace.face`) with eyes and teeth, its expression weights and
+  head motion solved from that frame's markers, beside the markers; without the rig (or
+  markers named to bind to it) the template head (`fxspace.head_model`) driven by the
+  markers.
 
 The state lives in `NavigatorController` (``_nav_controller``, testable without a
 browser); `NavigatorView` draws it and `serve_navigator` wires the page to it.
@@ -41,7 +43,6 @@ from fxspace.studio._nav_controller import (
     load_nav_data,
 )
 from fxspace.studio._server import (
-    DenseFace,
     PadFrame,
     Player,
     ServeOptions,
@@ -51,6 +52,7 @@ from fxspace.studio._server import (
     ray_plane_z0,
     run_until_interrupted,
     serialized,
+    studio_face,
 )
 
 __all__ = [
@@ -92,7 +94,8 @@ class NavigatorView:
     """The navigator's page: the pad, the face and the controls, drawn from a
     `NavigatorController` (``server.fxspace_view``)."""
 
-    def __init__(self, server, ctl: NavigatorController, face_vertices: int = 6000):
+    def __init__(self, server, ctl: NavigatorController, face_vertices: int = 6000,
+                 head: str | Path | None = "face/ict"):  # fmt: skip
         self.server, self.ctl = server, ctl
         data = ctl.data
         h = data.hierarchy
@@ -105,25 +108,39 @@ class NavigatorView:
         _draw_frames(server, ctl, self.pf, self.pad)
         # the face: markers aligned to the first frame, seen from the front, right of the pad
         self.P = rigid_align(data.positions, data.positions[0])
-        self.face = DenseFace(self.P[0], face_vertices, names=data.marker_names or None)
+        self.face, self.face_note = studio_face(
+            self.P[0], data.marker_names or None, head, face_vertices
+        )
         self.R = self.face.axes
-        self.fc = self.P[0].mean(0)
-        self.F = (self.P - self.fc) @ self.R.T  # right, up, out
-        self.fscale = 1.3 / max(float(np.ptp(self.F[..., 1])), 1e-12)
+        rest = (self.face.rest - self.P[0].mean(0)) @ self.R.T  # right, up, out
+        self.fc = self.P[0].mean(0) + ((rest.max(0) + rest.min(0)) / 2) @ self.R
+        self.F = (self.P - self.fc) @ self.R.T
+        self.fscale = 1.7 / max(float(np.ptp(rest[:, 1])), 1e-12)  # the head ~1.7 tall
         self.gui_status = server.gui.add_markdown(ctl.status())
+        self.gui_face = server.gui.add_markdown(f"_Face: {self.face_note}_")
+        self.gui_dots = server.gui.add_checkbox("Markers on the face", initial_value=False)
+        self.gui_dots.on_update(lambda _e: self.draw_face(self.ctl.selected_frame))
 
     def draw_face(self, frame: int) -> None:
+        at = np.array([2.6, 0.1, 0.0])
         V = (self.face.vertices(self.P[frame]) - self.fc) @ self.R.T * self.fscale
-        V = (V + [2.6, 0.1, 0.0]).astype(np.float32)
+        V = (V + at).astype(np.float32)
         for name, v, f, colour in self.face.meshes(V):
             self.server.scene.add_mesh_simple(
                 "/face/surface" if name == "skin" else f"/face/{name}", v, f, color=colour,
                 side="double", flat_shading=False, cast_shadow=False, receive_shadow=False,
             )  # fmt: skip
         self.server.scene.add_point_cloud(
-            "/face/markers", (self.F[frame] * self.fscale * 0.45 + [3.45, -0.7, 0.0]).astype(
+            "/face/markers", (self.F[frame] * self.fscale * 0.4 + [2.6, -1.45, 0.0]).astype(
                 np.float32), colors=(220, 60, 60), point_size=0.025,
         )  # fmt: skip
+        if self.gui_dots.value:  # the markers as dots on the face, just in front of it
+            self.server.scene.add_point_cloud(
+                "/face/dots", (self.F[frame] * self.fscale + at + [0, 0, 0.02]).astype(
+                    np.float32), colors=(220, 60, 60), point_size=0.02,
+            )  # fmt: skip
+        else:
+            self.server.scene.remove_by_name("/face/dots")
 
     def draw_cross(self, q2: np.ndarray) -> None:
         q = np.r_[q2[:2], 0.0]
@@ -315,13 +332,16 @@ def serve_navigator(
     face_vertices: int = 6000,
     density_above: int = DENSITY_ABOVE,
     options: ServeOptions | None = None,
+    head: str | Path | None = "face/ict",
 ):
     """Serve the navigator for ``data``; ``port=0`` picks a free port (read it with
     ``server.get_port()``; or pass `options`, a `ServeOptions`, which wins over the
     keywords). With ``block=False`` returns ``(server, controller)`` at once (stop with
     ``server.stop()``; the page's `NavigatorView` is ``server.fxspace_view``). Exports go
     to ``export_dir``. Past ``density_above`` frames the pad shows their density (one
-    image) instead of one point per frame.
+    image) instead of one point per frame. The face is the rig at ``head`` (a path, or
+    one under the data root; the ICT Face Model by default) solved from each frame's
+    markers when the markers bind to it, else the template head (``head=None``).
 
     A click on the pad previews the nearest centre (its face, nothing committed); a
     shift-click commits it at once. Keyboard shortcuts: `HOTKEYS`."""
@@ -329,7 +349,7 @@ def serve_navigator(
     server = new_server(o.port, o.host, o.environment_map)
     serialized(server)  # creates the drawing lock
     ctl = NavigatorController(data, density_above=density_above)
-    view = NavigatorView(server, ctl, face_vertices)
+    view = NavigatorView(server, ctl, face_vertices, head)
     server.fxspace_view = view
     _wire_controls(server, ctl, view, export_dir)
 

@@ -276,3 +276,42 @@ def test_ict_binds_a_real_capture(ict, data_dir):
     bad[take.names.index("Chin")] += np.array([0.0, 0.0, 300.0])  # 30 cm off the face
     with pytest.raises(FxspaceError, match="Chin"):
         fx.face.bind_markers(ict, bad, take.names)
+
+
+def test_posed_vertices_put_the_head_where_the_markers_are():
+    """The posed rig at the solved weights and motion: at the marker vertices it is the
+    markers (up to the noise), in the capture's frame; the whole take, one frame, a
+    vertex subset and the rig's frame agree; NaN frames stay NaN; jit and grad run."""
+    rig = grid_rig()
+    ids = np.arange(0, rig.num_vertices, 3)
+    X, W, R, tau = synthetic_take(rig, ids, T=12)
+    # the capture in other units and frame: a known similarity away from the rig's
+    Q = Rotation.from_rotvec([0.3, -0.2, 0.1]).as_matrix()
+    Xc = (X - 1.5) @ Q / 10.0  # rig y = 10 Q x + 1.5
+    Xc[4] = np.nan
+    b = fx.face.bind_markers(rig, vertex_ids=ids)
+    b = b._replace(scale=10.0, rotation=Q, translation=np.full(3, 1.5))
+    s = fx.face.solve_weights(rig, b, Xc, temporal=0.0)
+    V = np.asarray(fx.face.posed_vertices(rig, b, s))
+    assert V.shape == (12, rig.num_vertices, 3)
+    ok = np.r_[0:4, 5:12]
+    err = np.abs(V[ok][:, ids] - Xc[ok])
+    assert float(err.max()) < 0.03  # the noise is 0.05 rig units = 0.005 capture units
+    assert np.all(np.isnan(V[4]))
+    # the true pose, from the known weights and motion, matches too (not just the markers)
+    true = np.einsum("tij,tnj->tni", R, np.asarray(rig.shape_vertices(W))) + tau[:, None]
+    np.testing.assert_allclose(V[ok], ((true[ok] - 1.5) @ Q / 10.0), atol=0.03)
+    one = np.asarray(fx.face.posed_vertices(rig, b, s, frames=2, vertices=ids[:5]))
+    np.testing.assert_allclose(one, V[2, ids[:5]], atol=1e-5)
+    rigf = np.asarray(fx.face.posed_vertices(rig, b, s, frames=[2], capture_frame=False))
+    np.testing.assert_allclose(rigf[0], 10.0 * V[2] @ Q.T + 1.5, atol=1e-4)
+    s1 = fx.face.solve_weights(rig, b, Xc[3])  # a one-frame solve gives one mesh
+    assert fx.face.posed_vertices(rig, b, s1).shape == (rig.num_vertices, 3)
+    f = jax.jit(lambda w: fx.face.posed_vertices(rig, b, s._replace(weights=w), frames=[0]))
+    np.testing.assert_allclose(np.asarray(f(s.weights))[0], V[0], atol=1e-5)
+    g = jax.grad(lambda w: fx.face.posed_vertices(rig, b, s._replace(weights=w), frames=[0]).sum())
+    assert float(jnp.abs(g(s.weights)).sum()) > 0
+    with pytest.raises(FxspaceError, match="frames"):
+        fx.face.posed_vertices(rig, b, s, frames=[99])
+    with pytest.raises(FxspaceError, match="weights"):
+        fx.face.posed_vertices(rig, b, s._replace(weights=s.weights[:, :2]))

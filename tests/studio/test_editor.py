@@ -287,3 +287,66 @@ def test_browser_done_when_drag_across_a_boundary_then_refit(tmp_path, chromium,
             ed2[b, anchor] - m2[b, anchor], o, atol=1e-3 * (1 + abs(o).max())
         )
     assert len(json.loads((run_dir / "edits.json").read_text())["keys"]) == 2
+
+
+@pytest.fixture(scope="module")
+def ict_scene(data_dir):
+    """A short real take (AnimFace, 40 frames) as the editor sees it: the markers drive a
+    dense surface, modelled by control points; the ICT head where it is present."""
+    if not (data_dir / "face" / "ict" / "generic_neutral_mesh.obj.gz").is_file():
+        pytest.skip(f"the ICT Face Model is not under {data_dir / 'face' / 'ict'}")
+    take = fx.io.read_markers(data_dir / "face" / "animface_cheeks.c3d")
+    M = np.asarray(take.positions[300:380:2], np.float64)
+    surf = fx.face_surface(M[0], 600)
+    X = np.asarray(fx.rbf_deform(surf.vertices, M[0], M))
+    fit = fx.fit_scene(X, 6, boundaries=[0, 20, 39], key=jax.random.PRNGKey(0), n_init=2)
+    return EditorData(X, surf.faces, fit.model, rate=30.0, gamma=0.5,
+                      marker_vertex=np.asarray(surf.marker_vertex), marker_names=take.names,
+                      markers=M)  # fmt: skip
+
+
+def test_browser_editor_edit_moves_the_ict_head_and_its_export(ict_scene, chromium, tmp_path):
+    """Issue 30's check: the editor shows the real head (the ICT rig solved from the
+    markers riding on the edited surface); moving a control point changes the head's
+    vertices at that frame at once, the weight curves, and the exported glTF's weights
+    at that frame (and not far from the edit)."""
+    from fxspace.studio import serve_editor
+
+    server, ctl = serve_editor(ict_scene, port=0, environment_map=False, block=False,
+                               export_dir=tmp_path / "export")  # fmt: skip
+    view = server.fxspace_view
+    assert ctl.has_rig and ctl.face.rig.num_shapes == 53
+    assert {n for n, _ in ctl.face.parts} >= {"skin", "teeth", "eyes", "irises"}
+    with chromium.page(server, viewport={"width": 1200, "height": 800}) as page:
+        page.get_by_text("ict head: 53 shapes", exact=False).wait_for(timeout=60_000)
+        frame = chromium.field(page, "Frame").last
+        frame.fill("10")
+        frame.press("Enter")
+        page.get_by_text("Frame 10", exact=True).wait_for(timeout=60_000)
+        head0 = view.shown_head.copy()
+        page.get_by_role("button", name="Export edited sequence").click()
+        page.get_by_text("exported", exact=False).wait_for(timeout=120_000)
+        w0 = fx.io.read_gltf_blendshapes(tmp_path / "export" / "head.glb").weights
+        curves0 = view.curves
+        chromium.field(page, "Control point").first.fill("2")
+        offs = chromium.field(page, "Offset")
+        offs.nth(0).fill("0.25")
+        offs.nth(1).fill("-0.3")
+        offs.nth(1).press("Tab")
+        page.wait_for_timeout(500)
+        page.get_by_role("button", name="Move control point").click()
+        page.get_by_text("Edit keys: 1").wait_for(timeout=60_000)
+        page.wait_for_timeout(500)
+        head1 = view.shown_head
+        page.get_by_role("button", name="Export edited sequence").click()
+        page.get_by_text("exported", exact=False).wait_for(timeout=120_000)
+        w1 = fx.io.read_gltf_blendshapes(tmp_path / "export" / "head.glb").weights
+    assert ctl.keys[-1].frame == 10
+    moved = np.linalg.norm(head1 - head0, axis=1)
+    assert moved.max() > 1.0  # mm: the head follows the edit at once
+    assert view.curves is not curves0  # the weight curves were redrawn
+    assert w0.shape == w1.shape == (ict_scene.original.shape[0], 53)
+    assert np.abs(w1[10] - w0[10]).max() > 1e-2  # the export carries the edit there
+    assert np.abs(w1[30:] - w0[30:]).max() < np.abs(w1[10] - w0[10]).max() / 5
+    csv = (tmp_path / "export" / "head_weights.csv").read_text().splitlines()[0]
+    assert csv.startswith("frame,time,") and "jawOpen" in csv
