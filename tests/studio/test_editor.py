@@ -350,3 +350,34 @@ def test_browser_editor_edit_moves_the_ict_head_and_its_export(ict_scene, chromi
     assert np.abs(w1[30:] - w0[30:]).max() < np.abs(w1[10] - w0[10]).max() / 5
     csv = (tmp_path / "export" / "head_weights.csv").read_text().splitlines()[0]
     assert csv.startswith("frame,time,") and "jawOpen" in csv
+
+
+def test_head_markers_follow_the_shown_surface_and_edits(scene_data):
+    """The head's markers ride on the shown surface: the capture in the original mode,
+    moved by the model's difference in the others, and by the edit alone in the edited
+    mode (capture + edits, as the run's head.glb); without a rig there are no weights,
+    and unnamed markers fall back to the template head, saying why."""
+    from fxspace.studio._server import DenseFace, studio_face
+
+    X, faces, scene = scene_data
+    _, pos = face_like(n=40, m=12, seed=3)
+    mv = np.asarray(fx.face_surface(pos[0], 200).marker_vertex)
+    data = EditorData(X, faces, scene, marker_vertex=mv, markers=pos)
+    ctl = EditorController(data)
+    assert not ctl.has_rig and ctl.head_solve() is None and ctl.head_weights() is None
+    np.testing.assert_allclose(ctl.head_markers(frame=7, mode="original"), pos[7], atol=1e-4)
+    model = ctl.sequence("control points")
+    np.testing.assert_allclose(ctl.head_markers(frame=7, mode="control points"),
+                               pos[7] + (model[7] - X[7])[mv], atol=1e-3)  # fmt: skip
+    ctl.set_frame(7)
+    _, C = ctl.controls()
+    assert ctl.move_control(1, C[1] + [3.0, 0.0, 0.0])
+    edit = (ctl.sequence("edited")[7] - model[7])[mv]
+    assert np.abs(edit).max() > 0.1
+    np.testing.assert_allclose(ctl.head_markers(mode="edited"), pos[7] + edit, atol=1e-3)
+    face, note = studio_face(pos[0], None)
+    assert isinstance(face, DenseFace) and "no names" in note
+    face, note = studio_face(pos[0], [f"m{i}" for i in range(12)])
+    assert isinstance(face, DenseFace) and "landmarks" in note
+    with pytest.raises(fx.FxspaceError, match="no markers"):
+        EditorController(EditorData(X, faces, scene)).head_markers()
