@@ -18,6 +18,11 @@ Reports eq. (1) of linear interpolation vs ours for the whole scene
 project's stand-in (the capture's face with other proportions) or a user's OBJ/.glb with
 a marker map and optional first/last frames — is driven by the capture through the
 control points and exported as an animated glTF (``character.glb``), read back to check.
+The dense sequence is either that RBF surface (``dense_source = "rbf"``) or the real
+head's face-area vertices (``"head"``: the rig at ``head``, the ICT Face Model's 9 409,
+solved from the markers, `fxspace.face`); where the rig is present the other source runs
+the same scene pipeline too, and the metrics name the error ratio of each
+(``error_ratio_by_dense_source``, ``error_ratio_scene_rbf``, ``error_ratio_scene_head``).
 Stages (`STAGES`) are cached in the run folder, so an interrupted run resumes.
 ``file = "synthetic"`` runs on the project's synthetic face (no data needed).
 """
@@ -72,6 +77,7 @@ PAPER = {"linear_error": 16.44, "ours_error": 1.82, "ratio": 0.11, "time_s": 18.
          "segments": 8, "segment_frames": 43}  # fmt: skip
 STAGES: tuple[str, ...] = (
     "dense", "segmentation", "sweep", "scene", "refine", "character", "gltf_source",
+    "other_source",
 )  # fmt: skip
 SYNTHETIC = "synthetic"
 
@@ -108,6 +114,7 @@ class Config:
     character_last: str = ""
     character_vertices: int = 3000
     head: str = "face/ict"
+    dense_source: str = "rbf"
     gltf_mesh: str = "CesiumMan"
     gltf_frames: int = 150
     gltf_clusters: int = 25
@@ -137,6 +144,16 @@ class Config:
         if self.segment_criterion not in ("elbow", "bic"):
             raise ConfigError(
                 f"segment_criterion must be 'elbow' or 'bic', got {self.segment_criterion!r}"
+            )
+        if self.dense_source not in ("rbf", "head"):
+            raise ConfigError(
+                f"dense_source must be 'rbf' (the markers drive a face surface by RBF) or "
+                f"'head' (the solved rig's face-area vertices), got {self.dense_source!r}"
+            )
+        if self.dense_source == "head" and (not self.head or self.file == SYNTHETIC):
+            raise ConfigError(
+                "dense_source = 'head' needs a rig (head = \"face/ict\") and a named capture "
+                '(not file = "synthetic")'
             )
         if self.segment_on not in ("velocity", "position"):
             raise ConfigError(
@@ -206,6 +223,60 @@ def _dense(cfg: Config, M: np.ndarray) -> dict:
         times.append(time.perf_counter() - t)
     return {"X": np.asarray(X), "faces": surf.faces, "marker_vertex": surf.marker_vertex,
             "times": np.asarray(times)}  # fmt: skip
+
+
+def _dense_head(cfg: Config, M: np.ndarray, names) -> dict:
+    """Stage ``dense`` with ``dense_source = "head"``: the rig (``head``) bound to the
+    neutral markers and solved from every frame (`fxspace.face`), its face-area vertices
+    (ICT: 9 409) posed where the capture is, in the capture's units (timed, compile
+    excluded); each marker's vertex is its bound triangle's nearest corner."""
+    from fxspace.face import bind_markers, posed_vertices, read_rig, solve_weights
+
+    rig = read_rig(_path(cfg.head))
+    vs = np.asarray(rig.vertex_sets.get("face", np.arange(rig.num_vertices)))
+    local = np.full(rig.num_vertices, -1, np.int64)
+    local[vs] = np.arange(len(vs))
+    faces = local[np.asarray(rig.faces)[rig.face_triangles("face")]].astype(np.int32)
+    times = []
+    for _ in range(2):  # the first call compiles
+        t = time.perf_counter()
+        b = bind_markers(rig, M[0], list(names))
+        sol = solve_weights(rig, b, M)
+        X = posed_vertices(rig, b, sol, vertices=vs)
+        X.block_until_ready()
+        times.append(time.perf_counter() - t)
+    mv = local[b.corners[np.arange(len(names)), np.argmax(b.barycentric, axis=1)]]
+    return {"X": np.asarray(X, np.float64), "faces": faces, "marker_vertex": mv.astype(np.int64),
+            "times": np.asarray(times)}  # fmt: skip
+
+
+def _dense_of(cfg: Config, M: np.ndarray, names, source: str) -> dict:
+    return _dense_head(cfg, M, names) if source == "head" else _dense(cfg, M)
+
+
+def _other_source(cfg: Config, M: np.ndarray, names, c: int, g: float, key) -> dict:
+    """Stage ``other_source``: the same scene pipeline (segments chosen from the data, the
+    chosen control points and γ) on the other dense source, for its error ratio."""
+    other = "rbf" if cfg.dense_source == "head" else "head"
+    d = _dense_of(cfg, M, names, other)
+    X = jnp.asarray(d["X"])
+    fit = fit_scene(
+        X, c, n_segments="auto" if cfg.n_segments == 0 else cfg.n_segments,
+        min_length=cfg.min_length, segment_on=cfg.segment_on, gamma=g, key=key,
+        n_init=cfg.n_init, max_points=cfg.max_points, refine_steps=cfg.refine_steps,
+        method=cfg.cluster_method, segment_criterion=cfg.segment_criterion,
+    )  # fmt: skip
+    e = scene_errors(X, fit.model)
+    pi = paper_segment(fit.model.boundaries, e, cfg.paper_segment_frames)
+    return {
+        "source": other,
+        "n_vertices": int(X.shape[1]),
+        "n_segments": len(fit.model.boundaries) - 1,
+        "error_ratio_scene": float(e.ratio_scene),
+        "error_ratio_paper_segment": float(e.ratio[pi]),
+        "linear_error_scene": float(e.linear_scene),
+        "ours_error_scene": float(e.model_scene),
+    }
 
 
 def _segmentation(cfg: Config, X) -> dict:
@@ -375,7 +446,9 @@ def _say(stage: str, fn):
 def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     key = jax.random.PRNGKey(seed)
     M, names, rate, units = _read_capture(cfg, seed)
-    dense = cached_arrays(run_dir, "dense", _say("dense", lambda: _dense(cfg, M)))
+    dense = cached_arrays(
+        run_dir, "dense", _say("dense", lambda: _dense_of(cfg, M, names, cfg.dense_source))
+    )
     X = jnp.asarray(dense["X"])
     sg = cached_arrays(run_dir, "segmentation", _say("segmentation", lambda: _segmentation(cfg, X)))
     bounds0 = sg["boundaries"]
@@ -420,7 +493,11 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
         if cfg.gltf_mesh
         else {}
     )
-    ctx = dict(cfg=cfg, run_dir=run_dir, M=M, names=names, rate=rate, units=units,
+    both = cfg.head and cfg.file != SYNTHETIC and _path(cfg.head).exists()
+    oth = (cached(run_dir, "other_source",
+                  _say("other_source", lambda: _other_source(cfg, M, names, c, g, key)))
+           if both else {})  # fmt: skip
+    ctx = dict(cfg=cfg, run_dir=run_dir, M=M, names=names, rate=rate, units=units, oth=oth,
                dense=dense, sg=sg, X=X, scene=scene, errs=errs, si=si, fitted=fitted,
                rf=rf, rows=rows, c=c, g=g, sc=sc, ch=ch, gl=gl, keys=keys)  # fmt: skip
     outputs = _write_outputs(ctx)
@@ -565,6 +642,17 @@ def paper_segment(boundaries, errors, frames: int = 43) -> int:
     return int(cand[int(np.argmax(np.asarray(errors.linear)[cand]))])
 
 
+def _by_source(cfg: Config, errs, pi: int, X, oth: dict) -> dict:
+    """The paper's error ratio for each dense source, named: the run's own and, where the
+    rig is there, the other (``other_source``)."""
+    own = {"source": cfg.dense_source, "n_vertices": int(X.shape[1]),
+           "n_segments": len(errs.ratio), "error_ratio_scene": float(errs.ratio_scene),
+           "error_ratio_paper_segment": float(errs.ratio[pi]),
+           "linear_error_scene": float(errs.linear_scene),
+           "ours_error_scene": float(errs.model_scene)}  # fmt: skip
+    return {d["source"]: d for d in (own, oth) if d}
+
+
 def _metrics(ctx: dict, out: dict) -> dict:
     cfg, scene, errs, si, X = ctx["cfg"], ctx["scene"], ctx["errs"], ctx["si"], ctx["X"]
     bounds = scene.boundaries
@@ -578,6 +666,7 @@ def _metrics(ctx: dict, out: dict) -> dict:
     pipe_s = float(np.median(ctx["sc"]["times"]))
     dense_t = ctx["dense"]["times"]
     fit_err = float(ctx["rf"]["error"])
+    by_source = _by_source(cfg, errs, pi, X, ctx["oth"])
     metrics = {
         "data": {"file": cfg.file, "start": cfg.start, "n_frames_captured": cfg.n_frames,
                  "thin": cfg.thin, "n_frames": int(X.shape[0]),
@@ -588,6 +677,9 @@ def _metrics(ctx: dict, out: dict) -> dict:
         "n_segments_chosen": len(bounds) - 1,
         "n_segments_why": sel.get("why", ""),
         "error_ratio_scene": errs.ratio_scene,
+        "dense_source": cfg.dense_source,
+        "error_ratio_by_dense_source": by_source,
+        **{f"error_ratio_scene_{k}": v["error_ratio_scene"] for k, v in by_source.items()},
         "error_ratio_segments": errs.ratio.tolist(),
         "error_ratio_paper_segment": float(errs.ratio[pi]),
         "paper_segment": {"index": pi, "frames": [pa, pb], "n_frames": pb - pa + 1,

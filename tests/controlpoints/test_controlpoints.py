@@ -141,6 +141,9 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
         "timing_repeats": 1,
         "gltf_mesh": "",
     }
+    ict = (data_dir / "face" / "ict").is_dir()
+    if ict:  # the dense sequence from the solved head (issue 30.6); the RBF surface beside
+        raw["dense_source"] = "head"
     (run_dir,) = run_dict(raw, tmp_path, force=True)
     import json
 
@@ -166,7 +169,15 @@ def test_reconstruction_pipeline_smoke(data_dir, tmp_path):
     assert seq.positions.shape == (150, 41, 3)
     # the character and the real head carry the animator's edit (issue 30.5)
     assert m["character"]["carries_edits"] and m["character"]["edit_moved_vertices"] > 0
-    if (data_dir / "face" / "ict").is_dir():
+    if ict:
+        by = m["error_ratio_by_dense_source"]
+        assert m["dense_source"] == "head" and set(by) == {"head", "rbf"}
+        assert by["head"]["n_vertices"] == 9409 and by["rbf"]["n_vertices"] <= 400
+        assert m["n_segments_chosen"] == 8 and m["data"]["n_vertices"] == 9409
+        for k in ("head", "rbf"):  # the paper's ratio (ours / linear) for each, named
+            assert 0 < by[k]["error_ratio_scene"] < 0.11
+            assert m[f"error_ratio_scene_{k}"] == by[k]["error_ratio_scene"]
+        assert by["head"]["error_ratio_scene"] == m["error_ratio_scene"]
         h = m["head"]
         assert h["n_shapes"] == 53 and h["residual_mean"] < h["residual_rigid_only_mean"]
         assert h["edit_weight_change_max"] > 0.01 and h["converged_fraction"] > 0.5
@@ -215,3 +226,16 @@ def test_fit_scene_passes_its_segment_criterion_on(rng):
                            key=jax.random.key(0))  # fmt: skip
         ref = fx.segment_motion(jnp.asarray(X), "auto", criterion=crit)
         np.testing.assert_array_equal(fit.segmentation.boundaries, ref.boundaries)
+
+
+def test_reconstruction_dense_source_is_checked():
+    from fxspace.config import ConfigError
+    from fxspace.pipelines.reconstruction import Config
+
+    Config(dense_source="head").validate()
+    with pytest.raises(ConfigError, match="dense_source must be 'rbf'"):
+        Config(dense_source="mesh").validate()
+    with pytest.raises(ConfigError, match="needs a rig"):
+        Config(dense_source="head", file="synthetic").validate()
+    with pytest.raises(ConfigError, match="needs a rig"):
+        Config(dense_source="head", head="").validate()
