@@ -103,6 +103,7 @@ class EditorView:
         self.mode_dd = gui.add_dropdown("Show", MODES, initial_value=ctl.mode)
         kinds = ("head", "surface") if self.head is not None else ("surface",)
         self.face_dd = gui.add_dropdown("Face", kinds, initial_value=kinds[0])
+        self.dots_box = gui.add_checkbox("Markers on the face", initial_value=False)
         with gui.add_folder("Move control point"):
             self.cp_num = gui.add_number("Control point", initial_value=0, min=0, step=1)
             self.cp_delta = gui.add_vector3("Offset", initial_value=(0.0, 0.0, 0.0), step=0.5)
@@ -147,6 +148,7 @@ class EditorView:
         self.loop_box.on_update(act(lambda: setattr(ctl, "loop", bool(self.loop_box.value))))
         self.mode_dd.on_update(act(lambda: ctl.set_mode(str(self.mode_dd.value))))
         self.face_dd.on_update(act(lambda: None))
+        self.dots_box.on_update(act(lambda: None))
         self.move_btn.on_click(act(self._move_by_numbers))
         self.undo_btn.on_click(act(ctl.undo))
         self.redo_btn.on_click(act(ctl.redo))
@@ -233,8 +235,10 @@ class EditorView:
         edits show on the head at once)."""
         V = self.ctl.vertices() if V is None else V
         d = self.ctl.data
+        dots = None
         if self.head is not None and str(self.face_dd.value) == "head":
-            self.shown_head = self.head.vertices(self.ctl.head_markers(V))
+            dots = self.ctl.head_markers(V)
+            self.shown_head = self.head.vertices(dots)
             parts = [(f"/face/{n}", v, f, c) for n, v, f, c in self.head.meshes(
                 self.shown_head)]  # fmt: skip
         else:
@@ -245,6 +249,13 @@ class EditorView:
             self.face_nodes[name] = self.server.scene.add_mesh_simple(
                 name, self.to_scene(v), np.asarray(f, np.int32), color=colour, side="double"
             )
+        if dots is not None and self.dots_box.value:  # the markers, as dots on the head
+            self.server.scene.add_point_cloud(
+                "/face/dots", self.to_scene(dots) + np.float32([0, 0, 0.01]),
+                colors=(220, 60, 60), point_size=0.02,
+            )  # fmt: skip
+        else:
+            self.server.scene.remove_by_name("/face/dots")
 
     def draw_controls(self) -> None:
         seg, C = self.ctl.controls()

@@ -341,7 +341,9 @@ def test_browser_editor_edit_moves_the_ict_head_and_its_export(ict_scene, chromi
         page.get_by_role("button", name="Export edited sequence").click()
         page.get_by_text("exported", exact=False).wait_for(timeout=120_000)
         w1 = fx.io.read_gltf_blendshapes(tmp_path / "export" / "head.glb").weights
-    assert ctl.keys[-1].frame == 10
+        page.get_by_label("Markers on the face").check()  # the markers as dots on the head
+        page.wait_for_timeout(1000)
+    assert ctl.keys[-1].frame == 10 and view.dots_box.value
     moved = np.linalg.norm(head1 - head0, axis=1)
     assert moved.max() > 1.0  # mm: the head follows the edit at once
     assert view.curves is not curves0  # the weight curves were redrawn
