@@ -69,21 +69,20 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def studio_target(target: str | Path, out: str | Path | None = None) -> Path:
     """What ``fxspace studio`` opens: a run folder, a ``.glb`` mesh, or a config whose app
     builds only what it shows (`fxspace.studio.OPENS_CONFIG`: the IK studio reads one mesh
-    and its markers) as they are; another config file is first run
-    (or resumed: finished stages and a finished run with the same content key are reused,
-    so a second launch opens in seconds) and its run folder returned."""
+    and its markers) as they are; for another config file, the stages its app shows are
+    computed (`fxspace.pipelines.prepare_config`: the experiment's ``prepare_app``, else
+    the whole run; finished stages and a finished run with the same content key are
+    reused, so a second launch opens in seconds) and its run folder returned (the first
+    run of a ``[sweep]``)."""
     from fxspace.studio import opens_directly
 
     p = Path(target)
     if opens_directly(p):  # a run folder, a mesh, or an app that builds what it shows
         return p
-    from fxspace.pipelines import run_config
+    from fxspace.pipelines import prepare_config
 
     print(f"fxspace studio: preparing {target} (cached stages are reused) …", flush=True)
-    dirs = run_config(p, out)
-    if len(dirs) > 1:
-        print(f"fxspace studio: the config expands to {len(dirs)} runs; opening {dirs[0]}")
-    return dirs[0]
+    return prepare_config(p, out)
 
 
 def _cmd_view(args: argparse.Namespace) -> int:

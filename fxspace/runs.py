@@ -479,7 +479,8 @@ def run_key(config_text: str, data_files: list[str | Path] = (), code: str | Non
 
 
 def write_status(run_dir: str | Path, status: str, **extra: Any) -> Path:
-    """Write ``status.json`` (``running`` / ``complete`` / ``failed`` / ``interrupted``)."""
+    """Write ``status.json`` (``running`` / ``complete`` / ``failed`` / ``interrupted`` /
+    ``partial``: only the stages an app shows, `fxspace.pipelines.prepare_config`)."""
     now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     return write_json_atomic(Path(run_dir) / "status.json", {"status": status, "at": now, **extra})
 

@@ -69,6 +69,7 @@ __all__ = [
     "register",
     "run_config",
     "run_dict",
+    "prepare_config",
     "load_pipeline",
     "available",
     "sweep_config",
@@ -100,6 +101,10 @@ class Pipeline(Protocol):
       `fxspace.runs.cached_arrays` (or `fxspace.runs.cached`) so an interrupted run resumes.
     - ``run(cfg, run_dir, seed) -> dict``: the run body, returning the metrics.
     - ``data_files(cfg)`` (optional): the files the run reads (part of its content key).
+    - ``prepare_app(cfg, run_dir, seed) -> None`` (optional): only what the experiment's
+      app shows, from the run's own cached stages (`prepare_config`: ``fxspace studio
+      CONFIG`` opens the app without running the whole experiment; ``fxspace run``
+      completes the run later, reusing those stages).
     """
 
     Config: type[PipelineConfig]
@@ -389,6 +394,41 @@ def run_config(path: str | Path, out: str | Path | None = None, force: bool = Fa
     if out is None:
         out = Path("runs") / Path(path).stem
     return run_dict(raw, out, force=force, base_dir=Path(path).resolve().parent)
+
+
+def prepare_config(path: str | Path, out: str | Path | None = None) -> Path:
+    """The run folder an app opens for the config at ``path`` (its first run, for a
+    ``[sweep]``): a finished run of the same config, data and code as it is; else, when
+    the experiment has ``prepare_app``, only the stages its app shows, computed (or read)
+    in the run's own folder under its content key, the run left ``partial`` (``fxspace
+    run`` completes it, reusing them); else the whole run (`run_config`)."""
+    raw = load_toml(path)
+    out = Path("runs") / Path(path).stem if out is None else Path(out)
+    plan = _plan(raw, out, Path(path).resolve().parent)
+    mod, run_dir, cfg, seed, text = plan[0]
+    prep = getattr(mod, "prepare_app", None)
+    if prep is None:
+        return run_config(path, out)[0]
+    with run_lock(run_dir, wait=0.0):
+        _refuse_overwrite([plan[0]], run_dir, False)
+        key = run_key(text, _data_files(mod, cfg))
+        st = read_status(run_dir)
+        if (run_dir / "metrics.json").is_file() and st.get("key") == key:
+            return run_dir  # a finished run: the app reads it
+        kp = run_dir / "cache" / "KEY"
+        old_key = st.get("key") or (kp.read_text().strip() if kp.is_file() else None)
+        if old_key is not None and old_key != key:
+            clean_run(run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        with active_run(run_dir):
+            reset_cache(run_dir, key)
+            write_text_atomic(run_dir / "config.toml", text)
+            write_meta(run_dir, seed, {"experiment": raw["experiment"], "run_key": key})
+            write_status(run_dir, "partial", key=key,
+                         note="the app's stages only; fxspace run completes the run")  # fmt: skip
+            prep(cfg, run_dir, seed)
+    print(f"[fxspace] {run_dir}: the app's stages are ready (fxspace run {path} completes it)")
+    return run_dir
 
 
 def summary(run_dir: str | Path) -> dict[str, Any]:

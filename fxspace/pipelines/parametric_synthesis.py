@@ -37,6 +37,7 @@ STAGES: tuple[str, ...] = ("setup", "targets", "timewarp", "session")
 __all__ = [
     "Config",
     "STAGES",
+    "prepare_app",
     "run",
     "load_take",
     "take_files",
@@ -791,6 +792,15 @@ def _joy_sweep(st: M.Setup, cfg: Config, run_dir: Path, qL) -> dict:
         "speed_vs_joy": {f"alpha={a:g}": v for a, v in speeds.items()},
         "joy_weights": list(sy.joy_weights),
     }
+
+
+def prepare_app(cfg: Config, run_dir: Path, seed: int) -> None:
+    """What the live controller shows, and only that (``fxspace studio CONFIG``): the
+    first set-up's spaces (the run's own ``setup`` stage, reused by ``fxspace run``)."""
+    cfg.validate()
+    with jax.enable_x64(cfg.x64):
+        key = jax.random.fold_in(jax.random.PRNGKey(seed), 0)  # as `run` keys set-up 0
+        _stage_setup(cfg.setups[0], cfg, Path(run_dir), key)
 
 
 def _run_setup(name: str, cfg: Config, run_dir: Path, key, seed: int) -> dict:

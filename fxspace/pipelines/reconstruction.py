@@ -71,13 +71,13 @@ from fxspace.controlpoints import (
 from fxspace.data import data_path
 from fxspace.runs import cached, cached_arrays, save_figure_atomic, save_npz_atomic
 
-__all__ = ["Config", "run", "PAPER", "STAGES", "data_files"]
+__all__ = ["Config", "run", "prepare_app", "PAPER", "STAGES", "data_files"]
 
 PAPER = {"linear_error": 16.44, "ours_error": 1.82, "ratio": 0.11, "time_s": 18.0,
          "segments": 8, "segment_frames": 43}  # fmt: skip
 STAGES: tuple[str, ...] = (
     "dense", "segmentation", "sweep", "scene", "refine", "character", "gltf_source",
-    "other_source",
+    "other_source", "app_scene",
 )  # fmt: skip
 SYNTHETIC = "synthetic"
 
@@ -432,6 +432,67 @@ def run(cfg: Config, run_dir: Path, seed: int) -> dict:
         return _run(cfg, Path(run_dir), seed)
 
 
+def prepare_app(cfg: Config, run_dir: Path, seed: int) -> None:
+    """What the editor shows, and only that (``fxspace studio CONFIG``): the dense
+    sequence, its segments and one scene model, written as ``scene.npz`` with the
+    demonstration edit. The control points and γ are the sweep's choice when the run
+    folder holds the sweep, else the middle of the config's grid (``fxspace run``
+    sweeps and picks them by BIC). The stages are the run's own (a later ``fxspace
+    run`` reuses them), the scene a stage of its own (``app_scene``)."""
+    cfg.validate()
+    run_dir = Path(run_dir)
+    with jax.enable_x64(cfg.x64):
+        key = jax.random.PRNGKey(seed)
+        M, names, rate, _ = _read_capture(cfg, seed)
+        dense = cached_arrays(
+            run_dir, "dense", _say("dense", lambda: _dense_of(cfg, M, names, cfg.dense_source))
+        )
+        X = jnp.asarray(dense["X"])
+        sg = cached_arrays(
+            run_dir, "segmentation", _say("segmentation", lambda: _segmentation(cfg, X))
+        )
+        n_seg = len(sg["boundaries"]) - 1
+        sweep = run_dir / "cache" / "sweep.json"
+        if sweep.is_file():
+            best = min(json.loads(sweep.read_text()), key=lambda r: r["bic"])
+            c, g, why = int(best["clusters"]), float(best["gamma"]), "the sweep's choice (BIC)"
+        else:
+            c, g = cfg.clusters[len(cfg.clusters) // 2], cfg.gammas[len(cfg.gammas) // 2]
+            why = "the grid's middle; fxspace run picks them by BIC"
+        print(f"[reconstruction] the editor's scene: {c} control points, γ = {g} ({why})")
+
+        def one() -> dict:
+            fit = fit_scene(
+                X, c, n_segments=n_seg, min_length=cfg.min_length, segment_on=cfg.segment_on,
+                gamma=g, key=key, n_init=cfg.n_init, max_points=cfg.max_points,
+                refine_steps=cfg.refine_steps, method=cfg.cluster_method,
+            )  # fmt: skip
+            return scene_to_arrays(fit.model)
+
+        scene = scene_from_arrays(cached_arrays(run_dir, "app_scene", _say("app_scene", one)))
+        si = int(np.argmax(scene_errors(X, scene).linear))
+        keys = _edit_keys(cfg, scene, names, dense["marker_vertex"], si)
+        _editor_files(run_dir, X, M, names, rate, dense, scene, g, keys)
+
+
+def _editor_files(run_dir: Path, X, M, names, rate: float, dense: dict, scene, g: float,
+                  keys) -> None:  # fmt: skip
+    """``scene.npz`` (what the editor opens) and, unless the animator's are there,
+    ``edits.json`` with the demonstration keys."""
+    from fxspace.runs import unrecorded
+
+    if not (run_dir / "edits.json").exists():  # the animator's saved keys are theirs:
+        with unrecorded():  # never in the manifest, never overwritten by a rerun
+            save_edits(
+                run_dir / "edits.json", keys, n_frames=scene.n_frames,
+                n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist(),
+            )  # fmt: skip
+    save_npz_atomic(run_dir / "scene.npz", original=np.asarray(X, np.float32),
+                    faces=dense["faces"], marker_vertex=dense["marker_vertex"],
+                    marker_names=np.asarray(names), markers=M, rate=np.float64(rate),
+                    gamma=np.float64(g), **scene_to_arrays(scene))  # fmt: skip
+
+
 def _say(stage: str, fn):
     """``fn`` announced as it starts (only runs when the stage is not cached)."""
 
@@ -554,7 +615,6 @@ def _write_outputs(ctx: dict) -> dict:
     """The edit (``edits.json``), ``scene.npz`` for the editor, the edited sequence, the
     character's glTF, and the figures."""
     from fxspace.io import MarkerSequence, read_gltf_morph, write_gltf_morph, write_trc
-    from fxspace.runs import unrecorded
 
     cfg, run_dir, scene, X, M = ctx["cfg"], ctx["run_dir"], ctx["scene"], ctx["X"], ctx["M"]
     names, dense, keys = ctx["names"], ctx["dense"], ctx["keys"]
@@ -563,16 +623,7 @@ def _write_outputs(ctx: dict) -> dict:
     Xh = np.asarray(reconstruct_scene(scene))
     Xe = edited_vertices(scene, keys)
     moved = np.linalg.norm(Xe - Xh, axis=2).max(0) > 1e-9
-    if not (run_dir / "edits.json").exists():  # the animator's saved keys are theirs:
-        with unrecorded():  # never in the manifest, never overwritten by a rerun
-            save_edits(
-                run_dir / "edits.json", keys, n_frames=scene.n_frames,
-                n_vertices=scene.n_vertices, boundaries=scene.boundaries.tolist(),
-            )  # fmt: skip
-    save_npz_atomic(run_dir / "scene.npz", original=np.asarray(X, np.float32),
-                    faces=dense["faces"], marker_vertex=mv, marker_names=np.asarray(names),
-                    markers=M, rate=np.float64(ctx["rate"]), gamma=np.float64(ctx["g"]),
-                    **scene_to_arrays(scene))  # fmt: skip
+    _editor_files(run_dir, X, M, names, ctx["rate"], dense, scene, ctx["g"], keys)
     Me = M + (Xe - Xh)[:, mv]
     save_npz_atomic(run_dir / "edited_sequence.npz", vertices=Xe.astype(np.float32),
                     faces=dense["faces"], boundaries=scene.boundaries, markers=Me)  # fmt: skip
