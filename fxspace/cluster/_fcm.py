@@ -291,6 +291,54 @@ def _fcm_jit(
     return jax.tree_util.tree_map(lambda a: a[best], runs)
 
 
+def _check_args(x, n_clusters, m, key, tol, max_steps, n_init, init_centers, init_memberships,
+                criterion, check_every):  # fmt: skip
+    """`fuzzy_cmeans`'s argument checks, each naming the argument and the fix; returns
+    ``(n_clusters, m, tol, init_centers, init_memberships, key)`` normalised."""
+    n = x.shape[0]
+    if isinstance(n_clusters, bool) or not isinstance(n_clusters, int | np.integer):
+        raise FxspaceError(f"n_clusters must be an integer, got {n_clusters!r}")
+    n_clusters = int(n_clusters)
+    if n_clusters < 1:
+        raise FxspaceError(f"n_clusters must be >= 1, got {n_clusters}")
+    if n_clusters > n:
+        raise FxspaceError(
+            f"n_clusters={n_clusters} exceeds n_samples={n}: fuzzy c-means needs at most one "
+            "centre per sample; lower n_clusters or pass more data"
+        )
+    if key is not None:
+        check_key(key, "key")  # one key (a batch of keys: vmap over it)
+    m = check_scalar(m, "m (fuzzifier)", low=1.0, low_open=True)
+    tol = check_scalar(tol, "tol", low=0.0)
+    if int(max_steps) < 0:
+        raise FxspaceError(f"max_steps must be >= 0, got {max_steps}")
+    if int(n_init) < 1:
+        raise FxspaceError(f"n_init must be >= 1, got {n_init}")
+    if init_centers is not None:
+        init_centers = jnp.asarray(init_centers, x.dtype)
+        if init_centers.shape != (n_clusters, x.shape[1]):
+            raise FxspaceError(
+                f"init_centers must have shape (n_clusters, n_features) = "
+                f"{(n_clusters, x.shape[1])}, got {init_centers.shape}"
+            )
+    if init_memberships is not None:
+        init_memberships = jnp.asarray(init_memberships, x.dtype)
+        if init_memberships.shape != (n, n_clusters):
+            raise FxspaceError(
+                f"init_memberships must have shape (n_samples, n_clusters) = "
+                f"{(n, n_clusters)}, got {init_memberships.shape}"
+            )
+    if criterion not in ("max", "fro"):
+        raise FxspaceError(f"criterion must be 'max' or 'fro', got {criterion!r}")
+    if int(check_every) < 1:
+        raise FxspaceError(f"check_every must be >= 1, got {check_every}")
+    if init_centers is None and init_memberships is None and key is None:
+        raise FxspaceError("key is required for k-means++ seeding: pass key=jax.random.key(0)")
+    if key is None:
+        key = jax.random.PRNGKey(0)
+    return n_clusters, m, tol, init_centers, init_memberships, key
+
+
 @checked
 def fuzzy_cmeans(
     x: Float[Array, "n d"],
@@ -354,47 +402,10 @@ def fuzzy_cmeans(
     x = as_float_array(x, "x", axes=("n_samples", "n_features"), finite="allow")
     if throw and not _is_tracer(x):
         check_finite(x, "x")  # names where the NaN/inf are
-    n = x.shape[0]
-    if isinstance(n_clusters, bool) or not isinstance(n_clusters, int | np.integer):
-        raise FxspaceError(f"n_clusters must be an integer, got {n_clusters!r}")
-    n_clusters = int(n_clusters)
-    if n_clusters < 1:
-        raise FxspaceError(f"n_clusters must be >= 1, got {n_clusters}")
-    if n_clusters > n:
-        raise FxspaceError(
-            f"n_clusters={n_clusters} exceeds n_samples={n}: fuzzy c-means needs at most one "
-            "centre per sample; lower n_clusters or pass more data"
-        )
-    if key is not None:
-        check_key(key, "key")  # one key (a batch of keys: vmap over it)
-    m = check_scalar(m, "m (fuzzifier)", low=1.0, low_open=True)
-    tol = check_scalar(tol, "tol", low=0.0)
-    if int(max_steps) < 0:
-        raise FxspaceError(f"max_steps must be >= 0, got {max_steps}")
-    if int(n_init) < 1:
-        raise FxspaceError(f"n_init must be >= 1, got {n_init}")
-    if init_centers is not None:
-        init_centers = jnp.asarray(init_centers, x.dtype)
-        if init_centers.shape != (n_clusters, x.shape[1]):
-            raise FxspaceError(
-                f"init_centers must have shape (n_clusters, n_features) = "
-                f"{(n_clusters, x.shape[1])}, got {init_centers.shape}"
-            )
-    if init_memberships is not None:
-        init_memberships = jnp.asarray(init_memberships, x.dtype)
-        if init_memberships.shape != (n, n_clusters):
-            raise FxspaceError(
-                f"init_memberships must have shape (n_samples, n_clusters) = "
-                f"{(n, n_clusters)}, got {init_memberships.shape}"
-            )
-    if criterion not in ("max", "fro"):
-        raise FxspaceError(f"criterion must be 'max' or 'fro', got {criterion!r}")
-    if int(check_every) < 1:
-        raise FxspaceError(f"check_every must be >= 1, got {check_every}")
-    if init_centers is None and init_memberships is None and key is None:
-        raise FxspaceError("key is required for k-means++ seeding: pass key=jax.random.key(0)")
-    if key is None:
-        key = jax.random.PRNGKey(0)
+    n_clusters, m, tol, init_centers, init_memberships, key = _check_args(
+        x, n_clusters, m, key, tol, max_steps, n_init, init_centers, init_memberships,
+        criterion, check_every,
+    )  # fmt: skip
     res = _fcm_jit(
         x,
         n_clusters,

@@ -66,6 +66,84 @@ class FusedLassoResult(NamedTuple):
 # Condat's direct algorithm, batched over channels
 
 
+def _condat_step(s: dict, *, lam, gather, T: int, C: int, base) -> dict:
+    """One event of Condat's direct algorithm for every channel at once (a channel that
+    is done keeps its state)."""
+    dtype = lam.dtype
+    k, k0, km, kp = s["k"], s["k0"], s["km"], s["kp"]
+    umin, umax, vmin, vmax = s["umin"], s["umax"], s["vmin"], s["vmax"]
+    done = s["done"]
+    at_end = k == T - 1
+
+    # --- branch A: k == T-1 (the `while (k == width-1)` block of Condat's code)
+    a1 = at_end & (umin < 0)
+    a2 = at_end & ~a1 & (umax > 0)
+    a3 = at_end & ~a1 & ~a2
+    # --- branch B: look at y[k+1]
+    yk1 = gather(k + 1)
+    umin_t = umin + yk1 - vmin
+    umax_t = umax + yk1 - vmax
+    b1 = ~at_end & (umin_t < -lam)
+    b2 = ~at_end & ~b1 & (umax_t > lam)
+    b3 = ~at_end & ~b1 & ~b2
+
+    neg = a1 | b1  # finalise [k0, km] at vmin
+    pos = a2 | b2  # finalise [k0, kp] at vmax
+    # value written for the finalised run (a3: the last run)
+    v_last = vmin + umin / (k - k0 + 1).astype(dtype)
+    val = jnp.where(neg, vmin, jnp.where(pos, vmax, v_last))
+    write = (neg | pos | a3) & ~done
+    vals = s["vals"].at[jnp.where(write, base + k0, C * T)].set(val)
+
+    new_k0 = jnp.where(neg, km + 1, jnp.where(pos, kp + 1, k0))
+    y_new = gather(new_k0)
+
+    # neg jump
+    n_vmin_a, n_umin_a = y_new, lam
+    n_umax_a = y_new + lam - vmax
+    n_vmin_b, n_vmax_b = y_new, y_new + 2 * lam
+    # pos jump
+    p_vmax_a, p_umax_a = y_new, -lam
+    p_umin_a = y_new - lam - vmin
+    p_vmax_b, p_vmin_b = y_new, y_new - 2 * lam
+    # no jump (b3)
+    k_b3 = k + 1
+    n_b3 = (k_b3 - k0 + 1).astype(dtype)
+    upd_min = umin_t >= lam
+    upd_max = umax_t <= -lam
+    vmin_b3 = jnp.where(upd_min, vmin + (umin_t - lam) / n_b3, vmin)
+    umin_b3 = jnp.where(upd_min, lam, umin_t)
+    km_b3 = jnp.where(upd_min, k_b3, km)
+    vmax_b3 = jnp.where(upd_max, vmax + (umax_t + lam) / n_b3, vmax)
+    umax_b3 = jnp.where(upd_max, -lam, umax_t)
+    kp_b3 = jnp.where(upd_max, k_b3, kp)
+
+    def pick(a1v, a2v, a3v, b1v, b2v, b3v):
+        out = jnp.where(a1, a1v, jnp.where(a2, a2v, a3v))
+        out = jnp.where(b1, b1v, out)
+        out = jnp.where(b2, b2v, out)
+        out = jnp.where(b3, b3v, out)
+        return out
+
+    nk = pick(new_k0, new_k0, k, new_k0, new_k0, k_b3)
+    nkm = pick(new_k0, km, km, new_k0, new_k0, km_b3)
+    nkp = pick(kp, new_k0, kp, new_k0, new_k0, kp_b3)
+    nvmin = pick(n_vmin_a, vmin, vmin, n_vmin_b, p_vmin_b, vmin_b3)
+    nvmax = pick(vmax, p_vmax_a, vmax, n_vmax_b, p_vmax_b, vmax_b3)
+    numin = pick(n_umin_a, p_umin_a, umin, lam, lam, umin_b3)
+    numax = pick(n_umax_a, p_umax_a, umax, -lam, -lam, umax_b3)
+
+    def keep(new, old):
+        return jnp.where(done, old, new)
+
+    return dict(
+        k=keep(nk, k), k0=keep(new_k0, k0), km=keep(nkm, km), kp=keep(nkp, kp),
+        umin=keep(numin, umin), umax=keep(numax, umax),
+        vmin=keep(nvmin, vmin), vmax=keep(nvmax, vmax),
+        done=done | a3, vals=vals, step=s["step"] + 1,
+    )  # fmt: skip
+
+
 def _condat_batched(
     y: Float[Array, "C T"], lam: Float[Array, " C"], max_steps: int
 ) -> tuple[Float[Array, "C T"], Bool[Array, "C T"], Array, Array]:
@@ -96,80 +174,7 @@ def _condat_batched(
     def cond(s):
         return jnp.logical_and(~jnp.all(s["done"]), s["step"] < max_steps)
 
-    def body(s):
-        k, k0, km, kp = s["k"], s["k0"], s["km"], s["kp"]
-        umin, umax, vmin, vmax = s["umin"], s["umax"], s["vmin"], s["vmax"]
-        done = s["done"]
-        at_end = k == T - 1
-
-        # --- branch A: k == T-1 (the `while (k == width-1)` block of Condat's code)
-        a1 = at_end & (umin < 0)
-        a2 = at_end & ~a1 & (umax > 0)
-        a3 = at_end & ~a1 & ~a2
-        # --- branch B: look at y[k+1]
-        yk1 = gather(k + 1)
-        umin_t = umin + yk1 - vmin
-        umax_t = umax + yk1 - vmax
-        b1 = ~at_end & (umin_t < -lam)
-        b2 = ~at_end & ~b1 & (umax_t > lam)
-        b3 = ~at_end & ~b1 & ~b2
-
-        neg = a1 | b1  # finalise [k0, km] at vmin
-        pos = a2 | b2  # finalise [k0, kp] at vmax
-        # value written for the finalised run (a3: the last run)
-        v_last = vmin + umin / (k - k0 + 1).astype(dtype)
-        val = jnp.where(neg, vmin, jnp.where(pos, vmax, v_last))
-        write = (neg | pos | a3) & ~done
-        vals = s["vals"].at[jnp.where(write, base + k0, C * T)].set(val)
-
-        new_k0 = jnp.where(neg, km + 1, jnp.where(pos, kp + 1, k0))
-        y_new = gather(new_k0)
-
-        # neg jump
-        n_vmin_a, n_umin_a = y_new, lam
-        n_umax_a = y_new + lam - vmax
-        n_vmin_b, n_vmax_b = y_new, y_new + 2 * lam
-        # pos jump
-        p_vmax_a, p_umax_a = y_new, -lam
-        p_umin_a = y_new - lam - vmin
-        p_vmax_b, p_vmin_b = y_new, y_new - 2 * lam
-        # no jump (b3)
-        k_b3 = k + 1
-        n_b3 = (k_b3 - k0 + 1).astype(dtype)
-        upd_min = umin_t >= lam
-        upd_max = umax_t <= -lam
-        vmin_b3 = jnp.where(upd_min, vmin + (umin_t - lam) / n_b3, vmin)
-        umin_b3 = jnp.where(upd_min, lam, umin_t)
-        km_b3 = jnp.where(upd_min, k_b3, km)
-        vmax_b3 = jnp.where(upd_max, vmax + (umax_t + lam) / n_b3, vmax)
-        umax_b3 = jnp.where(upd_max, -lam, umax_t)
-        kp_b3 = jnp.where(upd_max, k_b3, kp)
-
-        def pick(a1v, a2v, a3v, b1v, b2v, b3v):
-            out = jnp.where(a1, a1v, jnp.where(a2, a2v, a3v))
-            out = jnp.where(b1, b1v, out)
-            out = jnp.where(b2, b2v, out)
-            out = jnp.where(b3, b3v, out)
-            return out
-
-        nk = pick(new_k0, new_k0, k, new_k0, new_k0, k_b3)
-        nkm = pick(new_k0, km, km, new_k0, new_k0, km_b3)
-        nkp = pick(kp, new_k0, kp, new_k0, new_k0, kp_b3)
-        nvmin = pick(n_vmin_a, vmin, vmin, n_vmin_b, p_vmin_b, vmin_b3)
-        nvmax = pick(vmax, p_vmax_a, vmax, n_vmax_b, p_vmax_b, vmax_b3)
-        numin = pick(n_umin_a, p_umin_a, umin, lam, lam, umin_b3)
-        numax = pick(n_umax_a, p_umax_a, umax, -lam, -lam, umax_b3)
-
-        def keep(new, old):
-            return jnp.where(done, old, new)
-
-        return dict(
-            k=keep(nk, k), k0=keep(new_k0, k0), km=keep(nkm, km), kp=keep(nkp, kp),
-            umin=keep(numin, umin), umax=keep(numax, umax),
-            vmin=keep(nvmin, vmin), vmax=keep(nvmax, vmax),
-            done=done | a3, vals=vals, step=s["step"] + 1,
-        )  # fmt: skip
-
+    body = partial(_condat_step, lam=lam, gather=gather, T=T, C=C, base=base)
     s = lax.while_loop(cond, body, state)
     vals = s["vals"][: C * T].reshape(C, T)
     starts = ~jnp.isnan(vals)

@@ -68,6 +68,55 @@ def _num(tok: str, path: Path, n: int, what: str) -> float:
         ) from None
 
 
+def _bonedata_line(sk: AsfSkeleton, bone: dict | None, in_limits: bool, key: str, tok, s: str,
+                   path: Path, n: int) -> tuple[dict | None, bool]:  # fmt: skip
+    """One line of ``:bonedata``: returns the open bone block and whether its limits are
+    being read (a finished block is stored in ``sk.bones``)."""
+    if key == "begin":
+        bone = {"dof": (), "axis": np.zeros(3), "axis_order": "XYZ", "line": n}
+        in_limits = False
+    elif bone is None:
+        raise CorruptFileError(f"{path}, line {n}: {tok[0]!r} outside a begin/end bone block")
+    elif key == "end":
+        for f in ("name", "direction", "length"):
+            if f not in bone:
+                raise CorruptFileError(
+                    f"{path}, line {n}: bone block starting at line {bone['line']} has no {f!r}"
+                )
+        sk.bones[bone["name"]] = bone
+        bone = None
+    elif key == "name":
+        bone["name"] = tok[1]
+    elif key == "direction":
+        if len(tok) < 4:
+            raise CorruptFileError(f"{path}, line {n}: direction needs three numbers")
+        bone["direction"] = np.asarray([_num(t, path, n, "direction") for t in tok[1:4]])
+    elif key == "length":
+        bone["length"] = _num(tok[1], path, n, "length")
+    elif key == "axis":
+        if len(tok) < 5:
+            raise CorruptFileError(f"{path}, line {n}: axis needs three angles and an order")
+        bone["axis"] = np.asarray([_num(t, path, n, "axis") for t in tok[1:4]])
+        bone["axis_order"] = tok[4].upper()
+    elif key == "dof":
+        dofs = tuple(t.lower() for t in tok[1:])
+        for d in dofs:
+            if d not in ("rx", "ry", "rz"):
+                raise CorruptFileError(
+                    f"{path}, line {n}: dof {d!r} is not supported (only rx, ry, rz on bones)"
+                )
+        bone["dof"] = dofs
+    elif key == "limits":
+        in_limits = True
+    elif in_limits and s.startswith("("):
+        pass
+    elif key in ("id", "bodymass", "cofmass"):
+        pass
+    else:
+        raise CorruptFileError(f"{path}, line {n}: unexpected {tok[0]!r} in a bone block")
+    return bone, in_limits
+
+
 def read_asf(path: str | Path) -> AsfSkeleton:
     """Parse an ASF skeleton file (errors name the line)."""
     path = Path(path)
@@ -110,54 +159,7 @@ def read_asf(path: str | Path) -> AsfSkeleton:
                     [_num(t, path, n, "root orientation") for t in tok[1:4]]
                 )
         elif section == "bonedata":
-            if key == "begin":
-                bone = {"dof": (), "axis": np.zeros(3), "axis_order": "XYZ", "line": n}
-                in_limits = False
-            elif bone is None:
-                raise CorruptFileError(
-                    f"{path}, line {n}: {tok[0]!r} outside a begin/end bone block"
-                )
-            elif key == "end":
-                for f in ("name", "direction", "length"):
-                    if f not in bone:
-                        raise CorruptFileError(
-                            f"{path}, line {n}: bone block starting at line "
-                            f"{bone['line']} has no {f!r}"
-                        )
-                sk.bones[bone["name"]] = bone
-                bone = None
-            elif key == "name":
-                bone["name"] = tok[1]
-            elif key == "direction":
-                if len(tok) < 4:
-                    raise CorruptFileError(f"{path}, line {n}: direction needs three numbers")
-                bone["direction"] = np.asarray([_num(t, path, n, "direction") for t in tok[1:4]])
-            elif key == "length":
-                bone["length"] = _num(tok[1], path, n, "length")
-            elif key == "axis":
-                if len(tok) < 5:
-                    raise CorruptFileError(
-                        f"{path}, line {n}: axis needs three angles and an order"
-                    )
-                bone["axis"] = np.asarray([_num(t, path, n, "axis") for t in tok[1:4]])
-                bone["axis_order"] = tok[4].upper()
-            elif key == "dof":
-                dofs = tuple(t.lower() for t in tok[1:])
-                for d in dofs:
-                    if d not in ("rx", "ry", "rz"):
-                        raise CorruptFileError(
-                            f"{path}, line {n}: dof {d!r} is not supported "
-                            "(only rx, ry, rz on bones)"
-                        )
-                bone["dof"] = dofs
-            elif key == "limits":
-                in_limits = True
-            elif in_limits and s.startswith("("):
-                pass
-            elif key in ("id", "bodymass", "cofmass"):
-                pass
-            else:
-                raise CorruptFileError(f"{path}, line {n}: unexpected {tok[0]!r} in a bone block")
+            bone, in_limits = _bonedata_line(sk, bone, in_limits, key, tok, s, path, n)
         elif section == "hierarchy":
             if key in ("begin", "end"):
                 continue
