@@ -48,6 +48,7 @@ from fxspace.cluster import kernel_kmeans_gram as kernel_kmeans_gram
 from fxspace.cluster import kmeanspp_extend as kmeanspp_extend
 from fxspace.cluster import kmeanspp_init as kmeanspp_init
 from fxspace.cluster import median_gamma as median_gamma
+from fxspace.controlpoints import ControlPointFit as ControlPointFit
 from fxspace.controlpoints import ControlPointModel as ControlPointModel
 from fxspace.controlpoints import EditKey as EditKey
 from fxspace.controlpoints import FaceSurface as FaceSurface

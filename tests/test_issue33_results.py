@@ -43,3 +43,34 @@ def test_mds_result_carries_result_and_derived_converged():
     assert res.result == RESULTS.successful and bool(res.converged)
     bad = jax.jit(fx.classical_mds)(jnp.asarray(D).at[0, 1].set(jnp.nan))
     assert bad.result == RESULTS.nonfinite_input and not bool(bad.converged)
+
+
+def test_iterative_records_derive_converged_from_result():
+    """Issue 29.3: every iterative routine's record has ``.result`` and ``.stats``;
+    ``converged`` is derived from ``result`` (a property), never a stored field."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(60, 2))
+    key = jax.random.key(0)
+    T = rng.normal(size=(10, 30, 3)).cumsum(0)
+    model, km = fit = fx.fit_control_points(T, 3, key=key, n_init=2)
+    records = [
+        fx.fuzzy_cmeans(X, 3, key=key),
+        fx.kernel_kmeans(X, 3, 0.5, key=key),
+        fx.fused_lasso_solve(np.r_[np.zeros(10), np.ones(10)], 0.0, 0.5),
+        fx.refine_control_points(T, model, steps=5),
+        fit,
+        fx.fit_scene(T, 3, boundaries=[0, 5, 9], key=key, n_init=2, fit_steps=3),
+    ]
+    for r in records:
+        assert "converged" not in r._fields, type(r).__name__
+        assert hasattr(r, "result") and hasattr(r, "stats"), type(r).__name__
+    for r in records[:5]:
+        assert bool(r.converged) == bool(r.result == RESULTS.successful), type(r).__name__
+    sf = records[-1]
+    assert len(sf.converged) == 2 and isinstance(sf.converged[0], bool)
+    assert (sf.result == RESULTS.successful) == all(
+        bool(k.result == RESULTS.successful) for k in sf.clusterings
+    ) and all(sf.converged)
+    assert fit.result is km.result and fit.model is model
+    bad = fx.fuzzy_cmeans(np.r_[X, [[np.nan, 0.0]]], 3, key=key)
+    assert bad.result == RESULTS.nonfinite_input and not bool(bad.converged)

@@ -25,7 +25,7 @@ from typing import Any, Literal, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
 from fxspace._validate import (
     _is_tracer,
@@ -36,7 +36,7 @@ from fxspace._validate import (
     checked,
 )
 from fxspace.errors import FxspaceError
-from fxspace.results import check_result, result_from_flags
+from fxspace.results import RESULTS, check_result, result_from_flags
 
 __all__ = [
     "FCMResult",
@@ -72,9 +72,13 @@ class FCMResult(NamedTuple):
     memberships: Float[Array, "n c"]
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
-    converged: Bool[Array, ""]
     result: Any
     stats: dict[str, Array]
+
+    @property
+    def converged(self):
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return self.result == RESULTS.successful
 
 
 @checked
@@ -252,7 +256,7 @@ def _fcm_loop(x, v0, u0, m, tol, max_steps, criterion="max", check_every=1):
     stats = {"max_steps": jnp.asarray(max_steps, jnp.int32), "delta": delta, "tol": tol}
     # non-finite input: NaN out, never the plausible-looking initial centres
     v, u, obj = (jnp.where(bad_in, jnp.nan, a) for a in (v, u, obj))
-    return FCMResult(v, u, obj, steps, (delta < tol) & ok & ~bad_in, result, stats)
+    return FCMResult(v, u, obj, steps, result, stats)
 
 
 @partial(

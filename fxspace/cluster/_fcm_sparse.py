@@ -21,12 +21,12 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
 from fxspace._validate import _is_tracer, check_finite, checked
 from fxspace.cluster._fcm import _tiny, kmeanspp_init, squared_distances
 from fxspace.errors import FxspaceError
-from fxspace.results import check_result, result_from_flags
+from fxspace.results import RESULTS, check_result, result_from_flags
 
 __all__ = ["SparseFCMResult", "sparse_fuzzy_cmeans"]
 
@@ -52,9 +52,13 @@ class SparseFCMResult(NamedTuple):
     memberships: Float[Array, "n p"]
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
-    converged: Bool[Array, ""]
     result: Any
     stats: dict[str, Array]
+
+    @property
+    def converged(self):
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return self.result == RESULTS.successful
 
 
 def _assign(x: Array, v: Array, m: float, p: int, chunk: int):
@@ -118,9 +122,8 @@ def _loop(x, v0, m, p, tol, max_steps, chunk):
         "moved": moved,
         "tol_abs": tol * scale,
     }
-    conv = (moved < tol * scale) & ok & ~bad_in
     v, u, obj = (jnp.where(bad_in, jnp.nan, a) for a in (v, u, obj))
-    return SparseFCMResult(v, idx, u, obj, steps, conv, result, stats)
+    return SparseFCMResult(v, idx, u, obj, steps, result, stats)
 
 
 @checked

@@ -34,7 +34,7 @@ from fxspace._validate import (
     checked,
 )
 from fxspace.errors import FxspaceError
-from fxspace.results import check_result, result_from_flags
+from fxspace.results import RESULTS, check_result, result_from_flags
 
 __all__ = [
     "KernelKMeansResult",
@@ -71,12 +71,16 @@ class KernelKMeansResult(NamedTuple):
     labels: Int[Array, " n"]
     objective: Float[Array, ""]
     num_steps: Int[Array, ""]
-    converged: Array
     medoids: Int[Array, " c"]
     sizes: Int[Array, " c"]
     restart_objectives: Float[Array, " n_init"]
     result: Any
     stats: dict[str, Array]
+
+    @property
+    def converged(self):
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return self.result == RESULTS.successful
 
 
 @checked
@@ -304,8 +308,7 @@ def _kkm_core(K, n_clusters, key, n_init, max_steps, init, labels0):
         "max_steps": jnp.asarray(max_steps, jnp.int32),
         "n_unsettled": jnp.sum(changed).astype(jnp.int32),
     }
-    conv = ~changed[best] & ok & ~bad_in
-    return KernelKMeansResult(lab, objs[best], steps, conv, med, sz, objs, result, stats)
+    return KernelKMeansResult(lab, objs[best], steps, med, sz, objs, result, stats)
 
 
 @checked

@@ -34,6 +34,7 @@ from fxspace.controlpoints._head import HEAD_COLOURS as HEAD_COLOURS
 from fxspace.controlpoints._head import HeadModel as HeadModel
 from fxspace.controlpoints._head import head_model as head_model
 from fxspace.controlpoints._head import head_vertices as head_vertices
+from fxspace.controlpoints._model import ControlPointFit as ControlPointFit
 from fxspace.controlpoints._model import ControlPointModel as ControlPointModel
 from fxspace.controlpoints._model import blend_weights as blend_weights
 from fxspace.controlpoints._model import compression_ratio as compression_ratio
@@ -80,6 +81,7 @@ __all__ = [
     "control_point_model",
     "edit_control_point",
     "fit_control_points",
+    "ControlPointFit",
     "linear_interpolation",
     "reconstruct",
     "reconstruction_error",

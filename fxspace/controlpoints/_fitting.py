@@ -31,7 +31,7 @@ from fxspace.controlpoints._model import (
     residual_trajectories,
 )
 from fxspace.errors import FxspaceError
-from fxspace.results import check_result, result_from_flags
+from fxspace.results import RESULTS, check_result, result_from_flags
 
 __all__ = ["FitResult", "refine_control_points", "fit_objective"]
 
@@ -48,10 +48,14 @@ class FitResult(NamedTuple):
     model: ControlPointModel
     losses: Float[Array, " steps"]
     num_steps: Int[Array, ""]
-    converged: Array
     error: Float[Array, ""]
     result: Any = None
     stats: dict | None = None
+
+    @property
+    def converged(self):
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return self.result == RESULTS.successful
 
 
 def _weights(logits: Array, support: Array, c: int) -> Array:
@@ -182,7 +186,7 @@ def refine_control_points(
     conv = (rel < tol) & ~bad_out & ~bad_in
     res = result_from_flags(converged=conv, nonfinite_input=bad_in, nonfinite_output=bad_out)
     stats = {"max_steps": jnp.int32(steps), "relative_change": rel}
-    out = FitResult(new, losses, jnp.int32(steps), conv, err, res, stats)
+    out = FitResult(new, losses, jnp.int32(steps), err, res, stats)
     return check_result(res, throw, "refine_control_points", out)
 
 

@@ -39,7 +39,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from fxspace._validate import as_float_array, check_dtype, check_int, check_scalar
 from fxspace.errors import FxspaceError
-from fxspace.results import check_result, result_from_flags
+from fxspace.results import RESULTS, check_result, result_from_flags
 
 __all__ = ["fused_lasso", "fused_lasso_solve", "flsa_objective", "tv_denoise", "FusedLassoResult"]
 
@@ -57,9 +57,13 @@ class FusedLassoResult(NamedTuple):
     solution: Float[Array, "T ..."]
     objective: Float[Array, ...]
     num_steps: Array
-    converged: Array
     result: Any = None
     stats: dict | None = None
+
+    @property
+    def converged(self):
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return self.result == RESULTS.successful
 
 
 # ----------------------------------------------------------------------------------------
@@ -464,7 +468,7 @@ def fused_lasso_solve(
     conv = conv & ~bad_out  # NaN λ or data under jit never "converges"
     res = result_from_flags(converged=conv, nonfinite_input=bad_in, nonfinite_output=bad_out)
     out = FusedLassoResult(
-        b.reshape((T, *chan)), obj.reshape(chan), steps, conv, res,
+        b.reshape((T, *chan)), obj.reshape(chan), steps, res,
         {"max_steps": jnp.asarray(max_steps, jnp.int32)},
     )  # fmt: skip
     return check_result(res, throw, "fused_lasso", out)

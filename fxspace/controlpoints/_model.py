@@ -44,6 +44,7 @@ from fxspace._validate import (
 )
 from fxspace.cluster import KernelKMeansResult, kernel_kmeans, median_gamma
 from fxspace.errors import FxspaceError
+from fxspace.results import RESULTS
 
 __all__ = [
     "ControlPointModel",
@@ -53,6 +54,7 @@ __all__ = [
     "blend_weights",
     "control_point_model",
     "fit_control_points",
+    "ControlPointFit",
     "reconstruct",
     "edit_control_point",
     "temporal_window",
@@ -74,6 +76,35 @@ class ControlPointModel(NamedTuple):
     controls: Float[Array, "c T 3"]
     weights: Float[Array, "N c"]
     labels: Int[Array, " N"]
+
+
+class ControlPointFit(NamedTuple):
+    """Result of `fit_control_points`: the ``model`` and the kernel k-means
+    ``clustering`` that placed its control points (unpacks as ``model, clustering``).
+
+    ``result`` and ``stats`` are the clustering's (its fixed point reached:
+    ``RESULTS.successful``); ``converged`` is derived from ``result``.
+    """
+
+    model: ControlPointModel
+    clustering: KernelKMeansResult
+
+    @property
+    def result(self):
+        return self.clustering.result
+
+    @property
+    def stats(self) -> dict:
+        return self.clustering.stats
+
+    @property
+    def num_steps(self):
+        return self.clustering.num_steps
+
+    @property
+    def converged(self):
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return self.result == RESULTS.successful
 
 
 @checked
@@ -225,7 +256,7 @@ def fit_control_points(
     max_points: int | None = 1000,
     refine_steps: int = 10,
     method: Literal["kernel", "hybrid"] = "kernel",
-) -> tuple[ControlPointModel, KernelKMeansResult]:
+) -> ControlPointFit:
     """Control points of a segment by kernel k-means on the vertices' residual trajectories.
 
     Each vertex is the point ``vec(x_i(t) − L_i(t))_{t=1…T−2}`` (3(T−2) numbers) divided by
@@ -249,8 +280,9 @@ def fit_control_points(
     ``max_points=None`` clusters every vertex with the restarts. ``blend_radius`` (units of
     ``X``) smooths the memberships across cluster borders (`blend_weights`, first frame).
 
-    **Returns:** ``(model, clustering)``: the clustering of the final run (all vertices
-    with ``method="kernel"``; the subset with ``"hybrid"``).
+    **Returns:** a `ControlPointFit` ``(model, clustering)`` (with ``.result``): the
+    clustering of the final run (all vertices with ``method="kernel"``; the subset with
+    ``"hybrid"``).
     """
     X = _check_X(X)
     check_scale(X, "X")  # overflow of the squared residuals: refuse, never "converged"
@@ -293,7 +325,7 @@ def fit_control_points(
     W = blend_weights(first, labels, n_clusters, blend_radius) if blend_radius > 0 else None
     C = np.asarray(_cluster_means(Xp, labels, n_clusters))[:, :T]  # sliced on the host
     W = jax.nn.one_hot(labels, n_clusters, dtype=X.dtype) if W is None else W
-    return ControlPointModel(first, last, jnp.asarray(C), W, labels), km
+    return ControlPointFit(ControlPointModel(first, last, jnp.asarray(C), W, labels), km)
 
 
 def frame_bucket(n: int) -> int:

@@ -43,6 +43,7 @@ from fxspace.controlpoints._segment import (
     segments_from_boundaries,
 )
 from fxspace.errors import FxspaceError
+from fxspace.results import RESULTS
 
 __all__ = [
     "SceneModel",
@@ -84,13 +85,35 @@ class SceneModel(NamedTuple):
 class SceneFit(NamedTuple):
     """Result of `fit_scene`: ``model``, the ``segmentation`` (None when boundaries
     were given), each segment's kernel k-means ``clusterings``, and each segment's
-    gradient-refinement ``num_steps``/``converged`` (0/True when not refined)."""
+    gradient-refinement ``num_steps`` and ``refinements`` (its `fxspace.RESULTS` member;
+    0 steps and ``successful`` when not refined).
+
+    ``result``: the first segment's outcome that is not ``successful`` (clustering, then
+    refinement), else ``successful``; ``converged`` (per segment, derived) and
+    ``stats``."""
 
     model: SceneModel
     segmentation: Segmentation | None
     clusterings: tuple[KernelKMeansResult, ...]
     num_steps: tuple[int, ...]
-    converged: tuple[bool, ...]
+    refinements: tuple = ()
+
+    @property
+    def converged(self) -> tuple[bool, ...]:
+        """Per segment: its refinement ``successful`` (derived, not stored)."""
+        return tuple(bool(r == RESULTS.successful) for r in self.refinements)
+
+    @property
+    def result(self):
+        for r in (*(k.result for k in self.clusterings), *self.refinements):
+            if not bool(r == RESULTS.successful):
+                return r
+        return RESULTS.successful
+
+    @property
+    def stats(self) -> dict:
+        return {"kkm_steps": tuple(int(k.num_steps) for k in self.clusterings),
+                "refine_steps": self.num_steps}  # fmt: skip
 
 
 class SceneErrors(NamedTuple):
@@ -200,13 +223,13 @@ def fit_scene(
             S, min(int(n_clusters), N), gamma=gamma, key=keys[i], n_init=n_init,
             max_points=max_points, refine_steps=refine_steps, method=method,  # type: ignore[arg-type]
         )  # fmt: skip
-        n_steps, ok = 0, True
+        n_steps, ok = 0, RESULTS.successful
         if fit_steps > 0:
             fr = refine_control_points(
                 S, model, steps=fit_steps, support=min(fit_support, model.controls.shape[0]),
                 smoothness=fit_smoothness,
             )  # fmt: skip
-            model, n_steps, ok = fr.model, int(fr.num_steps), bool(fr.converged)
+            model, n_steps, ok = fr.model, int(fr.num_steps), fr.result
         models.append(model)
         kms.append(km)
         steps.append(n_steps)
