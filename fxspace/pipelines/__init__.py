@@ -374,6 +374,11 @@ def run_dict(
     ``data.paths`` resolve against (the config file's folder for `run_config`).
     """
     out = Path(out)
+    if isinstance(raw, dict) and "search" in raw:
+        raise ConfigError(
+            "a config with [search] runs through its file: fxspace sweep CONFIG (or "
+            "fxspace run CONFIG for one trial after another)"
+        )
     plan = _plan(raw, out, None if base_dir is None else Path(base_dir))
     _refuse_overwrite(plan, out, force)
     if force:
@@ -393,6 +398,11 @@ def run_config(path: str | Path, out: str | Path | None = None, force: bool = Fa
     raw = load_toml(path)
     if out is None:
         out = Path("runs") / Path(path).stem
+    if "search" in raw:  # an Optuna search, here one trial after another
+        from fxspace.pipelines._sweep import sweep_config
+
+        res = sweep_config(path, out, workers=1, force=force, engine="serial")
+        return [Path(r["run_dir"]) for r in res if r.get("status") == "complete"]
     return run_dict(raw, out, force=force, base_dir=Path(path).resolve().parent)
 
 

@@ -110,6 +110,8 @@ def sweep_config(
     path = Path(path)
     raw = load_toml(path)
     out = Path(out) if out is not None else Path("runs") / path.stem
+    if "search" in raw:  # configurations drawn by Optuna: `workers` loops share the study
+        return _search(path, raw, out, workers, scheduler, fail_fast, force, engine)
     plan = _plan(raw, out, path.resolve().parent)  # every run validated before any starts
     _refuse_overwrite(plan, out, force)
     if force:
@@ -141,6 +143,36 @@ def sweep_config(
     return _run_processes(args, workers, fail_fast)
 
 
+def _search(path: Path, raw: dict, out: Path, workers: int, scheduler, fail_fast: bool,
+            force: bool, engine: str) -> list[SweepResult]:  # fmt: skip
+    """A ``[search]``: ``workers`` loops of `search_worker` (asking and telling one
+    Optuna study in ``out/search.db``); returns one outcome per trial run."""
+    from fxspace.pipelines._search import check_search, search_worker
+
+    s = check_search(raw["search"])
+    n = 1 if engine == "serial" else min(workers, s["trials"])
+    print(f"[sweep] search ({s['method']}, {s['trials']} trials, {s['direction']} "
+          f"{s['metric']}) under {out}, {n} workers", flush=True)  # fmt: skip
+    args = [(str(path), str(out), i, force) for i in range(n)]
+    if engine == "serial" or n == 1:
+        got = [search_worker(*a) for a in args]
+    elif scheduler is not None or engine in ("dask", "auto") and _has_dask():
+        got = _run_dask(args, n, scheduler, fail_fast, fn=search_worker)
+    else:
+        got = _run_processes(args, n, fail_fast, fn=search_worker)
+    trials = sorted((t for g in got for t in g.get("trials", ())), key=lambda t: t["trial"])
+    lost = [g for g in got if g["status"] == "failed" and not g.get("trials")]
+    return [SweepResult(t) for t in trials] + [SweepResult(g) for g in lost]
+
+
+def _has_dask() -> bool:
+    try:
+        import dask.distributed  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def _collect(futures: dict, total: int, fail_fast: bool, as_completed, cancel) -> dict:
     results: dict[str, SweepResult] = {}
     done = failed = 0
@@ -161,7 +193,7 @@ def _collect(futures: dict, total: int, fail_fast: bool, as_completed, cancel) -
     return results
 
 
-def _run_processes(args: list[tuple], workers: int, fail_fast: bool) -> list[SweepResult]:
+def _run_processes(args: list[tuple], workers: int, fail_fast: bool, fn=_task) -> list[SweepResult]:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -172,18 +204,18 @@ def _run_processes(args: list[tuple], workers: int, fail_fast: bool) -> list[Swe
             max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(WORKER_ENV,)
         ) as ex,
     ):
-        futures = {ex.submit(_task, *a): a[2] for a in args}
+        futures = {ex.submit(fn, *a): str(a[2]) for a in args}
 
         def cancel():
             for f in futures:
                 f.cancel()
 
         got = _collect(futures, len(args), fail_fast, as_completed, cancel)
-    return [got[a[2]] for a in args if a[2] in got]
+    return _ordered(got, args, fn)
 
 
 def _run_dask(
-    args: list[tuple], workers: int, scheduler: str | None, fail_fast: bool
+    args: list[tuple], workers: int, scheduler: str | None, fail_fast: bool, fn=_task
 ) -> list[SweepResult]:
     try:
         from dask.distributed import Client, LocalCluster, as_completed
@@ -206,7 +238,7 @@ def _run_dask(
         # pure=False: every run is its own task; retries: a task lost with a killed
         # worker is rerun elsewhere (it resumes from its cached stages)
         futures = {
-            client.submit(_task, *a, key=f"fxspace-run-{i}-{time.time_ns()}", retries=3): a[2]
+            client.submit(fn, *a, key=f"fxspace-run-{i}-{time.time_ns()}", retries=3): str(a[2])
             for i, a in enumerate(args)
         }
 
@@ -218,4 +250,11 @@ def _run_dask(
         client.close()
         if cluster is not None:
             cluster.close()
+    return _ordered(got, args, fn)
+
+
+def _ordered(got: dict, args: list[tuple], fn) -> list:
+    """The runs' outcomes in the config's order (a search's workers: as they ended)."""
+    if fn is not _task:
+        return list(got.values())
     return [got[a[2]] for a in args if a[2] in got]
