@@ -2,16 +2,41 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
 T = TypeVar("T")
 
+#: callables told every stage line and progress step (an app's waiting page shows them)
+_LISTENERS: list[Callable[[str], None]] = []
+
+
+@contextlib.contextmanager
+def listening(fn: Callable[[str], None]) -> Iterator[None]:
+    """Within the block, ``fn(message)`` is told every `stage` line and `progress` step
+    (as well as the terminal)."""
+    _LISTENERS.append(fn)
+    try:
+        yield
+    finally:
+        _LISTENERS.remove(fn)
+
+
+def _tell(msg: str) -> None:
+    for fn in list(_LISTENERS):
+        try:
+            fn(msg)
+        except Exception:  # noqa: BLE001 - a listener never stops the work
+            pass
+
 
 def progress(it: Iterable[T], desc: str, total: int | None = None) -> Iterator[T]:
     """Wrap an iterable with a progress bar labelled ``desc``."""
+    if _LISTENERS:
+        it = _told(it, desc, total)
     if os.environ.get("FXSPACE_QUIET") == "1":
         yield from it
         return
@@ -20,7 +45,15 @@ def progress(it: Iterable[T], desc: str, total: int | None = None) -> Iterator[T
     yield from tqdm(it, desc=desc, total=total, leave=False, dynamic_ncols=True)
 
 
+def _told(it: Iterable[T], desc: str, total: int | None) -> Iterator[T]:
+    n = total if total is not None else (len(it) if hasattr(it, "__len__") else None)  # type: ignore[arg-type]
+    for i, x in enumerate(it):
+        _tell(f"{desc}: {i}/{n}" if n else f"{desc}: {i}")
+        yield x
+
+
 def stage(msg: str) -> None:
     """A stage line ``[fxspace] msg`` on stderr (silent when ``FXSPACE_QUIET=1``)."""
+    _tell(msg)
     if os.environ.get("FXSPACE_QUIET") != "1":
         print(f"[fxspace] {msg}", file=sys.stderr, flush=True)

@@ -88,12 +88,16 @@ def studio_target(target: str | Path, out: str | Path | None = None) -> Path:
 def _cmd_view(args: argparse.Namespace) -> int:
     """``fxspace studio TARGET`` (alias ``view``): the app of the target's experiment; a
     config is run first where its results are not cached."""
-    from fxspace.studio import serve
+    from fxspace.studio import opens_directly, serve, serve_config
 
     try:
-        target = studio_target(args.target, getattr(args, "out", None))
         env_map = bool(getattr(args, "environment_map", False))
-        serve(target, port=args.port, environment_map=env_map)
+        if opens_directly(args.target):  # a run folder, a mesh, an app reading its config
+            serve(args.target, port=args.port, environment_map=env_map)
+        else:  # a page with the progress at once, then the app on the same port
+            print(f"fxspace studio: preparing {args.target} (cached stages are reused) …")
+            serve_config(args.target, port=args.port, out=getattr(args, "out", None),
+                         environment_map=env_map)  # fmt: skip
     except ImportError as e:
         print(
             f"fxspace studio needs the optional viewer extra: pip install -e '.[viewer]' ({e})",

@@ -62,6 +62,7 @@ __all__ = [
     "NavConfig",
     "NavSpace",
     "STAGES",
+    "prepare_app",
     "run",
     "load_space",
     "auto_key_centres",
@@ -278,6 +279,16 @@ def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[in
             break
         seq.append(max(nb, key=lambda k: D[k, seq].min()))
     return seq
+
+
+def prepare_app(cfg: Config, run_dir: Path, seed: int) -> None:
+    """What the navigator shows, and only that (``fxspace studio CONFIG``): the run's own
+    stages ``sweep`` → ``space`` → ``hierarchy`` (`load_space`), not its route, figures
+    and animation (``fxspace run`` adds them, reusing the stages)."""
+    cfg.validate()
+    with jax.enable_x64(cfg.graph.dtype == "float64"):
+        face = load_face(cfg.data, seed)
+        load_space(cfg, face.positions, Path(run_dir), seed)
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:

@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from fxspace._progress import progress
+from fxspace._progress import stage as stage_line
 from fxspace.config import ConfigError
 from fxspace.controlpoints import (
     ControlPointModel,
@@ -459,7 +460,7 @@ def prepare_app(cfg: Config, run_dir: Path, seed: int) -> None:
         else:
             c, g = cfg.clusters[len(cfg.clusters) // 2], cfg.gammas[len(cfg.gammas) // 2]
             why = "the grid's middle; fxspace run picks them by BIC"
-        print(f"[reconstruction] the editor's scene: {c} control points, γ = {g} ({why})")
+        stage_line(f"the editor's scene: {c} control points, γ = {g} ({why})")
 
         def one() -> dict:
             fit = fit_scene(
@@ -498,7 +499,7 @@ def _say(stage: str, fn):
 
     def go():
         i = STAGES.index(stage) + 1
-        print(f"[reconstruction] stage {i}/{len(STAGES)}: {stage} …", flush=True)
+        stage_line(f"reconstruction stage {i}/{len(STAGES)}: {stage} …")
         return fn()
 
     return go

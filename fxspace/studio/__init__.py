@@ -42,6 +42,7 @@ __all__ = [
     "opens_directly",
     "experiment_of",
     "serve",
+    "serve_config",
     "EditorController",
     "EditorData",
     "load_editor_data",
@@ -124,3 +125,25 @@ def serve(target: str | Path, port: int = 8080, **kwargs: Any) -> Any:
     """``fxspace studio TARGET``: serve the app of the target's experiment."""
     check_port(port)  # before any thread starts
     return app_for(experiment_of(target))(target, port=port, **kwargs)
+
+
+def serve_config(config: str | Path, port: int = 8080, out: str | Path | None = None,
+                 **kwargs: Any) -> Any:  # fmt: skip
+    """``fxspace studio CONFIG``: a page opens at once with the progress while the app's
+    stages are built (`fxspace.pipelines.prepare_config`: only what the app shows, in
+    the run's own folder; a finished run is read as it is), then the app opens on the
+    same port (the page reconnects). An experiment in `OPENS_CONFIG` opens the config
+    directly."""
+    from fxspace.pipelines import prepare_config
+    from fxspace.studio._server import waiting_page
+
+    check_port(port)
+    exp = experiment_of(config)
+    app = app_for(exp)
+    if exp in OPENS_CONFIG or Path(config).is_dir():
+        return app(config, port=port, **kwargs)
+    host = kwargs.get("host", "127.0.0.1")
+    with waiting_page(port, host, bool(kwargs.get("environment_map", False)),
+                      f"preparing {Path(config).name}") as port:  # fmt: skip
+        run_dir = prepare_config(config, out)
+    return app(run_dir, port=port, **kwargs)

@@ -20,6 +20,7 @@ __all__ = [
     "RigFace",
     "RIG_COLOURS",
     "studio_face",
+    "waiting_page",
     "FrameDensity",
     "PadFrame",
     "Player",
@@ -75,6 +76,50 @@ def new_server(port: int, host: str = "127.0.0.1", environment_map: bool = False
         server.scene.configure_default_lights(True, cast_shadow=False)
     server.scene.set_up_direction("+y")
     return server
+
+
+class waiting_page:  # noqa: N801 - used as a context manager, like a function
+    """A page that opens at once while an app's data is built: the ground, a title and
+    the work's progress (every `fxspace._progress` stage line and step, and the time
+    spent). On leaving, the server stops and its port is free for the app, which opens on
+    it; the page reconnects to the app by itself.
+
+    ``with waiting_page(port, host, environment_map, title) as port: …`` (the port it
+    took: ``0`` picks a free one)."""
+
+    def __init__(self, port: int, host: str, environment_map: bool, title: str):
+        self.server = new_server(port, host, environment_map)
+        self.title = title
+        self.lines: list[str] = []
+        self.t0 = time.perf_counter()
+        self.server.scene.add_grid(
+            "/waiting/ground", width=6.0, height=6.0, plane="xz",
+            cell_color=(200, 200, 200), section_color=(150, 150, 150),
+        )  # fmt: skip
+        self.note = self.server.gui.add_markdown(self._text())
+
+    def _text(self) -> str:
+        dt = time.perf_counter() - self.t0
+        tail = "  \n".join(self.lines[-6:])
+        return f"**{self.title}** ({dt:.0f} s)  \n{tail}"
+
+    def tell(self, msg: str) -> None:
+        if self.lines and msg.split(":")[0] == self.lines[-1].split(":")[0]:
+            self.lines[-1] = msg  # a progress step replaces its previous step
+        else:
+            self.lines.append(msg)
+        self.note.content = self._text()
+
+    def __enter__(self) -> int:
+        from fxspace._progress import listening
+
+        self._listen = listening(self.tell)
+        self._listen.__enter__()
+        return int(self.server.get_port())
+
+    def __exit__(self, *exc) -> None:
+        self._listen.__exit__(*exc)
+        self.server.stop()
 
 
 class DenseFace:

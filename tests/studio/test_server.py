@@ -58,3 +58,53 @@ def test_studio_lights_without_the_environment_map_unless_asked(monkeypatch, tmp
     assert cli.main(["studio", str(tmp_path), "--port", "0"]) == 0
     assert cli.main(["studio", str(tmp_path), "--port", "0", "--environment-map"]) == 0
     assert [kw["environment_map"] for kw in seen] == [False, True]
+
+
+def test_browser_config_opens_a_progress_page_then_the_app(tmp_path, chromium):
+    """Issue 31.9: ``fxspace studio CONFIG`` answers at once with the progress of the
+    app's stages (the waiting page), then the app opens on the same port and the page
+    reconnects to it by itself; the run folder holds only the app's stages."""
+    import socket
+    import sys
+    import threading
+    from pathlib import Path
+
+    from fxspace.config import dumps_toml
+    from fxspace.runs import read_status
+    from fxspace.studio import serve_config
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "pipelines"))
+    from test_prepare_app import SMALL
+
+    cfg = tmp_path / "rec.toml"
+    cfg.write_text(dumps_toml(SMALL))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    got = {}
+
+    def open_app():
+        got["app"] = serve_config(cfg, port=port, out=tmp_path / "run", block=False)
+
+    th = threading.Thread(target=open_app, daemon=True)
+    th.start()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=chromium.exe, args=chromium.args)
+        try:
+            page = b.new_page()
+            for _ in range(100):  # the waiting page answers within seconds
+                try:
+                    page.goto(f"http://127.0.0.1:{port}")
+                    break
+                except Exception:  # noqa: BLE001 - not listening yet
+                    page.wait_for_timeout(200)
+            page.get_by_text("preparing rec.toml", exact=False).wait_for(timeout=60_000)
+            page.get_by_text("Edit keys:", exact=False).wait_for(timeout=240_000)  # the editor
+        finally:
+            b.close()
+    th.join(timeout=60)
+    server, ctl = got["app"]
+    server.stop()
+    assert server.get_port() == port and read_status(tmp_path / "run")["status"] == "partial"
