@@ -1,5 +1,5 @@
-"""The ``fxspace`` command: ``demo``, ``run CONFIG``, ``sweep``, ``studio`` (alias ``view``),
-``bench``, ``data``."""
+"""The ``fxspace`` command: ``demo``, ``run CONFIG``, ``sweep``, ``docs``, ``studio``
+(alias ``view``), ``bench``, ``data``."""
 
 from __future__ import annotations
 
@@ -56,6 +56,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         print(f"fxspace sweep: FAILED {r['run_dir']}: {r['error']}", file=sys.stderr)
     print(f"fxspace sweep: {len(res) - len(failed)} complete, {len(failed)} failed")
     return 1 if failed else 0
+
+
+def _cmd_docs(args: argparse.Namespace) -> int:
+    from fxspace.pipelines._docs import write_docs
+
+    for p in write_docs(args.runs, args.out, run=args.run):
+        print(f"fxspace docs: wrote {p}")
+    return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -192,6 +200,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="auto: Dask when installed, else processes",
     )  # fmt: skip
     w.set_defaults(func=_cmd_sweep)
+
+    dc = sub.add_parser("docs", help="write the reproduction pages from the shipped configs' runs")
+    dc.add_argument("--runs", default="runs", help="where the configs' run folders are")
+    dc.add_argument("--out", default="docs/reproductions", help="where the pages go")
+    dc.add_argument("--run", action="store_true", help="run the missing configs first")
+    dc.set_defaults(func=_cmd_docs)
 
     rp = sub.add_parser("report", help="compare the runs under a folder (table + figures)")
     rp.add_argument("dir", help="a folder of runs (e.g. a sweep's --out)")
