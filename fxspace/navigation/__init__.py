@@ -5,6 +5,7 @@ levels, links between centres, routes refined level by level, playback.
 from fxspace.navigation._hierarchy import Hierarchy as Hierarchy
 from fxspace.navigation._hierarchy import Level as Level
 from fxspace.navigation._hierarchy import build_hierarchy as build_hierarchy
+from fxspace.navigation._hierarchy import cold_levels as cold_levels
 from fxspace.navigation._hierarchy import hierarchy_from_arrays as hierarchy_from_arrays
 from fxspace.navigation._hierarchy import hierarchy_to_arrays as hierarchy_to_arrays
 from fxspace.navigation._hierarchy import level_sizes as level_sizes
@@ -58,6 +59,7 @@ __all__ = [
     "Hierarchy",
     "Level",
     "build_hierarchy",
+    "cold_levels",
     "hierarchy_from_arrays",
     "hierarchy_to_arrays",
     "center_links",

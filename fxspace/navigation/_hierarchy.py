@@ -43,6 +43,7 @@ from fxspace.navigation._links import (
 )
 
 __all__ = [
+    "cold_levels",
     "Level",
     "Hierarchy",
     "level_sizes",
@@ -360,6 +361,37 @@ def build_hierarchy(
         )
         prev = res
     return Hierarchy(tuple(levels), np.asarray(x))
+
+
+def cold_levels(
+    embedding: Float[Array, "T d"],
+    *,
+    c0: int = 10,
+    m: float = 2.0,
+    key: Array | None = None,
+    tol: float = 1e-4,
+    max_steps: int = 300,
+    criterion: Literal["max", "fro"] = "max",
+) -> list[dict]:
+    """The cold runs that `build_hierarchy` (``compare_cold=True``) would make, on their
+    own: for every warm-started level (not the first, not the finest), fuzzy c-means from
+    one k-means++ seed drawn from the same key sequence, so the numbers are the ones
+    ``compare_cold`` stores in each `Level`. A benchmark of the warm start, kept out of
+    the hierarchy an app builds. Returns ``[{"n_clusters", "num_steps_cold",
+    "objective_cold"}]`` per level (``-1``/NaN where no cold run applies)."""
+    x = jnp.asarray(embedding)
+    T = x.shape[0]
+    key = jax.random.PRNGKey(0) if key is None else key
+    out = []
+    for li, c in enumerate(level_sizes(T, c0)):
+        key, k_cold, _ = jax.random.split(key, 3)
+        steps, obj = -1, float("nan")
+        if 0 < li and c < T:
+            cold = fuzzy_cmeans(x, c, m, key=k_cold, tol=tol, max_steps=max_steps,
+                                criterion=criterion)  # fmt: skip
+            steps, obj = int(cold.num_steps), float(cold.objective)
+        out.append({"n_clusters": int(c), "num_steps_cold": steps, "objective_cold": obj})
+    return out
 
 
 _LEVEL_SCALARS = (

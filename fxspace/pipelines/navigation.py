@@ -44,6 +44,7 @@ from fxspace.navigation import (
     THRESHOLD_CRITERIA,
     Hierarchy,
     build_hierarchy,
+    cold_levels,
     hierarchy_from_arrays,
     hierarchy_to_arrays,
     is_graph_walk,
@@ -53,7 +54,13 @@ from fxspace.navigation import (
     threshold_from_run,
 )
 from fxspace.pipelines.threshold_sweep import state_distances, sweep_stage
-from fxspace.runs import cached_arrays, save_figure_atomic, save_npz_atomic, write_json_atomic
+from fxspace.runs import (
+    cached,
+    cached_arrays,
+    save_figure_atomic,
+    save_npz_atomic,
+    write_json_atomic,
+)
 
 __all__ = [
     "Config",
@@ -69,7 +76,7 @@ __all__ = [
     "build_levels",
 ]
 
-STAGES = ("sweep", "space", "hierarchy")
+STAGES = ("sweep", "space", "hierarchy", "cold_levels")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -258,7 +265,7 @@ def load_space(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSp
     hc = cfg.hierarchy
     stage("fuzzy c-means levels and their links")
     ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
-        build_levels(cfg, Y, geo, seed, hc.restarts, hc.compare_cold)))  # fmt: skip
+        build_levels(cfg, Y, geo, seed, hc.restarts)))  # fmt: skip
     return NavSpace(
         Y, geo, hierarchy_from_arrays(ha), float(sp["threshold"]), source,
         float(sp["connecting_threshold"]), float(sp["score"]), sw, ch,
@@ -327,7 +334,14 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     anim = _write_outputs(cfg, run_dir, face, h, routes, play, keys, note)
     timings["figures_s"] = time.perf_counter() - t0
     W = np.asarray(epsilon_graph(state_distances(face.positions, cfg.graph.dtype), ns.threshold))
-    return _metrics(cfg, face, ns, routes, play, keys, W, anim, timings)
+    cold = None
+    if cfg.hierarchy.compare_cold:  # the warm start's benchmark: a stage of its own
+        hc = cfg.hierarchy
+        stage("cold starts of every warm-started level (compare_cold)")
+        cold = cached(run_dir, "cold_levels", lambda: cold_levels(
+            ns.embedding, c0=hc.c0, m=hc.m, key=jax.random.PRNGKey(seed), tol=hc.tol,
+            max_steps=hc.max_steps))  # fmt: skip
+    return _metrics(cfg, face, ns, routes, play, keys, W, anim, timings, cold)
 
 
 def _write_outputs(
@@ -366,16 +380,19 @@ def _write_outputs(
     return anim
 
 
-def _level_metrics(lv) -> dict:
+def _level_metrics(lv, cold: dict | None = None) -> dict:
+    cold = cold or {"num_steps_cold": lv.num_steps_cold, "objective_cold": lv.objective_cold}
+    if cold["num_steps_cold"] < 0 and lv.num_steps_cold >= 0:  # first / finest level
+        cold = {"num_steps_cold": lv.num_steps_cold, "objective_cold": lv.objective_cold}
     return {
         "centres": lv.n_clusters,
         "init": lv.init,
         "iterations_warm": lv.num_steps,
         "iterations_split_start": lv.num_steps_split,
         "iterations_all_starts": lv.total_steps,
-        "iterations_cold": lv.num_steps_cold,
+        "iterations_cold": cold["num_steps_cold"],
         "objective_warm": lv.objective,
-        "objective_cold": lv.objective_cold,
+        "objective_cold": cold["objective_cold"],
         "converged": lv.converged,
         "distinct_centre_frames": int(len(np.unique(lv.center_frames))),
         "links": int(lv.links.sum() // 2) if lv.links is not None else None,
@@ -386,9 +403,11 @@ def _level_metrics(lv) -> dict:
     }
 
 
-def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timings) -> dict:
+def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timings,
+             cold: list | None = None) -> dict:  # fmt: skip
     h = ns.hierarchy
-    levels = [_level_metrics(lv) for lv in h.levels]
+    levels = [_level_metrics(lv, None if cold is None else cold[i])
+              for i, lv in enumerate(h.levels)]  # fmt: skip
     # the warm start's own cost: the split start alone, on the levels where it ran
     split = [lv for lv in levels if lv["iterations_split_start"] >= 0]
     warm = sum(lv["iterations_split_start"] for lv in split)

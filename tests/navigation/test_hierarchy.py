@@ -151,3 +151,17 @@ def test_embedding_with_nan_rejected():
     X[3, 0] = np.nan
     with pytest.raises(fx.FxspaceError, match="NaN"):
         fx.build_hierarchy(X)
+
+
+def test_cold_levels_are_the_cold_runs_of_compare_cold(space):
+    """Issue 31.9 / 29.3: the warm start's benchmark runs apart from the hierarchy (the
+    app builds none of it) and gives the numbers ``compare_cold`` stores."""
+    from fxspace.navigation import cold_levels
+
+    X, _, _, h = space
+    cold = cold_levels(X, c0=8, key=jax.random.PRNGKey(0))
+    assert [c["n_clusters"] for c in cold] == list(h.sizes)
+    for lv, c in zip(h.levels[1:-1], cold[1:-1], strict=True):  # warm-started levels
+        assert c["num_steps_cold"] == lv.num_steps_cold > 0
+        assert c["objective_cold"] == pytest.approx(lv.objective_cold, rel=1e-6)
+    assert cold[0]["num_steps_cold"] == -1 and cold[-1]["num_steps_cold"] == -1
