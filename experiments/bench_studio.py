@@ -21,7 +21,11 @@ reads (``--needs``: the threshold sweep the navigation takes its ε from). Apps 
 independent processes, so the figures are the user's; the machine may be shared (times
 are noisy). Usage:
 ``python experiments/bench_studio.py [CONFIG | RUN_DIR ...] [--runs runs] [--timeout 600]
-[--json out]`` (a finished run folder is opened as it is: ``fxspace studio RUN_DIR``).
+[--json out] [--clean]`` (a finished run folder is opened as it is: ``fxspace studio RUN_DIR``).
+With ``--clean`` nothing is prepared: every app starts from an empty run folder and an
+empty compilation cache, as from a clean checkout; ``fxspace studio CONFIG`` answers at
+once with a page showing the progress of the stages the app needs, then opens the app on
+the same port: ``frame`` is that page's first frame, ``ready`` the app built and drawn.
 """
 
 from __future__ import annotations
@@ -268,7 +272,14 @@ def main(argv=None) -> int:
         default=[str(ROOT / "configs" / "threshold_sweep.toml")],
         help="configs run first into RUNS/<stem> (the navigation reads runs/threshold_sweep)",
     )
+    ap.add_argument(
+        "--clean", action="store_true",
+        help="as from a clean checkout: empty run folders and compilation cache; the launch "
+        "builds what the app shows (its first frame is the progress page, 'ready' the app)",
+    )  # fmt: skip
     a = ap.parse_args(argv)
+    if a.clean:
+        a.needs = []
     configs = [Path(c) for c in a.configs] or [ROOT / "configs" / f"{n}.toml" for n in APPS]
     from playwright.sync_api import sync_playwright
 
@@ -298,10 +309,14 @@ def main(argv=None) -> int:
               f"{'cached srv':>10} {'cached':>8} {'ready':>8}")  # fmt: skip
         for config in configs:
             run_dir = config if config.is_dir() else Path(a.runs) / config.stem
+            if a.clean and not config.is_dir():
+                run_dir = Path(tmp) / f"clean-{config.stem}"  # empty: nothing run before
             warm = Path(tmp) / "warm-cache"  # runs the config if needed, compiles its stages
             row: dict = {"config": str(config), "run_dir": str(run_dir)}
             try:
-                if not config.is_dir() and (t := _prepare(config, run_dir, warm)) is not None:
+                if a.clean:
+                    pass  # the launch itself builds the app's stages (fxspace studio CONFIG)
+                elif not config.is_dir() and (t := _prepare(config, run_dir, warm)) is not None:
                     row["prepare_s"] = t
             except subprocess.CalledProcessError as e:
                 row["error"] = f"fxspace run failed ({e.returncode})"
