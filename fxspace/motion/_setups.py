@@ -194,6 +194,85 @@ def setup_takes(name: str, data: SetupData = SetupData()) -> tuple[tuple[str, ..
     return tuple(data.lower or DEFAULTS[name][0]), tuple(data.upper or DEFAULTS[name][1])
 
 
+class _Examples(NamedTuple):
+    """A set-up's clips, registered: what `prepare_setup` builds its spaces from."""
+
+    J: dict
+    lows: list
+    ups: list
+    warps_l: object
+    warps_u: object
+    lam: object
+    upper_joint: int
+    upper_time: float
+    lower_joint: int
+    lower_time: float
+    dims: tuple
+    scale: float
+    io_s: float
+    registration_s: float
+
+
+def _bandai_examples(name, load, data, lower_takes, upper_takes) -> _Examples:
+    """Bandai Namco walks (lower) and mood walks or hand raises (upper), DTW-registered."""
+    t0 = time.perf_counter()
+    J = _NAMES["bandai"]
+    lows = [_walk(load(t), J["lfoot"], data.cycles) for t in lower_takes]
+    skel = lows[0]
+    t_io = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fl = [np.asarray(pose_features(c, _idx(c, J["lower"]))) for c in lows]
+    warps_l = register_dtw(fl, 9, cyclic=True)
+    if name == "mood_walk":
+        ups = [_walk(load(t), J["lfoot"], data.cycles) for t in upper_takes]
+        fu = [np.asarray(pose_features(c, _idx(c, J["lower"]))) for c in ups]
+        warps_u = register_dtw(fu, 9, cyclic=True)
+        lam = alignment_curve(fl[0], fu[0], 9, cyclic=True)
+        upper_joint, upper_time = -1, 0.0
+    else:
+        ups = [align_start(_np(load(t))) for t in upper_takes]
+        fu = [np.asarray(pose_features(c, _idx(c, J["upper"]))) for c in ups]
+        warps_u = register_dtw(fu)
+        upper_time = float(np.argmax(_hand_reach(ups[0], J["lhand"])[:, 1]))
+        n_l, n_u = fl[0].shape[0], fu[0].shape[0]
+        lam = keytime_warp(np.asarray([0.0, n_l - 1.0]), np.asarray([0.0, n_u - 1.0]), n_l)
+        upper_joint = skel.index(J["lhand"])
+    return _Examples(J, lows, ups, warps_l, warps_u, lam, upper_joint, upper_time,
+                     skel.index(J["lfoot"]), float(fl[0].shape[0] - 1), (0, 2), 0.01,
+                     t_io, time.perf_counter() - t0)  # fmt: skip
+
+
+def _cmu_examples(name, load, data, lower_takes, upper_takes) -> _Examples:
+    """CMU karate: left-hand blocks (upper) and right-foot kicks (lower), registered by
+    their key times (start, strike ↔ block, end)."""
+    t0 = time.perf_counter()
+    J = _NAMES["cmu"]
+    first = _np(load(upper_takes[0]))
+    W = int(round(data.half_window_s * first.rate))
+    ups, ukeys = _karate_hands(upper_takes, load, J, W, data.max_reps)
+    lows, lkeys = _kicks(lower_takes, load, J, data.max_reps, first.rate)
+    skel = lows[0]
+    t_io = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    n_u, n_l = ups[0].num_frames, lows[0].num_frames
+    ref_keys = np.asarray([0.0, ukeys[0], n_u - 1.0])
+    warps_u = np.stack(
+        [
+            keytime_warp(ref_keys, np.asarray([0.0, k, c.num_frames - 1.0]), n_u)
+            for k, c in zip(ukeys, ups, strict=True)
+        ]
+    )
+    rk = np.asarray(lkeys[0])
+    warps_l = np.stack([keytime_warp(rk, np.asarray(k), n_l) for k in lkeys])
+    upper_time, lower_time = ukeys[0], float(rk[2])
+    lam = keytime_warp(  # 3 key times: start, strike ↔ block, end
+        np.asarray([0.0, rk[2], n_l - 1.0]), np.asarray([0.0, upper_time, n_u - 1.0]), n_l
+    )
+    return _Examples(J, lows, ups, warps_l, warps_u, lam, skel.index(J["lhand"]), upper_time,
+                     skel.index(J["rtoe"]), lower_time, (0, 1, 2), 0.0254 / 0.45,
+                     t_io, time.perf_counter() - t0)  # fmt: skip
+
+
 def prepare_setup(
     name: str,
     load: Callable[[str], object],
@@ -211,61 +290,14 @@ def prepare_setup(
     """
     lower_takes, upper_takes = setup_takes(name, data)
     key = jax.random.PRNGKey(0) if key is None else key
+    pick = _bandai_examples if name in ("mood_walk", "block_walk") else _cmu_examples
+    e = pick(name, load, data, lower_takes, upper_takes)
+    J, lows, ups, skel, t_io = e.J, e.lows, e.ups, e.lows[0], e.io_s
+    lam, scale, dims = e.lam, e.scale, e.dims
     t0 = time.perf_counter()
-    if name in ("mood_walk", "block_walk"):
-        J = _NAMES["bandai"]
-        lows = [_walk(load(t), J["lfoot"], data.cycles) for t in lower_takes]
-        skel = lows[0]
-        t_io = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        fl = [np.asarray(pose_features(c, _idx(c, J["lower"]))) for c in lows]
-        warps_l = register_dtw(fl, 9, cyclic=True)
-        if name == "mood_walk":
-            ups = [_walk(load(t), J["lfoot"], data.cycles) for t in upper_takes]
-            fu = [np.asarray(pose_features(c, _idx(c, J["lower"]))) for c in ups]
-            warps_u = register_dtw(fu, 9, cyclic=True)
-            lam = alignment_curve(fl[0], fu[0], 9, cyclic=True)
-            upper_joint, upper_time = -1, 0.0
-        else:
-            ups = [align_start(_np(load(t))) for t in upper_takes]
-            fu = [np.asarray(pose_features(c, _idx(c, J["upper"]))) for c in ups]
-            warps_u = register_dtw(fu)
-            upper_time = float(np.argmax(_hand_reach(ups[0], J["lhand"])[:, 1]))
-            n_l, n_u = fl[0].shape[0], fu[0].shape[0]
-            lam = keytime_warp(np.asarray([0.0, n_l - 1.0]), np.asarray([0.0, n_u - 1.0]), n_l)
-            upper_joint = skel.index(J["lhand"])
-        lower_joint, dims = skel.index(J["lfoot"]), (0, 2)
-        lower_time = float(fl[0].shape[0] - 1)
-        scale = 0.01
-    else:
-        J = _NAMES["cmu"]
-        first = _np(load(upper_takes[0]))
-        W = int(round(data.half_window_s * first.rate))
-        ups, ukeys = _karate_hands(upper_takes, load, J, W, data.max_reps)
-        lows, lkeys = _kicks(lower_takes, load, J, data.max_reps, first.rate)
-        skel = lows[0]
-        t_io = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        n_u, n_l = ups[0].num_frames, lows[0].num_frames
-        ref_keys = np.asarray([0.0, ukeys[0], n_u - 1.0])
-        warps_u = np.stack(
-            [
-                keytime_warp(ref_keys, np.asarray([0.0, k, c.num_frames - 1.0]), n_u)
-                for k, c in zip(ukeys, ups, strict=True)
-            ]
-        )
-        rk = np.asarray(lkeys[0])
-        warps_l = np.stack([keytime_warp(rk, np.asarray(k), n_l) for k in lkeys])
-        upper_time, lower_time = ukeys[0], float(rk[2])
-        lam = keytime_warp(  # 3 key times: start, strike ↔ block, end
-            np.asarray([0.0, rk[2], n_l - 1.0]), np.asarray([0.0, upper_time, n_u - 1.0]), n_l
-        )
-        upper_joint = skel.index(J["lhand"])
-        lower_joint, dims = skel.index(J["rtoe"]), (0, 1, 2)
-        scale = 0.0254 / 0.45
-    exL = stack_examples([c.rotations for c in lows], [c.root_translation for c in lows], warps_l)
-    exU = stack_examples([c.rotations for c in ups], [c.root_translation for c in ups], warps_u)
-    registration_s = time.perf_counter() - t0
+    exL = stack_examples([c.rotations for c in lows], [c.root_translation for c in lows], e.warps_l)
+    exU = stack_examples([c.rotations for c in ups], [c.root_translation for c in ups], e.warps_u)
+    registration_s = e.registration_s + time.perf_counter() - t0
     t0 = time.perf_counter()
     sp = build_spaces(
         exL,
@@ -275,11 +307,11 @@ def prepare_setup(
         skel.offsets,
         mask=upper_body_mask(skel.parents, skel.names, J["spine"]),
         spine=skel.index(J["spine"]),
-        lower_joint=lower_joint,
+        lower_joint=e.lower_joint,
         lower_dims=dims,
-        lower_time=lower_time,
-        upper_joint=upper_joint,
-        upper_time=upper_time,
+        lower_time=e.lower_time,
+        upper_joint=e.upper_joint,
+        upper_time=e.upper_time,
         key=key,
         n_samples=space.n_samples,
         knn_k=space.knn_k,
