@@ -240,7 +240,45 @@ def _level_starts(x, c, prev, k_cold, k_ext, *, warm_start, restarts, split,
     ]
 
 
-@checked
+def _level(x, c: int, T: int, res, runs, best: int, prev, dt: float, steps_cold: int,
+           obj_cold: float, geodesics, max_link_centres, rho_scale: float, warm_start: bool,
+           split: bool) -> Level:  # fmt: skip
+    """One `Level` of `build_hierarchy` from its winning FCM run: the centres' frames, the
+    links (with ``geodesics``), how it was started."""
+    frames = nearest_frames(x, res.centers)
+    links = bridges = None
+    rho = float("nan")
+    if geodesics is not None and (max_link_centres is None or c <= max_link_centres):
+        rho = default_link_radius(np.asarray(x)[frames], rho_scale)
+        links, bridges = center_links(x, geodesics, frames, rho)
+    if c == T:
+        init_name = "frames"
+    elif prev is None or not warm_start:
+        init_name = "kmeans++"
+    else:
+        init_name = "split" if (split and best == 0) else "kmeans++-extend"
+    return Level(
+        n_clusters=c,
+        centers=np.asarray(res.centers),
+        memberships=np.asarray(res.memberships),
+        center_frames=frames,
+        objective=float(res.objective),
+        num_steps=int(res.num_steps),
+        converged=bool(res.converged),
+        num_steps_cold=steps_cold,
+        objective_cold=obj_cold,
+        links=links,
+        bridges=bridges,
+        radius=rho,
+        time_s=dt,
+        init=init_name,
+        num_steps_split=int(runs[0].num_steps)
+        if split and init_name.startswith(("split", "kmeans++-"))
+        else -1,
+        total_steps=int(sum(int(r.num_steps) for r in runs)),
+    )
+
+
 def build_hierarchy(
     embedding: Float[Array, "T d"],
     geodesics=None,
@@ -325,40 +363,10 @@ def build_hierarchy(
             steps_cold, obj_cold = int(cold.num_steps), float(cold.objective)
         elif li == 0 or not warm_start or c == T:
             steps_cold, obj_cold = int(res.num_steps), float(res.objective)
-        frames = nearest_frames(x, res.centers)
-        links = bridges = None
-        rho = float("nan")
-        if geodesics is not None and (max_link_centres is None or c <= max_link_centres):
-            rho = default_link_radius(np.asarray(x)[frames], rho_scale)
-            links, bridges = center_links(x, geodesics, frames, rho)
-        if c == T:
-            init_name = "frames"
-        elif prev is None or not warm_start:
-            init_name = "kmeans++"
-        else:
-            init_name = "split" if (split and best == 0) else "kmeans++-extend"
-        levels.append(
-            Level(
-                n_clusters=c,
-                centers=np.asarray(res.centers),
-                memberships=np.asarray(res.memberships),
-                center_frames=frames,
-                objective=float(res.objective),
-                num_steps=int(res.num_steps),
-                converged=bool(res.converged),
-                num_steps_cold=steps_cold,
-                objective_cold=obj_cold,
-                links=links,
-                bridges=bridges,
-                radius=rho,
-                time_s=dt,
-                init=init_name,
-                num_steps_split=int(runs[0].num_steps)
-                if split and init_name.startswith(("split", "kmeans++-"))
-                else -1,
-                total_steps=int(sum(int(r.num_steps) for r in runs)),
-            )
-        )
+        levels.append(_level(
+            x, c, T, res, runs, best, prev, dt, steps_cold, obj_cold, geodesics,
+            max_link_centres, rho_scale, warm_start, split,
+        ))  # fmt: skip
         prev = res
     return Hierarchy(tuple(levels), np.asarray(x))
 

@@ -144,6 +144,45 @@ def _check_inputs(graph, embedding, name="embedding") -> np.ndarray:
     return Y
 
 
+def _add_bridges(pairs: dict, bridge_pairs: set, c: int, cf, csr, directed: bool,
+                 known: dict) -> None:  # fmt: skip
+    """Bridges, in place: while the links fall apart, the smallest link component joins
+    its geodesically nearest centre (``known`` candidate distances across the cut bound
+    the search; exact: the nearest outside centre is no farther)."""
+    from scipy.sparse.csgraph import connected_components, dijkstra
+
+    while True:
+        links, _, _ = _level_csrs(pairs, bridge_pairs, c)
+        n_comp, lab = connected_components(links, directed=False)
+        if n_comp == 1:
+            break
+        inside = lab == int(np.argmin(np.bincount(lab)))
+        src = np.unique(cf[inside])
+        # a known candidate distance across the cut bounds the search (exact: the nearest
+        # outside centre is no farther)
+        ub = min((v for (p, q), v in known.items() if inside[p] != inside[q]), default=np.inf)
+        d, _, sources = dijkstra(
+            csr,
+            directed=directed,
+            indices=src,
+            min_only=True,
+            return_predecessors=True,
+            limit=ub * (1 + 1e-9) + 1e-12,
+        )
+        outside = np.flatnonzero(~inside)
+        dout = d[cf[outside]]
+        if not np.isfinite(dout).any():
+            break  # the frame graph itself is disconnected
+        m = float(dout.min())
+        first_in = {}  # frame → lowest inside centre showing it
+        for k in np.flatnonzero(inside)[::-1]:
+            first_in[int(cf[k])] = int(k)
+        i, j = min((first_in[int(sources[cf[b]])], int(b)) for b in outside[dout == m])
+        key = (min(i, j), max(i, j))
+        pairs[key] = m
+        bridge_pairs.add(key)
+
+
 def _sparse_links(graph, embedding, center_frames, rho=None, near=6, batch=64):
     """`sparse_links` plus the links' geodesic lengths and the ρ used."""
     from scipy.sparse.csgraph import connected_components, dijkstra
@@ -214,37 +253,7 @@ def _sparse_links(graph, embedding, center_frames, rho=None, near=6, batch=64):
                 ratio = max(ratio or 0.0, float(rr.max()))
             pending = pending[~done]
             limit = limit * 2.0 if np.isfinite(limit) and limit > 0 else np.inf
-    # bridges: the smallest link component joins its geodesically nearest centre
-    while True:
-        links, _, _ = _level_csrs(pairs, bridge_pairs, c)
-        n_comp, lab = connected_components(links, directed=False)
-        if n_comp == 1:
-            break
-        inside = lab == int(np.argmin(np.bincount(lab)))
-        src = np.unique(cf[inside])
-        # a known candidate distance across the cut bounds the search (exact: the nearest
-        # outside centre is no farther)
-        ub = min((v for (p, q), v in known.items() if inside[p] != inside[q]), default=np.inf)
-        d, _, sources = dijkstra(
-            csr,
-            directed=directed,
-            indices=src,
-            min_only=True,
-            return_predecessors=True,
-            limit=ub * (1 + 1e-9) + 1e-12,
-        )
-        outside = np.flatnonzero(~inside)
-        dout = d[cf[outside]]
-        if not np.isfinite(dout).any():
-            break  # the frame graph itself is disconnected
-        m = float(dout.min())
-        first_in = {}  # frame → lowest inside centre showing it
-        for k in np.flatnonzero(inside)[::-1]:
-            first_in[int(cf[k])] = int(k)
-        i, j = min((first_in[int(sources[cf[b]])], int(b)) for b in outside[dout == m])
-        key = (min(i, j), max(i, j))
-        pairs[key] = m
-        bridge_pairs.add(key)
+    _add_bridges(pairs, bridge_pairs, c, cf, csr, directed, known)
     return (*_level_csrs(pairs, bridge_pairs, c), rho)
 
 
