@@ -69,7 +69,8 @@ PAPERS: dict[str, Paper] = {
                 0,
                 "navigation",
                 "links_bridged",
-                "the paper's link rule by default",
+                "ours joins the link components the paper's rule leaves apart (bridges), "
+                "so that every route connects; the paper adds none",
             ),
             Row("route is a walk in the frame graph", "yes", "navigation", "path_is_graph_walk"),
         ),
