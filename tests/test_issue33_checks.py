@@ -229,3 +229,30 @@ def test_max_points_zero_named():
     X = RNG.normal(size=(5, 30, 3))
     with pytest.raises(FxspaceError, match="max_points"):
         fx.fit_control_points(X, 2, key=jax.random.PRNGKey(0), max_points=0)
+
+
+def test_every_clock_and_time_warp_helper_gives_nan_for_nan():
+    """Issue 33.4: NaN in gives NaN out in every clock and time-warp helper (a NaN time,
+    weight, step or α is never turned into a plausible clock)."""
+    import fxspace.motion as M
+
+    nan = float("nan")
+    warps = np.stack([np.linspace(0, 9, 10), np.linspace(0, 12, 10)])
+    lam = np.linspace(0, 18, 10)
+    w = np.array([0.5, 0.5])
+    outs = [
+        M.warp_slopes(warps, nan),
+        M.interp_curve(lam, nan),
+        M.invert_curve(lam, nan),
+        M.advance_clock(nan, warps, w),
+        M.advance_clock(1.0, warps, np.array([nan, 0.5])),
+        M.advance_clock(1.0, warps, w, nan),
+        M.advance_clock_duration(nan, warps, w),
+        M.advance_clock_duration(1.0, warps, np.array([nan, 0.5])),
+        *M.align_clocks(nan, 2.0, lam),
+        *M.align_clocks(2.0, nan, lam),
+        *M.align_clocks(2.0, 3.0, lam, nan),
+    ]
+    for i, o in enumerate(outs):
+        assert np.all(np.isnan(np.asarray(o))), i
+    assert np.all(np.isfinite(np.asarray(M.warp_slopes(warps, 2.5))))  # and finite for finite

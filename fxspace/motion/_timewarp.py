@@ -89,10 +89,12 @@ def invert_curve(curve: Float[Array, " N"], y: Float[Array, ""]) -> Float[Array,
 
 @checked
 def warp_slopes(warps: Float[Array, "E N"], u: Float[Array, ""]) -> Float[Array, " E"]:
-    """``C_i'(u)``: slope of each sampled warp on the segment that contains ``u``."""
+    """``C_i'(u)``: slope of each sampled warp on the segment that contains ``u`` (NaN for
+    a NaN ``u``: NaN in, NaN out)."""
     n = warps.shape[1]
-    i0 = jnp.clip(jnp.floor(u).astype(jnp.int32), 0, n - 2)
-    return warps[:, i0 + 1] - warps[:, i0]
+    uu = jnp.asarray(u)
+    i0 = jnp.clip(jnp.floor(jnp.where(jnp.isnan(uu), 0.0, uu)).astype(jnp.int32), 0, n - 2)
+    return jnp.where(jnp.isnan(uu), jnp.nan, warps[:, i0 + 1] - warps[:, i0])
 
 
 def _check_clock_args(w, dt, min_slope) -> None:
