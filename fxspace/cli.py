@@ -59,7 +59,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_docs(args: argparse.Namespace) -> int:
-    from fxspace.pipelines._docs import write_docs
+    from fxspace.pipelines import write_docs
 
     for p in write_docs(args.runs, args.out, run=args.run):
         print(f"fxspace docs: wrote {p}")

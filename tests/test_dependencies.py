@@ -29,7 +29,11 @@ def _declared() -> tuple[set[str], set[str]]:
 
 
 # modules that import an optional extra's package lazily, with a fallback where it is absent
-OPTIONAL = {"pipelines/_sweep.py": "cluster", "runs.py": "report"}
+OPTIONAL = {
+    "pipelines/_sweep.py": "cluster",
+    "runs.py": "report",
+    "pipelines/_search.py": "search",
+}
 
 
 def _extra(name: str) -> set[str]:

@@ -70,6 +70,7 @@ __all__ = [
     "run_config",
     "run_dict",
     "prepare_config",
+    "write_docs",
     "load_pipeline",
     "available",
     "sweep_config",
@@ -445,4 +446,5 @@ def summary(run_dir: str | Path) -> dict[str, Any]:
     return json.loads((Path(run_dir) / "metrics.json").read_text())
 
 
+from fxspace.pipelines._docs import write_docs  # noqa: E402
 from fxspace.pipelines._sweep import sweep_config  # noqa: E402  (uses the names above)
