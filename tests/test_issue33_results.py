@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import fxspace as fx
 from fxspace.results import RESULTS, result_code, result_messages, where_result
@@ -74,3 +75,18 @@ def test_iterative_records_derive_converged_from_result():
     assert fit.result is km.result and fit.model is model
     bad = fx.fuzzy_cmeans(np.r_[X, [[np.nan, 0.0]]], 3, key=key)
     assert bad.result == RESULTS.nonfinite_input and not bool(bad.converged)
+
+
+def test_disconnected_geodesics_are_named_disconnected():
+    """Issue 29.3: every declared RESULTS member is reachable — ``disconnected`` from MDS
+    of the geodesics of a graph in two components (under jit; raised, with the fix,
+    outside)."""
+    rng = np.random.default_rng(0)
+    P = np.r_[rng.normal(size=(6, 2)), rng.normal(size=(6, 2)) + 50]
+    geo = fx.geodesic_distances(fx.epsilon_graph(fx.pairwise_distances(jnp.asarray(P)), 5.0))
+    res = jax.jit(fx.classical_mds)(geo.distances)
+    assert res.result == RESULTS.disconnected and not bool(res.converged)
+    with pytest.raises(fx.DisconnectedGraphError, match="raise the threshold"):
+        fx.classical_mds(geo.distances)
+    nan = jax.jit(fx.classical_mds)(jnp.asarray(geo.distances).at[0, 1].set(jnp.nan))
+    assert nan.result == RESULTS.nonfinite_input

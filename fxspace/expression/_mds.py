@@ -23,9 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import as_float_array, check_distance_matrix, check_int
-from fxspace.errors import FxspaceError
-from fxspace.results import is_successful, result_from_flags
+from fxspace._validate import _is_tracer, as_float_array, check_distance_matrix, check_int
+from fxspace.errors import DisconnectedGraphError, FxspaceError
+from fxspace.results import RESULTS, is_successful, result_from_flags, where_result
 
 __all__ = ["MDSResult", "classical_mds", "double_centre", "top_eigh", "pearson_score"]
 
@@ -43,9 +43,11 @@ class MDSResult(NamedTuple):
     - `embedding`: ``(n, dim)`` coordinates ``V_k Λ_k^{1/2}``.
     - `eigenvalues`: ``(dim,)`` top eigenvalues of ``B`` (descending).
     - `num_steps`: eigensolver iterations (0 for the dense ``eigh``).
-    - `result`: a `fxspace.RESULTS` member: ``nonfinite_input`` / ``nonfinite_output``
-      when the input or the output holds NaN/inf (checked under ``jit``, where no error can
-      be raised), ``max_steps_reached`` when the eigensolver ran out of iterations.
+    - `result`: a `fxspace.RESULTS` member: ``disconnected`` when ``D`` holds ``+inf``
+      and no NaN (the geodesics of a graph in several components: embed each component,
+      or raise the threshold), ``nonfinite_input`` / ``nonfinite_output`` when the input
+      or the output holds NaN/inf (checked under ``jit``, where no error can be raised),
+      ``max_steps_reached`` when the eigensolver ran out of iterations.
     - `converged` (derived): ``result == RESULTS.successful``.
     """
 
@@ -136,8 +138,9 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "aut
 
     **Arguments:**
     - `D`: ``(n, n)`` symmetric distances, finite (check connectivity first): NaN/inf
-      raise a `fxspace.errors.FxspaceError`, or under ``jit`` give
-      ``converged = False``.
+      raise a `fxspace.errors.FxspaceError` (``+inf`` alone, the geodesics of a
+      disconnected graph, a `fxspace.errors.DisconnectedGraphError`), or under ``jit``
+      give ``result`` ``nonfinite_input`` / ``disconnected``.
     - `dim`: embedding dimension (2 for the expression space).
     - `method`: ``"eigh"`` (dense, O(n³)), ``"lobpcg"`` (top-k, O(n²k) per step) or
       ``"auto"`` (LOBPCG from 400 points on).
@@ -145,6 +148,15 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "aut
     **Returns:** `MDSResult`. Negative eigenvalues (non-Euclidean ``D``) give zero
     coordinates on that axis. jit/vmap/grad compatible.
     """
+    if not _is_tracer(D):  # +inf and no NaN: the geodesics of a disconnected graph
+        a = np.asarray(D)
+        if a.dtype.kind == "f" and np.isposinf(a).any() and not np.isnan(a).any():
+            n = int(np.sum(np.isposinf(a)))
+            raise DisconnectedGraphError(
+                f"D holds +inf between {n} pairs: the geodesics of a graph in several "
+                "components cannot be embedded together; raise the threshold "
+                "(fxspace.connecting_threshold) or embed each component"
+            )
     D = as_float_array(D, "D", ndim=2, min_frames=2)  # NaN/inf rejected when concrete
     if D.shape[0] != D.shape[1]:
         raise FxspaceError(f"D must be a square (n, n) distance matrix, got shape {D.shape}")
@@ -162,6 +174,9 @@ def classical_mds(D: Float[Array, "n n"], dim: int = 2, method: EigMethod = "aut
         nonfinite_input=~jnp.all(jnp.isfinite(D)),
         nonfinite_output=~out_ok,
     )
+    # geodesics of a disconnected graph: +inf between components and no NaN — say so
+    split = jnp.any(jnp.isposinf(D)) & ~jnp.any(jnp.isnan(D))
+    result = where_result(split, RESULTS.disconnected, result)
     return MDSResult(X, lam, steps, result)
 
 
