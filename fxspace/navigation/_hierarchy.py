@@ -279,6 +279,7 @@ def _level(x, c: int, T: int, res, runs, best: int, prev, dt: float, steps_cold:
     )
 
 
+@checked
 def build_hierarchy(
     embedding: Float[Array, "T d"],
     geodesics=None,
@@ -371,6 +372,7 @@ def build_hierarchy(
     return Hierarchy(tuple(levels), np.asarray(x))
 
 
+@checked
 def cold_levels(
     embedding: Float[Array, "T d"],
     *,
