@@ -482,3 +482,69 @@ def test_nan_in_nan_out_where_results_are_arrays():
     P[1, 0, 0] = math.nan
     al = fx.navigation.rigid_align(P, P[0])
     assert np.isnan(al[1]).all() and np.isfinite(al[[0, 2, 3, 4]]).all()
+
+
+# -- the wrong-type family over every public name -----------------------------------------
+WRONG_TYPES = {"None": None, "int": 3, "str": "x", "object": object()}
+_KNOWN_FILE = os.path.join(os.path.dirname(__file__), "fuzz_wrong_type_known.txt")
+
+
+def _wrong_type_failures() -> dict[str, list[str]]:
+    """``{name: [family → what happened]}`` for every public function that, called with
+    a wrong-type value as every required positional argument, does anything but raise
+    `FxspaceError` (a raw exception, or accepting it)."""
+    out: dict[str, list[str]] = {}
+    for name, fn in sorted(_public_functions().items()):
+        try:
+            sig = inspect.signature(fn)
+        except (TypeError, ValueError):
+            continue
+        req = [
+            p for p in sig.parameters.values()
+            if p.default is inspect.Parameter.empty
+            and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)
+        ]  # fmt: skip
+        if not req:
+            continue
+        for label, v in WRONG_TYPES.items():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    fn(*[v] * len(req))
+                    what = "accepted"
+                except FxspaceError:
+                    continue
+                except Exception as e:  # noqa: BLE001 - what the walk reports
+                    what = type(e).__name__
+            out.setdefault(name, []).append(f"{label}→{what}")
+    return out
+
+
+def test_wrong_type_family_coverage_is_printed_and_never_regresses(tmp_path, monkeypatch):
+    """Issue 33.6: the walk's coverage (functions × argument families), printed. The
+    drawn families (NaN/inf, huge/tiny, wrong dtype and rank, empty, non-integer and
+    negative counts, strings for numbers, integer keys) reach ``FUNCTIONS``; the
+    wrong-type family (None, an int, a string, an object for every required argument)
+    reaches every public name. The names that still answer it with a raw error are
+    listed in ``tests/fuzz_wrong_type_known.txt``: none may be added (a name that now
+    refuses cleanly is printed, to be taken off the list)."""
+    monkeypatch.chdir(tmp_path)  # a writer handed "x" writes here, never into the checkout
+    everything = _public_functions()
+    bad = _wrong_type_failures()
+    known = set()
+    if os.path.exists(_KNOWN_FILE):
+        with open(_KNOWN_FILE) as f:
+            known = {ln.strip() for ln in f if ln.strip() and not ln.startswith("#")}
+    print(
+        f"\nfuzz coverage: {len(everything)} public functions; drawn families "
+        f"(NaN/inf, huge/tiny, dtype, rank, empty, counts, strings, keys): {len(FUNCTIONS)}; "
+        f"skipped from the drawn families (objects/files): {len(SKIPPED)}; wrong-type "
+        f"family: {len(everything) - len(bad)} refuse cleanly, {len(bad)} known raw"
+    )
+    new = sorted(set(bad) - known)
+    assert not new, "raw errors for wrong-type arguments:\n" + "\n".join(
+        f"{n}: {', '.join(bad[n])}" for n in new
+    )
+    fixed = sorted(known - set(bad))
+    if fixed:  # may depend on the data root being there: reported, not failed
+        print(f"now refuse cleanly (take them off {_KNOWN_FILE}): {fixed}")
