@@ -560,6 +560,45 @@ def _explain(arguments: dict[str, Any], checks: dict[str, Any], error: Exception
             sizes.setdefault(d, (k, got))
 
 
+_CLASS_HINTS: dict[Any, dict[str, tuple[type, bool]]] = {}
+
+
+def _class_hints(fn: Any) -> dict[str, tuple[type, bool]]:
+    """The arguments of ``fn`` annotated with one class (``mesh: SkinnedMesh``), resolved
+    once (``X | None`` counts as ``X``)."""
+    if fn not in _CLASS_HINTS:
+        import types
+        import typing
+
+        out: dict[str, tuple[type, bool]] = {}
+        try:
+            hints = typing.get_type_hints(fn)
+        except Exception:  # noqa: BLE001 - unresolvable annotations: no class checks
+            hints = {}
+        for k, h in hints.items():
+            none_ok = False
+            if typing.get_origin(h) in (typing.Union, types.UnionType):
+                args = [a for a in typing.get_args(h) if a is not type(None)]
+                none_ok = len(args) < len(typing.get_args(h))
+                h = args[0] if len(args) == 1 else None
+            if isinstance(h, type) and h.__module__.startswith("fxspace"):
+                out[k] = (h, none_ok)
+        _CLASS_HINTS[fn] = out
+    return _CLASS_HINTS[fn]
+
+
+def _explain_types(fn: Any, arguments: dict[str, Any], error: Exception) -> None:
+    """After a raw error, an argument that is not of its annotated fxspace type (a mesh,
+    a model, a hierarchy …) is named, with the type it must be."""
+    for k, (cls, none_ok) in _class_hints(fn).items():
+        v = arguments.get(k)
+        if k in arguments and not (v is None and none_ok) and not isinstance(v, cls):
+            raise FxspaceError(
+                f"{k} must be a {cls.__name__} (fxspace.{cls.__module__.split('.')[1]}), "
+                f"got {type(v).__name__}"
+            ) from error
+
+
 def checked(fn: Any) -> Any:
     """Check ``fn``'s arguments from its annotations before it runs — the one validation
     layer of the public API (issue 19).
@@ -614,6 +653,7 @@ def checked(fn: Any) -> Any:
             raise
         except Exception as e:  # a raw error: say which argument is malformed, if one is
             _explain(bound.arguments, checks, e)
+            _explain_types(fn, bound.arguments, e)
             raise
 
     wrapper.__fxspace_checked__ = True  # type: ignore[attr-defined]
