@@ -200,3 +200,21 @@ def test_issue_examples_give_one_line_errors():
     S = np.arange(8.0).reshape(4, 2)
     with pytest.raises(FxspaceError, match=r"k must lie in \[1, 4\]"):
         fx.motion.knn_blend_weights(np.zeros(2), S, np.eye(4), k=0)
+
+
+def test_a_wrong_object_is_named_with_its_type():
+    """A raw error from an argument that is not of its annotated fxspace type becomes a
+    one-line FxspaceError naming the argument and the type (``None`` only where the
+    annotation allows it)."""
+    from fxspace._validate import checked
+    from fxspace.errors import FxspaceError
+    from fxspace.navigation import Hierarchy
+
+    @checked
+    def levels_of(h: Hierarchy, k: int = 0, other: Hierarchy | None = None):
+        return h.levels[k]
+
+    with pytest.raises(FxspaceError, match="h must be a Hierarchy"):
+        levels_of(3)
+    with pytest.raises(FxspaceError, match="h must be a Hierarchy"):
+        levels_of(None)
