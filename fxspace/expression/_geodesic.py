@@ -239,9 +239,134 @@ def _floyd_sharded(W: Array, block: int) -> Array:
     return D[:n, :n]
 
 
+_FOLD_BLOCKS = range(80, 129, 8)  # tile sizes of the folded (undirected) Floyd
+_FOLD_GROUP_BYTES = 1 << 20  # a strip's column group stays in L2 while its pivots stream
+
+
+def _pick_fold_block(n: int) -> int:
+    """Tile size in 80…128 (multiples of 8) that pads ``n`` least to an even number of tiles;
+    ties go to the size nearest 96 (measured fastest on AnimFace, 2461 frames)."""
+    return min(_FOLD_BLOCKS, key=lambda b: (-(-n // (2 * b)) * 2 * b, abs(b - 96), b))
+
+
+def _fold_layout(nb: int, b: int, itemsize: int) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Static tables of the folded upper triangle of ``nb × nb`` tiles (``nb`` even).
+
+    Pair ``p < nb/2`` holds the upper tiles of tile row ``p`` (columns ``p … nb-1``) then
+    those of tile row ``q = nb-1-p`` (columns ``q … nb-1``): ``nb + 1`` tiles in all for
+    every pair, a rectangle. Returns the tile row and column of every slot
+    ``(nb/2, slots)`` (slots past ``nb + 1`` pad the strip to ``groups × per_group``) and
+    the group count and slots per group (a group is ``b × per_group·b``, ≤ 1 MiB).
+    """
+    half, slots = nb // 2, nb + 1
+    per = max(1, min(slots, _FOLD_GROUP_BYTES // (b * b * itemsize)))
+    groups = -(-slots // per)
+    per = -(-slots // groups)
+    rows = np.zeros((half, groups * per), np.int32)
+    cols = np.zeros((half, groups * per), np.int32)
+    for p in range(half):
+        q = nb - 1 - p
+        for t in range(slots):
+            rows[p, t], cols[p, t] = (p, p + t) if t < nb - p else (q, q + t - (nb - p))
+    return rows, cols, groups, per
+
+
+def _fold_slot(i: Array, j: Array, nb: int) -> tuple[Array, Array]:
+    """Pair and slot of the upper tile ``(i, j)``, ``i ≤ j`` (inverse of `_fold_layout`)."""
+    low = i < nb // 2
+    p = jnp.where(low, i, nb - 1 - i)
+    return p, jnp.where(low, j - i, nb - p + j - i)
+
+
+def _floyd_folded(W: Array, block: int, unroll: int = 4) -> Array:
+    """Blocked Floyd on an undirected graph, storing and updating only the upper tiles.
+
+    Every ``D⁽ᵏ⁾`` of a symmetric ``W`` is symmetric (a sum is commutative in floating
+    point too), so the column panel of pivot block ``k`` is its row panel transposed and
+    phase 3 need only touch the tiles ``(I, J)``, ``I ≤ J``: half the O(n³) work. The
+    upper triangle is kept *folded*: tile row ``p`` and tile row ``nb-1-p`` share one
+    ``b × (nb+1)·b`` strip (`_fold_layout`), so phase 3 is a ``lax.map`` over equal
+    strips, each updated in cache by the ``b`` pivots of the block (``unroll`` fused per
+    pass), as `_minplus_update` does for whole rows. Reads the upper triangle of ``W``
+    only (the lower is taken as its mirror).
+    """
+    n = W.shape[0]
+    nb = -(-n // (2 * block)) * 2
+    m, half = nb * block, nb // 2
+    rows, cols, groups, per = _fold_layout(nb, block, W.dtype.itemsize)
+    iu = jnp.arange(n)
+    W = jnp.where(iu[:, None] <= iu[None, :], W, W.T)
+    D = jnp.full((m, m), jnp.inf, W.dtype).at[:n, :n].set(W)
+    idx = jnp.arange(n, m)
+    D = D.at[idx, idx].set(0).reshape(nb, block, nb, block)
+    # F[p, g, r, s, c]: row r of pair p's strip, slot s of column group g, column c
+    F = D[rows, :, cols, :].reshape(half, groups, per, block, block).transpose(0, 1, 3, 2, 4)
+    split = jnp.asarray(nb - np.arange(half), jnp.int32)  # slots of tile row p in pair p
+    slot = jnp.arange(groups * per).reshape(groups, per)
+    tiles_j = jnp.arange(nb)
+    cols = jnp.asarray(cols)
+
+    def phase(kb, F):
+        lo, hi = jnp.minimum(tiles_j, kb), jnp.maximum(tiles_j, kb)
+        p, t = _fold_slot(lo, hi, nb)
+        tiles = F[p, t // per, :, t % per, :]  # (nb, b, b): tile (lo, hi)
+        Rt = jnp.where((tiles_j < kb)[:, None, None], tiles.transpose(0, 2, 1), tiles)
+        dkk = _floyd_scan(jax.lax.dynamic_index_in_dim(Rt, kb, 0, keepdims=False))
+        R = Rt.transpose(1, 0, 2).reshape(block, m)  # pivot rows D[k, :]
+        Rt = jnp.minimum(R, _minplus(dkk, R)).reshape(block, nb, block).transpose(1, 0, 2)
+        Ct = Rt.transpose(0, 2, 1)  # D[I, k] = D[k, I]ᵀ, per tile row I: (nb, rows, k)
+
+        def strip(args):
+            f, pp, s = args  # f: (groups, b, per, b)
+            Rf = Rt[cols[pp]].reshape(groups, per, block, block).transpose(0, 2, 1, 3)
+            Cp, Cq = Ct[pp].T, Ct[nb - 1 - pp].T  # (k, rows)
+            Cf = jnp.where(slot[:, None, None, :] < s, Cp[None, :, :, None], Cq[None, :, :, None])
+
+            def group(a):  # (b, per, b) tile row block, (k, b, per), (k, per, b)
+                d, c, r = a
+
+                def body(k, d):
+                    return jnp.minimum(d, c[k][:, :, None] + r[k][None, :, :])
+
+                return jax.lax.fori_loop(0, block, body, d, unroll=unroll)
+
+            return jax.lax.map(group, (f, Cf, Rf))
+
+        return jax.lax.map(strip, (F, jnp.arange(half), split))
+
+    F = jax.lax.fori_loop(0, nb, phase, F)
+    a = jnp.arange(nb)
+    lo, hi = jnp.minimum(a[:, None], a[None, :]), jnp.maximum(a[:, None], a[None, :])
+    p, t = _fold_slot(lo, hi, nb)
+    tiles = F[p, t // per, :, t % per, :]  # (nb, nb, b, b): tile (lo, hi)
+    tiles = jnp.where((a[:, None] > a[None, :])[:, :, None, None], tiles.swapaxes(2, 3), tiles)
+    return tiles.transpose(0, 2, 1, 3).reshape(m, m)[:n, :n]
+
+
+_FOLDED_OVER_SHARDED_UP_TO = 2  # devices: folded on one beat sharded over 2 (2-core CPU)
+
+
+def _is_symmetric(W: Array, symmetric: bool | None) -> bool:
+    """``symmetric`` if given, else whether a concrete ``W`` equals its transpose (a traced
+    one, under ``jit``/``vmap``/``grad``, counts as directed: pass ``symmetric=True``)."""
+    if symmetric is not None:
+        return bool(symmetric)
+    if isinstance(W, jax.core.Tracer):
+        return False
+    return bool(_equals_transpose(W))
+
+
+@jax.jit
+def _equals_transpose(W: Array) -> Array:
+    return jnp.all(W == W.T)
+
+
 @checked
 def floyd_warshall(
-    graph: Float[Array, "n n"], method: FloydMethod = "auto", block: int | None = None
+    graph: Float[Array, "n n"],
+    method: FloydMethod = "auto",
+    block: int | None = None,
+    symmetric: bool | None = None,
 ) -> Float[Array, "n n"]:
     """Geodesic distances only (no next-hop matrix): min-plus Floyd–Warshall.
 
@@ -249,39 +374,54 @@ def floyd_warshall(
     - `graph`: ``(n, n)`` edge weights, ``inf`` for no edge, 0 on the diagonal.
     - `method`: ``"scan"`` (one pivot per ``lax.scan`` step), ``"blocked"`` (three-phase
       tiled, cache-friendly), ``"sharded"`` (blocked, rows split over all local devices,
-      the result gathered to every device) or ``"auto"`` (sharded from 1024 vertices on
-      when there is more than one local device, else blocked from 256 on, else scan).
-    - `block`: tile size of the blocked variants (default: 40–80, chosen to pad least).
+      the result gathered to every device) or ``"auto"`` (scan below 256 vertices; from
+      there blocked — folded for an undirected graph while there are at most 2 local
+      devices — and sharded from 1024 vertices on over several devices otherwise).
+    - `block`: tile size of the blocked variants (default: 40–80, or 80–128 folded,
+      chosen to pad least).
+    - `symmetric`: whether ``graph`` is undirected (``graph == graph.T``). Then the
+      blocked method runs *folded* (`_floyd_folded`: the upper tiles only, half the
+      work) and reads only the upper triangle. ``None`` (default): checked on a concrete
+      graph (an O(n²) comparison); a traced one (inside ``jit``/``vmap``/``grad``) is
+      taken as directed — pass ``True`` there to get the folded kernel.
 
-    O(n³) work, O(n²) memory; jit/vmap/grad compatible (the gradient of a geodesic
-    distance is the indicator of the edges on its shortest path). A sharded result is
-    gathered to the first local device when called outside ``jit`` (so what follows runs
-    once, unpartitioned), and replicated on every device under ``jit``.
+    O(n³) work (n³/2 folded), O(n²) memory; jit/vmap/grad compatible (the gradient of a
+    geodesic distance is the indicator of the edges on its shortest path; folded, it is
+    all on the upper triangle). A sharded result is gathered to the first local device
+    when called outside ``jit`` (so what follows runs once, unpartitioned), and
+    replicated on every device under ``jit``.
     """
     _check_square(graph, "graph")
     check_choice(method, "method", ("auto", "scan", "blocked", "sharded"))
     if block is not None:
         block = check_int(block, "block", low=1)
-    D = _floyd_jit(graph, method, block)
+    sym = _is_symmetric(graph, symmetric)
+    D = _floyd_jit(graph, method, block, sym)
     if not isinstance(D, jax.core.Tracer) and len(D.sharding.device_set) > 1:
         D = jax.device_put(D, jax.local_devices()[0])
     return D
 
 
-@partial(jax.jit, static_argnames=("method", "block"))
-def _floyd_jit(graph: Array, method: str, block: int | None) -> Array:
+@partial(jax.jit, static_argnames=("method", "block", "symmetric"))
+def _floyd_jit(graph: Array, method: str, block: int | None, symmetric: bool = False) -> Array:
     W = jnp.asarray(graph)
+    n, nd = W.shape[0], jax.local_device_count()
     if method == "auto":
-        method = "blocked" if W.shape[0] >= _BLOCKED_FROM else "scan"
-        if W.shape[0] >= _SHARDED_FROM and jax.local_device_count() > 1:
+        method = "blocked" if n >= _BLOCKED_FROM else "scan"
+        if n >= _SHARDED_FROM and nd > 1 and not (symmetric and nd <= _FOLDED_OVER_SHARDED_UP_TO):
             method = "sharded"
     if method == "scan":
         return _floyd_scan(W)
+    if method == "blocked" and symmetric:
+        return _floyd_folded(W, block or _pick_fold_block(n))
     if method == "blocked":
-        return _floyd_blocked(W, block or _pick_block(W.shape[0], 1))
+        return _floyd_blocked(W, block or _pick_block(n, 1))
     if method == "sharded":
-        return _floyd_sharded(W, block or _pick_block(W.shape[0], jax.local_device_count()))
+        return _floyd_sharded(W, block or _pick_block(n, nd))
     raise FxspaceError(f"method must be 'auto', 'scan', 'blocked' or 'sharded', got {method!r}")
+
+
+_HOP_GROUP = 16  # neighbours per pass of the next-hop search (fused, in registers)
 
 
 @checked
@@ -290,19 +430,32 @@ def next_hops(
     graph: Float[Array, "n n"],
     distances: Float[Array, "n n"],
     max_degree: int | None = None,
-    chunk: int = 64,
+    chunk: int = 16,
 ) -> Int[Array, "n n"]:
     """Next-hop matrix from geodesic distances: ``nxt[i, j] = argmin_k W[i,k] + D[k,j]``.
 
     The first step of a shortest path ``i → j`` is a neighbour ``k`` of ``i`` attaining the
-    Bellman equation ``D[i,j] = min_k W[i,k] + D[k,j]`` (k ≠ i). Rows are sorted by degree
-    and processed ``chunk`` at a time; each block streams over its own neighbours only (a
-    loop whose trip count is the block's largest degree), keeping the running minimum
-    and its index over all ``j`` — so the work is O(n·E) (E edges), the same as ``n``
-    Dijkstra runs, with contiguous vector code, instead of O(n²·K_max). ``max_degree``
-    (static) bounds the neighbour lists (``None``: all ``n`` vertices). Found from the
-    final distances, the hops stay valid under float32 ties (carrying them through the
-    Floyd recurrence made next-hop cycles on real data).
+    Bellman equation ``D[i,j] = min_k W[i,k] + D[k,j]``; only neighbours strictly closer to
+    ``j`` (``D[k,j] < D[i,j]``) are candidates, so every hop gets closer to ``j`` and no
+    walk can cycle, float32 ties and zero-weight edges (repeated frames) included; a
+    zero-distance pair is one hop. Rows go ``chunk`` consecutive vertices at a time: a
+    block streams once over the union of its rows' neighbours (ascending, ties to the
+    smallest vertex), ``16`` neighbour rows of ``D`` fused per pass, keeping the running
+    minimum and its index over all ``j`` for every row of the block. The work is
+    O(n · Σ_blocks |union|) — n·E (E edges, the cost of ``n`` Dijkstra runs) times the
+    union's excess over a row's degree, small when consecutive vertices share neighbours,
+    as consecutive frames of a capture do (1.4 on AnimFace; at most ``chunk``). Found from
+    the final distances, the hops are valid for any Floyd variant.
+
+    **Arguments:**
+    - `graph`: ``(n, n)`` edge weights (``inf`` = no edge), directed or not.
+    - `distances`: its geodesic distances (`floyd_warshall`).
+    - `max_degree`: keep only each vertex's ``max_degree`` nearest neighbours (``None``:
+      all; fewer may give no hop, ``-1``, where every shortest path needs a dropped edge).
+    - `chunk`: consecutive vertices per block (static).
+
+    **Returns:** ``(n, n)`` int32 next hops, ``i`` on the diagonal, ``-1`` where ``j`` is
+    not reachable from ``i``.
     """
     W = _check_square(graph, "graph")
     D = _check_square(distances, "distances")
@@ -312,68 +465,82 @@ def next_hops(
             f"chunk >= 1 (got {chunk}) and max_degree >= 1 or None (got {max_degree})"
         )
     n = W.shape[0]
-    Woff = jnp.where(jnp.eye(n, dtype=bool), jnp.inf, W)
-    K = n if max_degree is None else min(max_degree, n)
-    nbr = jnp.argsort(Woff, axis=1)[:, :K].astype(jnp.int32)  # nearest first, inf last
-    wn = jnp.take_along_axis(Woff, nbr, axis=1)
-    deg = jnp.sum(jnp.isfinite(wn), axis=1).astype(jnp.int32)
-    order = jnp.argsort(deg)
-    chunk = min(chunk, n)
-    pad = (-n) % chunk
-    order_p = jnp.concatenate([order, jnp.repeat(order[:1], pad)])
-    nb = nbr[order_p].reshape(-1, chunk, K)
-    w = wn[order_p].reshape(-1, chunk, K)
-    trips = deg[order_p].reshape(-1, chunk).max(axis=1)
+    D = D.astype(jnp.result_type(W.dtype, D.dtype))
+    eye = jnp.eye(n, dtype=bool)
+    Woff = jnp.where(eye, jnp.inf, W).astype(D.dtype)
+    if max_degree is not None and max_degree < n - 1:
+        near = jnp.argsort(Woff, axis=1)[:, :max_degree]
+        keep = jnp.zeros((n, n), bool).at[jnp.arange(n)[:, None], near].set(True)
+        Woff = jnp.where(keep, Woff, jnp.inf)
+    c = min(chunk, n)
+    pad = (-n) % c
+    Wb = jnp.concatenate([Woff, jnp.full((pad, n), jnp.inf, D.dtype)]).reshape(-1, c, n)
+    Db = jnp.concatenate([D, jnp.zeros((pad, n), D.dtype)]).reshape(-1, c, n)
+    union = jnp.any(jnp.isfinite(Wb), axis=1)  # (blocks, n)
+    size = jnp.sum(union, axis=1, dtype=jnp.int32)
+    nbrs = jnp.argsort(~union, axis=1, stable=True).astype(jnp.int32)  # the union first
+    g = _HOP_GROUP
 
-    def rows(args):
-        nb, w, trip = args  # (chunk, K), (chunk, K), ()
+    def block(args):
+        w, d_own, nbr, u = args  # (c, n), (c, n), (n,), ()
 
-        def body(k, st):
-            best, arg = st
-            val = w[:, k, None] + D[nb[:, k]]  # (chunk, n)
-            better = val < best
-            return jnp.where(better, val, best), jnp.where(better, nb[:, k, None], arg)
+        def body(t, state):
+            best, arg = state
+            for s in range(g):
+                q = jnp.minimum(t * g + s, n - 1)
+                k = nbr[q]
+                wk = jnp.where(t * g + s < u, jax.lax.dynamic_slice_in_dim(w, k, 1, 1), jnp.inf)
+                dk = jax.lax.dynamic_slice_in_dim(D, k, 1, 0)  # (1, n)
+                val = jnp.where(dk < d_own, wk + dk, jnp.inf)
+                better = val < best
+                best = jnp.where(better, val, best)
+                arg = jnp.where(better, k, arg)
+            return best, arg
 
-        init = (jnp.full((chunk, n), jnp.inf, D.dtype), jnp.full((chunk, n), -1, jnp.int32))
-        return jax.lax.fori_loop(0, trip, body, init)[1]
+        init = (jnp.full((c, n), jnp.inf, D.dtype), jnp.full((c, n), -1, jnp.int32))
+        return jax.lax.fori_loop(0, (u + g - 1) // g, body, init)[1]
 
-    out = jax.lax.map(rows, (nb, w, trips)).reshape(-1, n)[:n]
-    nxt = jnp.zeros((n, n), jnp.int32).at[order].set(out)
+    nxt = jax.lax.map(block, (Wb, Db, nbrs, size)).reshape(-1, n)[:n]
+    j = jnp.arange(n, dtype=jnp.int32)
+    nxt = jnp.where((D == 0) & jnp.isfinite(Woff), j[None, :], nxt)  # repeated frames
     nxt = jnp.where(jnp.isfinite(D), nxt, -1)
-    return jnp.where(jnp.eye(n, dtype=bool), jnp.arange(n, dtype=jnp.int32)[:, None], nxt)
+    return jnp.where(eye, j[:, None], nxt)
 
 
 def _static_max_degree(W: Array) -> int | None:
-    """Largest vertex degree rounded up to a multiple of 32, when W is concrete."""
-    if isinstance(W, jax.core.Tracer):
-        return None
-    deg = int(np.max(np.sum(np.isfinite(np.asarray(W)), axis=1))) - 1
-    k = max(32, -(-deg // 32) * 32)
-    return k if k < W.shape[0] else None
+    """``None``: `next_hops` needs no bound on the neighbour lists any more (each block of
+    rows streams over its own neighbours). Kept for the callers that still pass it."""
+    del W
+    return None
 
 
 def geodesic_distances(
-    graph: Float[Array, "n n"], method: FloydMethod = "auto", block: int | None = None
+    graph: Float[Array, "n n"],
+    method: FloydMethod = "auto",
+    block: int | None = None,
+    symmetric: bool | None = None,
 ) -> Geodesics:
     """All-pairs geodesic distances and the next-hop matrix that rebuilds paths.
 
     **Arguments:**
     - `graph`: ``(n, n)`` symmetric or directed edge weights (``inf`` = no edge, 0 diagonal),
       e.g. from `epsilon_graph`.
-    - `method`, `block`: see `floyd_warshall`.
+    - `method`, `block`, `symmetric`: see `floyd_warshall` (an undirected graph runs the
+      folded Floyd, half the work).
 
     **Returns:** `Geodesics`. Unreachable pairs keep ``inf`` distance and next hop
     ``-1`` — check with `check_connected` before embedding. The next-hop matrix is
     found from the distances by `next_hops` (the Bellman equation over each
-    vertex's neighbours), which stays valid under float32 ties — carrying it through the
-    Floyd recurrence does not (rounding ties made next-hop cycles on real data).
-    O(n³); jit/vmap compatible; ``jax.grad`` flows through the distances.
+    vertex's neighbours, every hop strictly closer to the target), which stays valid under
+    float32 ties — carrying it through the Floyd recurrence does not (rounding ties made
+    next-hop cycles on real data). O(n³) for the distances plus O(n·E) for the hops (E
+    edges); jit/vmap compatible; ``jax.grad`` flows through the distances.
     """
     W = jnp.asarray(graph)
     if W.ndim != 2 or W.shape[0] != W.shape[1]:
         raise FxspaceError(f"graph must be a square (n, n) matrix, got shape {W.shape}")
-    D = floyd_warshall(W, method=method, block=block)
-    nxt = next_hops(W, jax.lax.stop_gradient(D), max_degree=_static_max_degree(W))
+    D = floyd_warshall(W, method=method, block=block, symmetric=symmetric)
+    nxt = next_hops(W, jax.lax.stop_gradient(D))
     return Geodesics(D, nxt)
 
 
