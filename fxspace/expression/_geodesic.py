@@ -507,13 +507,6 @@ def next_hops(
     return jnp.where(eye, j[:, None], nxt)
 
 
-def _static_max_degree(W: Array) -> int | None:
-    """``None``: `next_hops` needs no bound on the neighbour lists any more (each block of
-    rows streams over its own neighbours). Kept for the callers that still pass it."""
-    del W
-    return None
-
-
 def geodesic_distances(
     graph: Float[Array, "n n"],
     method: FloydMethod = "auto",

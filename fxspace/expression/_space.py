@@ -18,7 +18,6 @@ from fxspace.errors import FxspaceError
 from fxspace.expression._features import distance_features, pairwise_distances
 from fxspace.expression._geodesic import (
     Geodesics,
-    _static_max_degree,
     check_connected,
     epsilon_graph,
     floyd_warshall,
@@ -153,6 +152,6 @@ def expression_space(
     nxt = None
     if paths:
         D = jax.lax.stop_gradient(emb.distances)
-        nxt = next_hops(W, D, max_degree=_static_max_degree(W))
+        nxt = next_hops(W, D)
     geo = Geodesics(emb.distances, nxt)
     return ExpressionSpace(F, P, W, geo, emb.mds, emb.score, float(threshold))
