@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 
 import jax
@@ -74,6 +75,19 @@ def main() -> None:
     for k in fns:
         m = statistics.median(times[k])
         print(f"{k:30s} {m:9.4f} {m / base:9.2f} {errs[k]:12.2e}")
+    from fxspace.runs import write_bench
+
+    t = {k: statistics.median(v) for k, v in times.items()}
+    ours_k = "ours (float64 blocks)"
+    write_bench("distances", [
+        {"case": f"{name}, {F.shape[0]} frames: vs scikit-learn", "ours": "pairwise_distances",
+         "ours_s": t[ours_k], "peer": "sklearn euclidean_distances",
+         "peer_s": t["sklearn euclidean_distances"]},
+        {"case": f"{name}, {F.shape[0]} frames: vs float32 Gram", "ours": "pairwise_distances",
+         "ours_s": t[ours_k], "peer": "float32 Gram (before)",
+         "peer_s": t["float32 Gram (before)"]},
+    ], title="Pairwise frame distances (the state matrix)",
+        command="python experiments/bench_distances.py " + " ".join(sys.argv[1:]))  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
 
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
@@ -114,6 +115,19 @@ def main(argv: list[str] | None = None) -> int:
         f"  max relative cost difference vs dtaidistance.dtw_ndim.distance: {rel:.2e}; "
         f"path identical to dtaidistance.warping_path (pair 0): {same_path}"
     )
+    from fxspace.runs import write_bench
+
+    write_bench("dtw", [
+        {"case": "single pair", "ours": "dtw (cost + path)", "ours_s": ours_1,
+         "peer": "dtaidistance C (cost only)", "peer_s": dta_1},
+        {"case": "single pair, with path", "ours": "dtw (cost + path)", "ours_s": ours_1,
+         "peer": "dtw-python (with path)", "peer_s": dtp_1},
+        {"case": f"batch of {B}", "ours": "dtw batched (cost + path)", "ours_s": ours_b,
+         "peer": "dtaidistance C (cost only)", "peer_s": dta_b},
+        {"case": f"batch of {B}, with paths", "ours": "dtw batched (cost + path)",
+         "ours_s": ours_b, "peer": "dtw-python (with path)", "peer_s": dtp_b},
+    ], title=f"DTW: {args.n} x {args.d} float64 pairs",
+        command="python experiments/bench_dtw.py " + " ".join(argv or sys.argv[1:]))  # fmt: skip
     return 0
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -67,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"ICT rig: {rig.num_vertices} vertices, {rig.num_shapes} shapes, read in "
           f"{read_s:.2f} s (cached after the first read); {jax.devices()[0]}")  # fmt: skip
     takes = TAKES[:1] if args.quick else TAKES
+    record = []
     print(f"{'take':26s} {'frames':>6s} {'resid mm':>9s} {'rigid mm':>9s} {'ours ms/f':>10s} "
           f"{'scipy ms/f':>10s} {'ratio':>7s} {'obj gap':>9s} {'w MAE':>7s}")  # fmt: skip
     for name in takes:
@@ -110,9 +112,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:26s} {len(X):6d} {float(jnp.nanmean(s.residual)):9.3f} "
               f"{float(jnp.nanmean(s0.residual)):9.3f} {ours_ms:10.3f} {sp_ms:10.3f} "
               f"{sp_ms / ours_ms:6.1f}x {gap:9.2e} {mae:7.4f}")  # fmt: skip
+        record.append({"case": f"{name} ({len(X)} frames), per frame", "ours": "solve_weights",
+                       "ours_s": ours_ms / 1e3, "peer": "scipy lsq_linear (bvls) per frame",
+                       "peer_s": sp_ms / 1e3})  # fmt: skip
     print("resid / rigid: mean marker residual after the solve / with the rigid motion alone "
           "(mm); ratio: scipy's time per frame / ours; obj gap: (ours - scipy) / scipy, "
           "median over the compared frames (temporal=0, same rigid motion and ridge)")  # fmt: skip
+    from fxspace.runs import write_bench
+
+    cmd = "python experiments/bench_face.py " + " ".join(argv or sys.argv[1:])
+    write_bench("face", record, title="ICT head: expression weights from markers", command=cmd)
     return 0
 
 

@@ -210,6 +210,13 @@ def main(argv: list[str] | None = None) -> int:
             f"{worst:+.2%}, sum over levels {tot:+.2%} (c < n; negative = ours lower)"
         )
     print("\nNote: the machine may be shared; timings are noisy.")
+    from fxspace.runs import write_bench
+
+    write_bench("fcm", [
+        {"case": f"all levels vs {name}", "ours": rows[0][0], "ours_s": t_ours, "peer": name,
+         "peer_s": t} for name, t, _, _ in rows[1:]
+    ], title="Fuzzy c-means: every level of the hierarchy",
+        command="python experiments/bench_fcm.py " + " ".join(argv or sys.argv[1:]))  # fmt: skip
     return 0
 
 

@@ -255,6 +255,29 @@ def _row_text(r: dict) -> str:
     )
 
 
+def _record(rows: list[dict], argv) -> None:
+    """The docs' record (`fxspace.runs.write_bench`): distances and distances + paths
+    against the faster scipy Dijkstra call, per size."""
+    from fxspace.runs import write_bench
+
+    out = []
+    for r in rows:
+        case = f"{r['T']} real frames" if r["real"] else f"{r['T']} frames (resampled)"
+        size = None if r["real"] else r["T"]
+        out += [
+            {"case": f"{case}: distances", "size": size, "ours": "floyd_warshall",
+             "ours_s": r["ours_fw_s"], "peer": "scipy Dijkstra (CSR)",
+             "peer_s": r["scipy_best_s"]},
+            {"case": f"{case}: + paths", "size": size, "ours": "geodesic_distances",
+             "ours_s": r["ours_fw_nexthop_s"], "peer": "scipy Dijkstra + predecessors",
+             "peer_s": r["scipy_best_pred_s"]},
+        ]  # fmt: skip
+    if out:
+        args = " ".join(sys.argv[1:] if argv is None else argv)
+        write_bench("geodesic", out, title="Geodesics: all pairs, ε-graph of AnimFace",
+                    command=f"python experiments/bench_geodesic.py {args}".strip())  # fmt: skip
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", type=int, nargs="*", default=[1000, 2400, 4800])
@@ -342,6 +365,7 @@ def main(argv=None) -> int:
                 f"{100 * r['peak_fraction']:.0f}% of the measured peak "
                 f"({r['peak'] / 1e9:.2f} G updates/s)"
             )
+    _record(rows, argv)
     if a.json:
         from fxspace.runs import write_json_atomic
 

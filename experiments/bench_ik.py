@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
 from functools import partial
 
@@ -314,6 +315,23 @@ def main(argv: list[str] | None = None) -> int:
             f"{name}: {med / k_med:.2f}x the jitted kernel's time, {st / k_st:.2f}x its "
             "iterations (target <= 1.3x both)"
         )
+    med = {r[0]: r[1] for r in rows}
+    full = "gradient, full: factored (eq. 13)"
+    record = [
+        {"case": "full gradient call", "ours": "factored (eq. 13)", "ours_s": med[full],
+         "peer": "naive (eq. 9)", "peer_s": med["gradient, full: naive (eq. 9)"]},
+        {"case": "full gradient call, vs autodiff", "ours": "factored (eq. 13)",
+         "ours_s": med[full], "peer": "jax.grad", "peer_s": med["gradient, full: jax.grad"]},
+    ] + [
+        {"case": f"solved frame, {start}", "ours": "BFGS factored, rtol 1e-3",
+         "ours_s": row[f"paper: BFGS factored, rtol 1e-3 [{start}]"],
+         "peer": "BFGS naive, rtol 1e-3", "peer_s": row[f"BFGS naive, rtol 1e-3 [{start}]"]}
+        for start in ("cold", "warm")
+    ]  # fmt: skip
+    from fxspace.runs import write_bench
+
+    cmd = "python experiments/bench_ik.py " + " ".join(argv or sys.argv[1:])
+    write_bench("ik", record, title="Mesh IK: the factored gradient (eq. 13)", command=cmd)
     return 0
 
 

@@ -297,6 +297,26 @@ def main(argv=None) -> int:
             v = out[key]
             print(f"{key}: {v:.4f}" if isinstance(v, float) else f"{key}: {v}")
     out["stages"] = Stage.rows
+    record = []
+    if "ratio_landmark_geodesics" in out:
+        record.append({"case": f"{T} frames: landmark geodesics", "size": T,
+                       "ours": "landmark geodesics", "ours_s": peer["landmark geodesics"],
+                       "peer": "scipy Dijkstra, same landmarks",
+                       "peer_s": peer["scipy Dijkstra, same landmarks"]})  # fmt: skip
+    if "ratio_isomap_vs_chain" in out:
+        record.append({"case": f"{T} frames: whole chain", "size": T,
+                       "ours": "graph → landmarks → MDS → r", "ours_s": out["chain_s"],
+                       "peer": "sklearn Isomap (dense)",
+                       "peer_s": peer["sklearn Isomap (dense)"]})  # fmt: skip
+    if record:
+        from fxspace.runs import write_bench
+
+        write_bench(
+            f"scale_{T}",
+            record,
+            title=f"Past the dense range: {T} frames",
+            command="python experiments/bench_scale.py " + " ".join(sys.argv[1:]),
+        )
     if a.json:
         from fxspace.runs import write_json_atomic
 

@@ -337,8 +337,22 @@ def main(argv=None) -> int:
             for k in ("error", "cold_error", "cached_error"):
                 if k in row:
                     print(f"  {k}: {row[k]}", flush=True)
+    sys.path.insert(0, str(ROOT))
+    record = [
+        {"case": f"{Path(r['config']).stem}: first frame, cold", "ours": "fxspace studio",
+         "ours_s": r["cold_frame_s"], "peer": "target: 60 s", "peer_s": 60.0}
+        for r in rows if r.get("cold_frame_s") is not None
+    ]  # fmt: skip
+    if record:
+        from fxspace.runs import write_bench
+
+        write_bench(
+            "studio",
+            record,
+            title="Apps: seconds to the first rendered frame",
+            command="python experiments/bench_studio.py " + " ".join(sys.argv[1:]),
+        )
     if a.json:
-        sys.path.insert(0, str(ROOT))
         from fxspace.runs import write_json_atomic
 
         write_json_atomic(a.json, {"rows": rows, "browser_floor_s": floor})

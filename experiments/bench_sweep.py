@@ -45,6 +45,13 @@ def main() -> None:
     s, p = statistics.median(serial), statistics.median(par)
     print(f"sweep_example ({a.repeats} repeats, medians): serial {s:.1f} s, "
           f"--workers {a.workers} {p:.1f} s, ratio serial/parallel {s / p:.2f}x")  # fmt: skip
+    from fxspace.runs import write_bench
+
+    write_bench("sweep", [{"case": "configs/sweep_example.toml, whole sweep",
+                           "ours": f"--workers {a.workers} (Dask)", "ours_s": p,
+                           "peer": "serial engine", "peer_s": s}],
+                title="A sweep's wall time: parallel against serial",
+                command="python experiments/bench_sweep.py " + " ".join(sys.argv[1:]))  # fmt: skip
 
 
 if __name__ == "__main__":

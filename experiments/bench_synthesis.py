@@ -21,6 +21,7 @@ import argparse
 import dataclasses
 import os
 import statistics
+import sys
 import time
 
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
@@ -45,7 +46,9 @@ def _median(f, repeats: int) -> float:
     return statistics.median(ts)
 
 
-def bench(name: str, repeats: int, steps: int) -> None:
+def bench(name: str, repeats: int, steps: int) -> list[dict]:
+    """Print one set-up's figures; return its record rows (ours against our own slower
+    routes: the heading-relative splice, exact re-sampling — no like-for-like peer exists)."""
     cache: dict = {}
 
     def load(t):
@@ -94,15 +97,34 @@ def bench(name: str, repeats: int, steps: int) -> None:
     )
     print(f"  synthesis step      ours {1e3 * t_step:8.3f} ms  (no lower change; {sp.splice} "
           f"splice; heading-relative copy {1e3 * med['heading'][0]:.3f} ms)")  # fmt: skip
+    rows = [
+        {
+            "case": f"{name}: synthesis step",
+            "ours": f"{sp.splice} splice",
+            "ours_s": t_step,
+            "peer": "heading-relative copy",
+            "peer_s": med["heading"][0],
+        }
+    ]
     if sp.upper_joint < 0:
         print("  (upper space set by weights: no re-placement in this set-up)")
-        return
+        return rows
     print(f"  step + re-placement ours {1e3 * t_repl:8.3f} ms  target ≤ 1 ms: "
           f"{'met' if t_repl <= 1e-3 else 'MISSED'} (heading-relative copy "
           f"{1e3 * med['heading'][1]:.3f} ms)")  # fmt: skip
     if sp.upper_joint >= 0:
         print(f"  exact re-sampling   ours {1e3 * t_exact:8.3f} ms  "
               f"(re-placement is {t_exact / max(t_repl, 1e-12):.0f}× faster)")  # fmt: skip
+        rows.append(
+            {
+                "case": f"{name}: upper sample per step",
+                "ours": "step + re-placement",
+                "ours_s": t_repl,
+                "peer": "exact re-sampling",
+                "peer_s": t_exact,
+            }
+        )
+    return rows
 
 
 def main() -> None:
@@ -113,8 +135,12 @@ def main() -> None:
     a = ap.parse_args()
     print(f"jax {jax.__version__} on {jax.default_backend()}; medians of {a.repeats} builds, "
           f"{a.steps} steps")  # fmt: skip
-    for name in a.setups:
-        bench(name, a.repeats, a.steps)
+    rows = [r for name in a.setups for r in bench(name, a.repeats, a.steps)]
+    from fxspace.runs import write_bench
+
+    cmd = "python experiments/bench_synthesis.py " + " ".join(sys.argv[1:])
+    write_bench("synthesis", rows, title="Parametric synthesis: one step, ours vs slower routes",
+                command=cmd)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -395,6 +395,8 @@ def check_readable(path: Any, what: str = "file") -> Path:
     import os
     import stat
 
+    from fxspace.errors import DataNotFoundError
+
     p = Path(path)
     try:
         st = os.stat(p)
@@ -402,14 +404,16 @@ def check_readable(path: Any, what: str = "file") -> Path:
         if e.errno == errno.ELOOP:
             raise FxspaceError(f"{p}: symlink loop (the link points back to itself)") from None
         if e.errno == errno.ENOTDIR:
-            raise FileNotFoundError(f"{what} not found: {p} (a parent is not a folder)") from None
+            raise DataNotFoundError(f"{what} not found: {p} (a parent is not a folder)") from None
         if e.errno == errno.ENOENT:
             if p.is_symlink():
-                raise FileNotFoundError(f"{what} not found: {p} (a dangling symlink)") from None
-            raise FileNotFoundError(f"{what} not found: {p}") from None
+                raise DataNotFoundError(f"{what} not found: {p} (a dangling symlink)") from None
+            raise DataNotFoundError(f"{what} not found: {p}") from None
         raise
     if stat.S_ISDIR(st.st_mode):
-        raise IsADirectoryError(f"{p} is a directory, not a {what}")
+        from fxspace.errors import NotAFileError
+
+        raise NotAFileError(f"{p} is a directory, not a {what}; pass the {what} inside it")
     if not stat.S_ISREG(st.st_mode):
         kind = "a named pipe (FIFO)" if stat.S_ISFIFO(st.st_mode) else "not a regular file"
         raise FxspaceError(f"{p} is {kind}, not a {what}; pass a regular file (not read)")
@@ -502,6 +506,18 @@ def _check_str(value: Any, name: str) -> str:
     return value
 
 
+_PATH_ANN = re.compile(r"^(str \| (Path|os\.PathLike)|(Path|os\.PathLike) \| str|Path)( \| None)?$")
+
+
+def _check_path(v: Any, name: str) -> Any:
+    """A file-system path: a ``str`` or an ``os.PathLike`` (a `pathlib.Path`)."""
+    import os
+
+    if isinstance(v, str | os.PathLike):
+        return v
+    raise FxspaceError(f"{name} must be a path (str or pathlib.Path), got {type(v).__name__}")
+
+
 def _arg_checker(name: str, ann: str, optional_default: bool):
     """A function checking one argument, derived from its annotation (or ``None``)."""
     ann = ann.strip()
@@ -524,6 +540,8 @@ def _arg_checker(name: str, ann: str, optional_default: bool):
         return lambda v: v if v is None and allows_none else _check_str(v, name)
     if _BOOL_ANN.match(ann):
         return lambda v: v if v is None and allows_none else check_bool(v, name)
+    if _PATH_ANN.match(ann):
+        return lambda v: v if v is None and allows_none else _check_path(v, name)
     m = _LITERAL_ANN.match(ann)
     if m:
         import ast
@@ -561,6 +579,49 @@ def _explain(arguments: dict[str, Any], checks: dict[str, Any], error: Exception
 
 
 _CLASS_HINTS: dict[Any, dict[str, tuple[type, bool]]] = {}
+_FX_TYPES: dict[str, type] = {}
+
+
+def _fxspace_types() -> dict[str, type]:
+    """The public classes of fxspace's subpackages by name, to resolve annotations that
+    name a class imported only for type checking (``mesh: "SkinnedMesh"``)."""
+    if not _FX_TYPES:
+        import importlib
+
+        for sub in ("cluster", "controlpoints", "expression", "face", "io", "mesh", "motion",
+                    "navigation", "results"):  # fmt: skip
+            mod = importlib.import_module(f"fxspace.{sub}")
+            for n in getattr(mod, "__all__", ()):
+                v = getattr(mod, n, None)
+                if isinstance(v, type) and v.__module__.startswith("fxspace"):
+                    _FX_TYPES.setdefault(n, v)
+    return _FX_TYPES
+
+
+def _resolved_hints(fn: Any) -> dict[str, Any]:
+    """``fn``'s parameter annotations resolved one by one (an unresolvable one is left out),
+    names not in its module looked up among fxspace's public classes."""
+    import typing
+
+    try:
+        return typing.get_type_hints(fn)
+    except Exception:  # noqa: BLE001 - resolve one by one below
+        pass
+    raw = getattr(_unwrap(fn), "__annotations__", {})
+    ns = {**_fxspace_types(), **getattr(_unwrap(fn), "__globals__", {})}
+    out = {}
+    for k, a in raw.items():
+        try:
+            out[k] = eval(a, ns) if isinstance(a, str) else a  # noqa: S307 - annotations
+        except Exception:  # noqa: BLE001 - unresolvable: unchecked
+            continue
+    return out
+
+
+def _unwrap(fn: Any) -> Any:
+    import inspect
+
+    return inspect.unwrap(fn)
 
 
 def _class_hints(fn: Any) -> dict[str, tuple[type, bool]]:
@@ -571,32 +632,35 @@ def _class_hints(fn: Any) -> dict[str, tuple[type, bool]]:
         import typing
 
         out: dict[str, tuple[type, bool]] = {}
-        try:
-            hints = typing.get_type_hints(fn)
-        except Exception:  # noqa: BLE001 - unresolvable annotations: no class checks
-            hints = {}
-        for k, h in hints.items():
+        for k, h in _resolved_hints(fn).items():
             none_ok = False
             if typing.get_origin(h) in (typing.Union, types.UnionType):
                 args = [a for a in typing.get_args(h) if a is not type(None)]
                 none_ok = len(args) < len(typing.get_args(h))
                 h = args[0] if len(args) == 1 else None
-            if isinstance(h, type) and h.__module__.startswith("fxspace"):
+            if (
+                isinstance(h, type)
+                and h.__module__.startswith("fxspace")
+                and not getattr(h, "_is_protocol", False)
+            ):
                 out[k] = (h, none_ok)
         _CLASS_HINTS[fn] = out
     return _CLASS_HINTS[fn]
 
 
-def _explain_types(fn: Any, arguments: dict[str, Any], error: Exception) -> None:
-    """After a raw error, an argument that is not of its annotated fxspace type (a mesh,
-    a model, a hierarchy …) is named, with the type it must be."""
+def _explain_types(
+    fn: Any, arguments: dict[str, Any], error: Exception | None = None, skip: Any = ()
+) -> None:
+    """An argument that is not of its annotated fxspace type (a mesh, a model, a
+    hierarchy …) is named, with the type it must be (``skip``: names left unchecked)."""
     for k, (cls, none_ok) in _class_hints(fn).items():
         v = arguments.get(k)
-        if k in arguments and not (v is None and none_ok) and not isinstance(v, cls):
-            raise FxspaceError(
-                f"{k} must be a {cls.__name__} (fxspace.{cls.__module__.split('.')[1]}), "
-                f"got {type(v).__name__}"
-            ) from error
+        if k not in arguments or k in skip or (v is None and none_ok) or isinstance(v, cls):
+            continue
+        raise FxspaceError(
+            f"{k} must be a {cls.__name__} (fxspace.{cls.__module__.split('.')[1]}), "
+            f"got {type(v).__name__}"
+        ) from error
 
 
 def checked(fn: Any) -> Any:
@@ -632,8 +696,9 @@ def checked(fn: Any) -> Any:
         c = _arg_checker(p.name, ann, p.default is None)
         if c is not None:
             checks[p.name] = (c, p.default)
-    if not checks:
+    if not sig.parameters:
         return fn
+    defaults = {p.name: p.default for p in sig.parameters.values()}
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -641,6 +706,10 @@ def checked(fn: Any) -> Any:
             bound = sig.bind(*args, **kwargs)
         except TypeError as e:
             raise FxspaceError(f"{fn.__name__}: {e}") from None
+        # an argument of an fxspace type (a mesh, a model …) must be one, unless left at
+        # its default; traced stand-ins are never of another type, so this is jit-safe
+        _explain_types(fn, bound.arguments, skip={
+            k for k, v in bound.arguments.items() if v is defaults.get(k)})  # fmt: skip
         for k, v in bound.arguments.items():
             c = checks.get(k)
             # the author's default is never second-guessed; traced values are checked

@@ -59,10 +59,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_docs(args: argparse.Namespace) -> int:
-    from fxspace.pipelines import write_docs
+    from fxspace.pipelines import write_bench_page, write_docs
 
     for p in write_docs(args.runs, args.out, run=args.run):
         print(f"fxspace docs: wrote {p}")
+    if (Path(args.runs) / "bench").is_dir():
+        print(f"fxspace docs: wrote {write_bench_page(args.runs, args.bench_out)}")
     return 0
 
 
@@ -204,6 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     dc = sub.add_parser("docs", help="write the reproduction pages from the shipped configs' runs")
     dc.add_argument("--runs", default="runs", help="where the configs' run folders are")
     dc.add_argument("--out", default="docs/reproductions", help="where the pages go")
+    dc.add_argument("--bench-out", default="docs/benchmarks",
+                    help="where the benchmark page goes (from RUNS/bench/*.json)")  # fmt: skip
     dc.add_argument("--run", action="store_true", help="run the missing configs first")
     dc.set_defaults(func=_cmd_docs)
 

@@ -6,7 +6,13 @@ each message names the offending argument (or file) and what to do about it.
 
 from __future__ import annotations
 
-__all__ = ["FxspaceError", "CorruptFileError", "DisconnectedGraphError", "DataNotFoundError"]
+__all__ = [
+    "FxspaceError",
+    "CorruptFileError",
+    "DisconnectedGraphError",
+    "DataNotFoundError",
+    "NotAFileError",
+]
 
 
 class FxspaceError(ValueError):
@@ -23,3 +29,7 @@ class DisconnectedGraphError(FxspaceError):
 
 class DataNotFoundError(FxspaceError, FileNotFoundError):
     """The real capture data (``FXSPACE_DATA``) or one of its files is absent."""
+
+
+class NotAFileError(FxspaceError, IsADirectoryError):
+    """A path given as a file to read is a directory (an ``IsADirectoryError`` too)."""

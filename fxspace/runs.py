@@ -69,6 +69,9 @@ __all__ = [
     "LOCK",
     "collect",
     "write_report",
+    "machine",
+    "BENCH_FIELDS",
+    "write_bench",
 ]
 
 #: Name of the manifest file: the files fxspace wrote into a run folder.
@@ -765,3 +768,60 @@ def _report_figures(
             safe = f"{m}_vs_{x}".replace("/", "-")[:120]
             files.append(save_figure_atomic(fig, out / f"{safe}.png"))
     return files
+
+
+#: The fields of one benchmark comparison (a row of `write_bench`).
+BENCH_FIELDS = ("case", "size", "ours", "ours_s", "peer", "peer_s", "ratio")
+
+
+def machine() -> dict[str, Any]:
+    """The machine a measurement ran on: host OS, CPU, core count, JAX devices, versions
+    and the date (UTC), for benchmark records."""
+    import jax
+
+    devs = jax.devices()
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "devices": f"{len(devs)} x {devs[0].platform} ({devs[0].device_kind})",
+        "python": platform.python_version(),
+        "versions": versions(),
+        "date": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
+def write_bench(
+    name: str,
+    rows: list[dict[str, Any]],
+    *,
+    title: str,
+    command: str,
+    root: str | Path | None = None,
+) -> Path:
+    """Write a benchmark's comparisons to ``root/bench/NAME.json`` (``root``: ``$FXSPACE_RUNS``
+    or ``runs``) with the machine it ran on, for the docs' benchmark page (`fxspace docs`).
+
+    Each row is one comparison, `BENCH_FIELDS`: ``case`` (a label), ``size`` (a number to
+    plot against, or ``None``), ``ours`` / ``peer`` (what was timed), ``ours_s`` /
+    ``peer_s`` (median seconds) and ``ratio`` (``peer_s / ours_s``, filled in when left out).
+    """
+    if not rows:
+        raise FxspaceError(f"write_bench({name!r}): rows is empty; pass one dict per comparison")
+    out = []
+    for i, r in enumerate(rows):
+        missing = [k for k in ("case", "ours", "ours_s", "peer", "peer_s") if k not in r]
+        if missing:
+            raise FxspaceError(
+                f"write_bench({name!r}): rows[{i}] lacks {missing}; each row needs "
+                f"{', '.join(BENCH_FIELDS)} (size and ratio may be left out)"
+            )
+        r = {k: r.get(k) for k in BENCH_FIELDS}
+        r["ours_s"], r["peer_s"] = float(r["ours_s"]), float(r["peer_s"])
+        if r["ratio"] is None:
+            r["ratio"] = r["peer_s"] / r["ours_s"] if r["ours_s"] > 0 else None
+        out.append(r)
+    root = Path(root if root is not None else os.environ.get("FXSPACE_RUNS", "runs"))
+    record = {"name": name, "title": title, "command": command, "machine": machine(),
+              "rows": out}  # fmt: skip
+    return write_json_atomic(root / "bench" / f"{name}.json", to_jsonable(record))

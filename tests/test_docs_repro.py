@@ -46,3 +46,49 @@ def test_render_is_pure_and_shows_missing_runs():
     a = render("kim-jung", snap)
     assert a == render("kim-jung", snap) and "Not run yet" in a and "| — |" in a
     assert fmt(0.123456) == "0.1235" and fmt(True) == "yes" and fmt([2, 10]) == "2 / 10"
+
+
+def _fake_rows():
+    return [
+        {"case": "100 frames", "size": 100, "ours": "f", "ours_s": 0.5, "peer": "p",
+         "peer_s": 2.0},
+        {"case": "200 frames", "size": 200, "ours": "f", "ours_s": 1.0, "peer": "p",
+         "peer_s": 3.0, "ratio": 3.0},
+    ]  # fmt: skip
+
+
+def test_benchmark_record_and_page(tmp_path):
+    """34.4: a benchmark's record holds its rows, the ratio filled in, and the machine;
+    the page draws a labelled figure and shows every number of the record."""
+    from fxspace.errors import FxspaceError
+    from fxspace.pipelines import write_bench_page
+    from fxspace.runs import BENCH_FIELDS, write_bench
+
+    p = write_bench("demo", _fake_rows(), title="Demo", command="python x.py", root=tmp_path)
+    rec = json.loads(p.read_text())
+    assert p == tmp_path / "bench" / "demo.json"
+    assert [tuple(r) for r in rec["rows"]] == [BENCH_FIELDS] * 2
+    assert rec["rows"][0]["ratio"] == 4.0 and rec["rows"][1]["ratio"] == 3.0
+    assert {"date", "cpu_count", "devices", "versions"} <= set(rec["machine"])
+    page = write_bench_page(tmp_path, tmp_path / "site")
+    text = page.read_text()
+    assert "## Demo" in text and "`python x.py`" in text and rec["machine"]["date"] in text
+    assert "**4.00×**" in text and "**3.00×**" in text and "0.5 s" in text
+    assert (tmp_path / "site" / "figures" / "demo.png").stat().st_size > 10_000
+    with pytest.raises(FxspaceError, match=r"rows\[0\] lacks \['peer_s'\]"):
+        write_bench("bad", [{"case": "a", "ours": "f", "ours_s": 1.0, "peer": "p"}],
+                    title="t", command="c", root=tmp_path)  # fmt: skip
+    with pytest.raises(FxspaceError, match="rows is empty"):
+        write_bench("bad", [], title="t", command="c", root=tmp_path)
+
+
+def test_benchmark_page_in_the_site_equals_its_records():
+    """The committed page is what `fxspace docs` renders from the committed records."""
+    from fxspace.pipelines._docs import render_bench
+
+    root = Path(__file__).resolve().parents[1] / "docs" / "benchmarks"
+    records = [json.loads(p.read_text()) for p in sorted((root / "data").glob("*.json"))]
+    assert records, "docs/benchmarks/data holds no benchmark record"
+    assert (root / "measured.md").read_text() == render_bench(records)
+    for rec in records:
+        assert (root / "figures" / f"{rec['name']}.png").is_file()

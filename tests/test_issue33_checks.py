@@ -87,10 +87,16 @@ def test_kernel_kmeans_labels_out_of_range_refused():
 
 
 def test_navigate_float_centres_refused():
+    xy = RNG.normal(size=(30, 2))
+    P = fx.pairwise_distances(jnp.asarray(xy))
+    geo = fx.geodesic_distances(fx.epsilon_graph(P, float(fx.connecting_threshold(P)) * 1.3))
+    h = fx.build_hierarchy(xy, geo, c0=4, key=jax.random.PRNGKey(0), restarts=0)
     with pytest.raises(FxspaceError, match="centres"):
-        fx.navigate(None, None, [0.9, 2.2])
+        fx.navigate(h, geo, [0.9, 2.2])
     with pytest.raises(FxspaceError, match="centres"):
-        fx.navigate(None, None, [0.0, 2.0])  # an index is never a float
+        fx.navigate(h, geo, [0.0, 2.0])  # an index is never a float
+    with pytest.raises(FxspaceError, match="h must be a Hierarchy"):
+        fx.navigate(None, geo, [0, 2])  # checked before the body, from the annotation
 
 
 def test_advance_clock_nan_and_signs():

@@ -218,3 +218,25 @@ def test_a_wrong_object_is_named_with_its_type():
         levels_of(3)
     with pytest.raises(FxspaceError, match="h must be a Hierarchy"):
         levels_of(None)
+
+
+def test_checked_types_paths_and_directories(tmp_path):
+    """Issue 33.6: an fxspace-typed argument is checked before the body, also where the
+    annotation names a class imported only for type checking; a path must be a str or a
+    Path; a directory given as a file is an fxspace error and an IsADirectoryError."""
+    import fxspace as fx
+    from fxspace.errors import FxspaceError, NotAFileError
+
+    with pytest.raises(
+        FxspaceError, match=r"mesh must be a SkinnedMesh \(fxspace.mesh\), got NoneType"
+    ):
+        fx.pose_vertices(None, None)
+    with pytest.raises(FxspaceError, match="motion must be a Motion"):
+        fx.motion.drop_root(np.zeros((3, 2)))
+    with pytest.raises(FxspaceError, match=r"path must be a path \(str or pathlib.Path\), got int"):
+        fx.io.read_bvh(3)
+    with pytest.raises(NotAFileError, match="is a directory") as e:
+        fx.io.read_bvh(tmp_path)
+    assert isinstance(e.value, IsADirectoryError)
+    with pytest.raises(FileNotFoundError, match="not found"):
+        fx.io.read_bvh(tmp_path / "absent.bvh")

@@ -63,6 +63,7 @@ class Character(NamedTuple):
     last: Float[np.ndarray, "N 3"] | None = None
 
 
+@checked
 def character(vertices, faces, marker_vertex, first=None, last=None) -> Character:
     """A validated `Character` (finite vertices, triangles and marker vertices in range,
     first/last of the mesh's shape)."""
@@ -126,6 +127,7 @@ def _nearest(P: np.ndarray, Q: np.ndarray, chunk: int = 2048) -> np.ndarray:
     return out
 
 
+@checked
 def drive_character(
     char: Character,
     scene: SceneModel,

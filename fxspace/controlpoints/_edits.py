@@ -111,6 +111,7 @@ def keyed_offsets(
     return vals[j] + h[:, None].astype(o.dtype) * (vals[j + 1] - vals[j])
 
 
+@checked
 def edit_control_keys(
     model: ControlPointModel,
     index: int,
@@ -134,6 +135,7 @@ def edit_control_keys(
     return model._replace(controls=model.controls.at[int(index)].add(off))
 
 
+@checked
 def effective_keys(keys: Sequence[EditKey]) -> dict[tuple[int, int], list[EditKey]]:
     """Per-segment keys grouped by (segment, control), the last key at each frame winning."""
     last: dict[tuple[int, int, int], EditKey] = {}
@@ -173,6 +175,7 @@ def _check_key(scene: SceneModel, k: EditKey) -> None:
     _check_offset(k.offset, f"edit key at frame {k.frame}")
 
 
+@checked
 def apply_edits(scene: SceneModel, keys: Sequence[EditKey]) -> SceneModel:
     """Replay per-segment ``keys`` (`EditKey`) on ``scene``'s control trajectories (zero at
     every segment's ends). For keys anchored on the face use `edited_vertices`."""
@@ -192,6 +195,7 @@ def apply_edits(scene: SceneModel, keys: Sequence[EditKey]) -> SceneModel:
     return scene._replace(segments=tuple(segs))
 
 
+@checked
 def control_positions(scene: SceneModel, frame: int) -> tuple[int, Float[np.ndarray, "c 3"]]:
     """``(segment, (c, 3))``: the control points (cluster-centre coordinates ``C_k(t)``) at
     scene ``frame``, in the segment holding it (a boundary frame: the segment it starts)."""
@@ -199,6 +203,7 @@ def control_positions(scene: SceneModel, frame: int) -> tuple[int, Float[np.ndar
     return s, np.asarray(scene.segments[s].controls[:, t])
 
 
+@checked
 def anchor_vertex(scene: SceneModel, segment: int, control: int, frame: int | None = None) -> int:
     """The vertex that stands for control point ``control`` of ``segment``: among the
     vertices it holds most strongly, the one nearest the control point at ``frame``
@@ -221,6 +226,7 @@ def anchor_vertex(scene: SceneModel, segment: int, control: int, frame: int | No
     return int(cand[int(np.argmin(d))])
 
 
+@checked
 def convert_keys(scene: SceneModel, keys: Sequence[EditKey | FaceKey]) -> list[FaceKey]:
     """Per-segment keys (an old ``edits.json``) as keys on the face: each ``(segment,
     control)`` becomes its `anchor_vertex`; `FaceKey`s pass through."""
@@ -238,6 +244,7 @@ def convert_keys(scene: SceneModel, keys: Sequence[EditKey | FaceKey]) -> list[F
     return out
 
 
+@checked
 def check_face_keys(scene: SceneModel, keys: Sequence[FaceKey]) -> list[FaceKey]:
     """Validate keys against ``scene`` (frame in the scene, vertex on the face, finite
     offset); returns them as `FaceKey`s."""
@@ -268,6 +275,7 @@ def _smooth_path(knots: list[int], vals: list[np.ndarray], n_frames: int) -> np.
     return out
 
 
+@checked
 def anchor_offsets(
     keys: Sequence[FaceKey], boundaries: Int[ArrayLike, " s1"]
 ) -> dict[int, np.ndarray]:
@@ -322,6 +330,7 @@ def _regions(scene: SceneModel, vertex: int) -> np.ndarray:
     return np.stack(cols)
 
 
+@checked
 def edit_displacements(
     scene: SceneModel,
     keys: Sequence[FaceKey],
@@ -346,6 +355,7 @@ def edit_displacements(
     return D
 
 
+@checked
 def edited_vertices(
     scene: SceneModel, keys: Sequence[FaceKey], blend: int = BLEND_FRAMES
 ) -> Float[np.ndarray, "T N 3"]:
@@ -355,6 +365,7 @@ def edited_vertices(
     return X + edit_displacements(scene, keys, blend=blend)
 
 
+@checked
 def edited_control_positions(
     scene: SceneModel, keys: Sequence[FaceKey], frame: int, blend: int = BLEND_FRAMES
 ) -> tuple[int, Float[np.ndarray, "c 3"]]:
@@ -371,6 +382,7 @@ def _key_dict(k: EditKey | FaceKey) -> dict:
     return {**d, "offset": [float(v) for v in k.offset]}
 
 
+@checked
 def save_edits(path: str | Path, keys: Sequence[EditKey | FaceKey], **meta) -> Path:
     """Write the keys (in order: the history) as JSON, atomically; ``meta`` is stored too.
     `FaceKey`s are written as version 2, per-segment `EditKey`s as version 1."""
@@ -385,6 +397,7 @@ def save_edits(path: str | Path, keys: Sequence[EditKey | FaceKey], **meta) -> P
     return p
 
 
+@checked
 def load_edits(path: str | Path) -> tuple[list[EditKey | FaceKey], dict]:
     """``(keys, meta)`` from `save_edits`' JSON: `FaceKey`s (version 2) or per-segment
     `EditKey`s (version 1: convert with `convert_keys`). A damaged file raises

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import optax
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from fxspace._validate import check_int, check_scalar
+from fxspace._validate import check_int, check_scalar, checked
 from fxspace.controlpoints._model import (
     ControlPointModel,
     _control_residuals,
@@ -108,6 +108,7 @@ def _run(X, interior, logits, support, steps, fit_weights, lr, smoothness, e0, s
     return params, losses
 
 
+@checked
 def refine_control_points(
     X: Float[ArrayLike, "T N 3"],
     model: ControlPointModel,

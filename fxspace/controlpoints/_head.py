@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 
 __all__ = ["HeadModel", "head_model", "head_vertices", "HEAD_COLOURS"]
@@ -243,6 +244,7 @@ def _sphere(centre: np.ndarray, r: float, n: int = 14):
     return centre + r * V, _grid_faces(n, 2 * n, -1, 0, 0, {}), V[:, 2]
 
 
+@checked
 def head_model(
     rest_markers: np.ndarray,
     names: Sequence[str] | None = None,
@@ -373,6 +375,7 @@ def _transfer(rest, m, lm: _Landmarks, lower: np.ndarray) -> np.ndarray:
     return (1.0 - lower)[:, None] * sub(lm.lower) + lower[:, None] * sub(lm.upper)
 
 
+@checked
 def head_vertices(model: HeadModel, markers: np.ndarray) -> np.ndarray:
     """``(N, 3)`` head vertices for one frame of markers ``(M, 3)``."""
     x = np.asarray(markers, np.float64)

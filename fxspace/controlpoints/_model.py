@@ -124,6 +124,7 @@ def linear_interpolation(
     return (1.0 - s) * first[None] + s * last[None]
 
 
+@checked
 def reconstruction_error(X: Float[ArrayLike, "T ..."], X_hat: Float[ArrayLike, "T ..."]) -> Array:
     """The paper's eq. (1): ``Σ_i Σ_t ‖x_i(t) − x̂_i(t)‖²`` (sum of squares over everything)."""
     X = jnp.asarray(X)
@@ -388,6 +389,7 @@ def _control_residuals(controls: Float[Array, "c T 3"]) -> Float[Array, "c T 3"]
     return controls - ((1.0 - s) * controls[:, :1] + s * controls[:, -1:])
 
 
+@checked
 @jax.jit
 def reconstruct(model: ControlPointModel) -> Float[Array, "T N 3"]:
     """Rebuild the segment: ``x̂_i(t) = L_i(t) + Σ_k w_ik R_k(t)``. O(T·N·c); one program
@@ -407,6 +409,7 @@ def temporal_window(n_frames: int, center: float, width: float) -> Float[Array, 
     return jnp.where(jnp.abs(u) < 1.0, 0.5 * (1.0 + jnp.cos(jnp.pi * u)), 0.0)
 
 
+@checked
 def edit_control_point(
     model: ControlPointModel,
     index: int | Int[Array, ""],
@@ -438,6 +441,7 @@ def edit_control_point(
     return model._replace(controls=controls)
 
 
+@checked
 def storage_size(model: ControlPointModel) -> int:
     """Numbers stored: 2·N·3 key frames + c·(T−2)·3 controls + labels or sparse weights."""
     N = int(model.first.shape[0])
@@ -448,6 +452,7 @@ def storage_size(model: ControlPointModel) -> int:
     return 2 * N * 3 + c * (T - 2) * 3 + w_store
 
 
+@checked
 def compression_ratio(model: ControlPointModel) -> float:
     """Numbers in the dense segment (T·N·3) over the numbers the model stores."""
     N = int(model.first.shape[0])

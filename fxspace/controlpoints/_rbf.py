@@ -68,6 +68,7 @@ def _check_distinct(S, name: str) -> None:
         )
 
 
+@checked
 def rbf_transfer_matrix(
     targets: Float[ArrayLike, "N D"],
     sources: Float[ArrayLike, "M D"],
@@ -172,6 +173,7 @@ def _inside_dilated(hull: np.ndarray, q: np.ndarray, margin: float) -> np.ndarra
     return np.all(signed <= margin, axis=1)
 
 
+@checked
 def face_surface(
     neutral_markers: Float[ArrayLike, "M 3"],
     n_vertices: int = 6000,

@@ -241,12 +241,14 @@ def _stitch(parts: list[Array]) -> Array:
     return jnp.concatenate([parts[0]] + [p[1:] for p in parts[1:]], axis=0)
 
 
+@checked
 def reconstruct_scene(scene: SceneModel) -> Float[Array, "T N 3"]:
     """The stitched sequence: every segment's `fxspace.reconstruct`, each shared
     boundary frame once. O(T·N·c)."""
     return _stitch([reconstruct(m) for m in scene.segments])
 
 
+@checked
 def linear_scene(X: Float[ArrayLike, "T N 3"], boundaries: Int[ArrayLike, " s1"]) -> Array:
     """The baseline: linear interpolation between the key frames ``X[boundaries]``."""
     Xn = np.asarray(X)  # on the host: no program per segment length
@@ -261,6 +263,7 @@ def _linear_np(first: np.ndarray, last: np.ndarray, n: int) -> np.ndarray:
     return (1.0 - s) * first[None] + s * last[None]
 
 
+@checked
 def scene_errors(X: Float[ArrayLike, "T N 3"], scene: SceneModel) -> SceneErrors:
     """Eq. (1) of linear interpolation and of the model, per segment and for the scene."""
     X = jnp.asarray(X)
@@ -281,6 +284,7 @@ def scene_errors(X: Float[ArrayLike, "T N 3"], scene: SceneModel) -> SceneErrors
     return SceneErrors(lin_a, mod_a, ratio, ls, ms, ms / ls if ls > 0 else 0.0)
 
 
+@checked
 def scene_storage_size(scene: SceneModel) -> int:
     """Numbers stored for the scene: shared key frames once, plus each segment's controls
     and labels/weights (see `fxspace.storage_size`)."""
@@ -289,6 +293,7 @@ def scene_storage_size(scene: SceneModel) -> int:
     return (len(scene.boundaries)) * N * 3 + per
 
 
+@checked
 def scene_compression_ratio(scene: SceneModel) -> float:
     """Numbers in the dense scene (T·N·3) over `scene_storage_size`."""
     return scene.n_frames * scene.n_vertices * 3 / scene_storage_size(scene)
@@ -305,6 +310,7 @@ def segment_of_frame(boundaries: Int[ArrayLike, " s1"], frame: int) -> tuple[int
     return s, f - int(b[s])
 
 
+@checked
 def scene_to_arrays(scene: SceneModel) -> dict[str, np.ndarray]:
     """Flat arrays of a scene (for ``np.savez``); inverse `scene_from_arrays`."""
     out: dict[str, np.ndarray] = {"boundaries": np.asarray(scene.boundaries, np.int64)}

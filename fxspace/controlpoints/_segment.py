@@ -117,6 +117,7 @@ def _refit_rss(Z: np.ndarray, cps: np.ndarray) -> float:
     )
 
 
+@checked
 def choose_count(
     Z: np.ndarray, picks: list[np.ndarray], criterion: str = "bic"
 ) -> tuple[int, dict]:

@@ -507,6 +507,7 @@ def next_hops(
     return jnp.where(eye, j[:, None], nxt)
 
 
+@checked
 def geodesic_distances(
     graph: Float[Array, "n n"],
     method: FloydMethod = "auto",
@@ -537,6 +538,7 @@ def geodesic_distances(
     return Geodesics(D, nxt)
 
 
+@checked
 def shortest_path(geo: Geodesics, i: int, j: int) -> np.ndarray:
     """Frames of a shortest path from ``i`` to ``j`` inclusive (host-side walk of next hops)."""
     nxt = np.asarray(geo.next_hop)

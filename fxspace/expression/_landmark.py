@@ -239,6 +239,7 @@ def landmark_basis(landmark_distances: Float[Array, "L L"], dim: int = 2) -> Lan
     return LandmarkBasis((V * inv[None, :]).T, jnp.mean(DL * DL, axis=0), lam)
 
 
+@checked
 def place_frames(basis: LandmarkBasis, distances: Float[Array, "... L"]) -> Float[Array, "... dim"]:
     """Out-of-sample placement: ``x_a = −½ L_k^# (δ_a − δ_μ)`` from geodesics to landmarks.
 
@@ -252,6 +253,7 @@ def place_frames(basis: LandmarkBasis, distances: Float[Array, "... L"]) -> Floa
     return -0.5 * (d * d - mean_sq) @ basis.pinv.T
 
 
+@checked
 def landmark_mds(geodesics: LandmarkGeodesics, dim: int = 2) -> MDSResult:
     """Landmark MDS of every frame (de Silva & Tenenbaum 2004), O(T·L·dim + L³).
 
@@ -290,6 +292,7 @@ def _landmark_mds(D: Array, lm: Array, dim: int) -> MDSResult:
     return MDSResult(X, basis.eigenvalues, jnp.zeros((), jnp.int32), result)
 
 
+@checked
 @jax.jit
 def landmark_score(geodesics: LandmarkGeodesics, embedding: Float[Array, "n dim"]) -> Array:
     """Pearson r between landmark-to-frame geodesics and embedded distances (O(T·L)).

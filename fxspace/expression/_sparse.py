@@ -97,6 +97,7 @@ def graph_from_dense(graph: Float[Array, "n n"]) -> NeighbourGraph:
     return _pack(r, c, W[r, c], len(W), W.dtype)
 
 
+@checked
 def to_scipy(graph: NeighbourGraph):
     """The graph as a ``scipy.sparse.csr_matrix`` (for ``scipy.sparse.csgraph``)."""
     from scipy.sparse import csr_matrix
@@ -109,6 +110,7 @@ def to_scipy(graph: NeighbourGraph):
     return csr_matrix((w[ok], (rows, idx[ok])), shape=(n, n))
 
 
+@checked
 def dijkstra_csr(graph: NeighbourGraph):
     """``(csr, directed)`` for ``scipy.sparse.csgraph.dijkstra`` on this graph, fastest form.
 
@@ -257,6 +259,7 @@ def neighbourhood_graph(
     return _pack(rows, cand.reshape(-1), dist.reshape(-1), n, F.dtype)
 
 
+@checked
 def sparse_components(graph: NeighbourGraph) -> tuple[int, np.ndarray]:
     """``(n_components, labels)`` of a `NeighbourGraph` (host, O(T·K))."""
     from scipy.sparse.csgraph import connected_components as cc
@@ -265,6 +268,7 @@ def sparse_components(graph: NeighbourGraph) -> tuple[int, np.ndarray]:
     return int(n_comp), labels
 
 
+@checked
 def check_sparse_connected(graph: NeighbourGraph) -> None:
     """Raise `DisconnectedGraphError` naming the components and the fix."""
     n_comp, labels = sparse_components(graph)
@@ -278,6 +282,7 @@ def check_sparse_connected(graph: NeighbourGraph) -> None:
     )
 
 
+@checked
 def sparse_shortest_path(graph: NeighbourGraph, i: int, j: int) -> np.ndarray:
     """Frames of a shortest path from ``i`` to ``j`` inclusive on a `NeighbourGraph`.
 

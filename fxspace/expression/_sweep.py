@@ -22,6 +22,7 @@ from fxspace._validate import (
     check_distance_matrix,
     check_int,
     check_scalar,
+    checked,
 )
 from fxspace.errors import FxspaceError
 from fxspace.expression._geodesic import (
@@ -315,6 +316,7 @@ def choose_threshold(
     }
 
 
+@checked
 def sweep_message(sweep: SweepResult, pairwise: Array | None = None) -> str:
     """Human-readable note on the disconnected thresholds of a sweep."""
     conn = np.asarray(sweep.connected)

@@ -27,7 +27,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._validate import check_scalar
+from fxspace._validate import check_scalar, checked
 from fxspace.errors import CorruptFileError
 from fxspace.io._bvh import _open_text
 from fxspace.motion import Motion
@@ -117,6 +117,7 @@ def _bonedata_line(sk: AsfSkeleton, bone: dict | None, in_limits: bool, key: str
     return bone, in_limits
 
 
+@checked
 def read_asf(path: str | Path) -> AsfSkeleton:
     """Parse an ASF skeleton file (errors name the line)."""
     path = Path(path)
@@ -230,6 +231,7 @@ def _read_amc_frames(sk, asf_path, amc_path) -> list[dict[str, list[float]]]:
     return frames
 
 
+@checked
 def read_amc(asf_path: str | Path, amc_path: str | Path, rate: float = 120.0) -> Motion:
     """Read a CMU ASF skeleton and an AMC motion (``.amc`` or ``.amc.gz``) into a `Motion`.
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._validate import check_readable, check_scalar
+from fxspace._validate import check_readable, check_scalar, checked
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.motion import Motion
 from fxspace.rotations import euler_to_quat, quat_rotate, quat_to_euler
@@ -71,6 +71,7 @@ class _Tokens:
             raise self.error(f"expected a number for {what}, found {t!r}", n) from None
 
 
+@checked
 def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     """Read a ``.bvh`` (or ``.bvh.gz``) file into a `Motion`.
 
@@ -259,6 +260,7 @@ def _fmt(x: float) -> str:
     return "0.000000" if s == "-0.000000" else s
 
 
+@checked
 def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
     """Write ``motion`` as BVH, each joint's Euler angles in the order of its ``channels``.
 

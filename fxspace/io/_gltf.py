@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fxspace._validate import check_readable
+from fxspace._validate import check_readable, checked
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.mesh import Animation, AnimationChannel, LocalPose, SkinnedMesh
 from fxspace.rotations import matrix_to_quat, quat_normalize, quat_to_matrix
@@ -178,6 +178,7 @@ def _select_skinned_node(g, path: Path, mesh: str | int | None) -> int:
     raise FxspaceError(f"{path}: no skinned mesh node {mesh!r}; candidates: {cands}")
 
 
+@checked
 def read_gltf(path: str | Path, mesh: str | int | None = None) -> SkinnedMesh:
     """Read a skinned mesh, its skeleton and its animations from a ``.glb``/``.gltf`` file.
 

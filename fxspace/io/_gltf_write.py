@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 from fxspace.mesh import LocalPose
 from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
@@ -195,6 +196,7 @@ def _check_times(times, rate, n: int) -> np.ndarray:
 # ----------------------------------------------------------------------------- IK poses
 
 
+@checked
 def ik_poses_to_local(mesh: SkinnedMesh, angles, translation) -> LocalPose:
     """Local joint transforms of IK poses (`fxspace.Pose` fields) of ``mesh``.
 
@@ -293,6 +295,7 @@ def _continuous(q: np.ndarray) -> np.ndarray:
     return q * sign[..., None]
 
 
+@checked
 def write_gltf(
     path: str | Path,
     mesh: SkinnedMesh,
@@ -449,6 +452,7 @@ def _encode(gltf: dict, buf: _Buffer, suffix: str) -> bytes:
     return blob
 
 
+@checked
 def write_ik_gltf(
     path: str | Path,
     mesh: SkinnedMesh,

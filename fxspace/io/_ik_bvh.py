@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 from fxspace.motion import Motion
 from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
@@ -31,6 +32,7 @@ __all__ = ["ik_poses_to_motion", "write_ik_bvh"]
 _ROT = ("Xrotation", "Yrotation", "Zrotation")
 
 
+@checked
 def ik_poses_to_motion(
     mesh: SkinnedMesh, angles: np.ndarray, translation: np.ndarray, rate: float = 30.0
 ) -> Motion:
@@ -78,6 +80,7 @@ def ik_poses_to_motion(
     )
 
 
+@checked
 def write_ik_bvh(
     path: str | Path,
     mesh: SkinnedMesh,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fxspace._validate import check_readable
+from fxspace._validate import check_readable, checked
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.io._c3d import _read_c3d
 from fxspace.io._trc import _read_trc
@@ -91,6 +91,7 @@ def _format_of(path: Path) -> str:
     )
 
 
+@checked
 def read_markers(path: str | Path) -> MarkerSequence:
     """Read a marker file: ``.c3d``, ``.trc``, ``.trc.gz`` or ``.npz`` → `MarkerSequence`.
 

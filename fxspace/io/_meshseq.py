@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fxspace._validate import checked
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.io._obj import read_obj_mesh
 from fxspace.runs import write_bytes_atomic
@@ -48,6 +49,7 @@ def _check(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
+@checked
 def write_obj_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame") -> list[Path]:
     """``stem_0000.obj`` … one Wavefront OBJ per frame (1-based face indices)."""
     V, F = _check(vertices, faces)
@@ -63,6 +65,7 @@ def write_obj_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame"
     return paths
 
 
+@checked
 def write_ply_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame") -> list[Path]:
     """``stem_0000.ply`` … one binary little-endian PLY per frame."""
     V, F = _check(vertices, faces)
@@ -84,6 +87,7 @@ def write_ply_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame"
     return paths
 
 
+@checked
 def write_gltf_morph(
     path: str | Path, vertices, faces, fps: float = 30.0, name: str = "edited"
 ) -> Path:
@@ -98,6 +102,7 @@ def write_gltf_morph(
     )
 
 
+@checked
 def write_gltf_blendshapes(
     path: str | Path,
     neutral,
@@ -230,6 +235,7 @@ def _first_primitive(path: str | Path):
     return p, gltf, binary, gmesh, base, F, prim.get("targets") or []
 
 
+@checked
 def read_gltf_blendshapes(path: str | Path) -> BlendShapes:
     """The first mesh primitive of a ``.glb`` with its morph targets as blend shapes
     (see `BlendShapes`). A damaged file raises `CorruptFileError` naming it."""
@@ -297,6 +303,7 @@ def _accessor(gltf: dict, binary: bytes, i: int, p: Path) -> np.ndarray:
     return a.reshape(acc["count"], width) if width > 1 else a
 
 
+@checked
 def read_gltf_morph(path: str | Path) -> MorphAnimation:
     """Read a .glb written by `write_gltf_morph` (or any .glb whose first mesh primitive
     has positions, triangle indices and optionally one morph target per frame): frame
@@ -313,6 +320,7 @@ def read_gltf_morph(path: str | Path) -> MorphAnimation:
     return MorphAnimation(V, F, fps, name)
 
 
+@checked
 def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """``(vertices (N, 3), faces (F, 3))`` of a static OBJ mesh (``.obj`` or ``.obj.gz``);
     polygons are fanned into triangles (`fxspace.io.read_obj_mesh` keeps the texture

@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fxspace._validate import checked
 from fxspace.errors import CorruptFileError, FxspaceError
 
 __all__ = ["ObjMesh", "read_obj_mesh", "read_obj_vertices"]
@@ -93,6 +94,7 @@ def _numbers(regex: re.Pattern, data: bytes, width: int, p: Path, what: str) -> 
     raise CorruptFileError(f"{p}: malformed {what} lines")  # pragma: no cover
 
 
+@checked
 def read_obj_vertices(path: str | Path) -> np.ndarray:
     """The ``(N, 3)`` vertex positions of an OBJ file (``.obj`` or ``.obj.gz``)."""
     p, data = _bytes(path)
@@ -113,6 +115,7 @@ def _corners(tokens: list[bytes], n: int, p: Path, slot: int) -> list[int]:
     return out
 
 
+@checked
 def read_obj_mesh(path: str | Path) -> ObjMesh:
     """Positions, triangles and texture coordinates of an OBJ file (``.obj`` or
     ``.obj.gz``); polygons are fanned into triangles (a quad ``a b c d`` gives ``a b c``

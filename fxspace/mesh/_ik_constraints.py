@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from fxspace._validate import check_choice, check_scalar
+from fxspace._validate import check_choice, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.mesh._ik_gradients import (
     gradient_factored_from_forward,
@@ -138,6 +138,7 @@ def _indices(model: IKModel, indices, what: str) -> np.ndarray:
     return idx.astype(np.int64)
 
 
+@checked
 def normal_constraint(
     mesh: SkinnedMesh,
     markers: MarkerSet,
@@ -165,6 +166,7 @@ def normal_constraint(
     return NormalConstraint(corners, jnp.asarray(idx, jnp.int32), jnp.asarray(w, dt))
 
 
+@checked
 def plane_contact(
     model: IKModel, indices, normal=(0.0, 1.0, 0.0), offset: float = 0.0, weight: float = 100.0
 ) -> PlaneContact:
@@ -191,6 +193,7 @@ def plane_contact(
     )
 
 
+@checked
 def joint_limits(model: IKModel, limit=np.pi / 2, weight: float = 1.0) -> JointLimits:
     """Joint limits: a symmetric bound (radians) for every Euler angle, or ``(lower,
     upper)`` arrays broadcastable to ``(J, 3)``; `weight` ``w_l`` (> 0)."""
@@ -207,6 +210,7 @@ def joint_limits(model: IKModel, limit=np.pi / 2, weight: float = 1.0) -> JointL
     return JointLimits(a(lo), a(hi), a(w))
 
 
+@checked
 def joint_prior(
     model: IKModel, weight: float, to: Literal["rest", "previous"] = "rest"
 ) -> JointPrior:
@@ -217,6 +221,7 @@ def joint_prior(
     return JointPrior(a(w), a(1.0 if to == "previous" else 0.0))
 
 
+@checked
 def ik_constraints(
     model: IKModel,
     *,
@@ -253,6 +258,7 @@ def ik_constraints(
 # ------------------------------------------------------------------------------ residuals
 
 
+@checked
 def marker_normals(corners: IKModel, pose: Pose) -> Float[Array, "markers 3"]:
     """Unit normals of the markers' posed triangles (corners from the corner model)."""
     c = ik_forward(corners, pose).markers
@@ -286,6 +292,7 @@ def _contact_residual(ct: PlaneContact, markers: Array) -> Array:
     return jnp.sum(ct.normals * markers, axis=-1) - ct.offsets
 
 
+@checked
 def constraint_residuals(
     model: IKModel,
     cons: IKConstraints,
@@ -317,6 +324,7 @@ def _flat(pose: Pose) -> Array:
     return jnp.concatenate([pose.angles.reshape(-1), pose.translation])
 
 
+@checked
 def constrained_value_and_gradient(
     gradient: str,
     model: IKModel,
@@ -358,6 +366,7 @@ def constrained_value_and_gradient(
     return val, g
 
 
+@checked
 def constrained_normal_equations(
     model: IKModel,
     cons: IKConstraints,

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import checked
 from fxspace.mesh._ik_model import IKForward, IKModel, ik_forward, ik_frames, ik_objective
 from fxspace.mesh._skinning import Pose
 
@@ -77,6 +78,7 @@ def _pad(x: Array) -> Array:
     return jnp.concatenate([x, jnp.zeros((1,) + x.shape[1:], x.dtype)], axis=0)
 
 
+@checked
 def gradient_naive_from_forward(
     model: IKModel, fw: IKForward, delta: Float[Array, "markers 3"]
 ) -> Pose:
@@ -99,6 +101,7 @@ def gradient_naive_from_forward(
     return Pose(g[:nj], 2.0 * delta.sum(axis=0))
 
 
+@checked
 def gradient_factored_from_forward(
     model: IKModel, fw: IKForward, delta: Float[Array, "markers 3"]
 ) -> Pose:
@@ -123,23 +126,27 @@ def gradient_factored_from_forward(
     return Pose(2.0 * jnp.sum(fw.axes * tau[:, None, :], axis=-1), 2.0 * sm[4 * nj])
 
 
+@checked
 def ik_gradient_naive(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
     """``∇E`` in the naive three-loop form (eq. (9)); same pytree as ``pose``."""
     fw = ik_forward(model, pose)
     return gradient_naive_from_forward(model, fw, fw.markers - targets)
 
 
+@checked
 def ik_gradient_factored(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
     """``∇E`` in the factored two-loop form (eq. (13)); same pytree as ``pose``."""
     fw = ik_forward(model, pose)
     return gradient_factored_from_forward(model, fw, fw.markers - targets)
 
 
+@checked
 def ik_gradient_autodiff(model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]) -> Pose:
     """``∇E`` by ``jax.grad`` of `ik_objective` (reverse mode through the forward pass)."""
     return jax.grad(ik_objective, argnums=1)(model, pose, targets)
 
 
+@checked
 def value_and_gradient(
     gradient: Gradient, model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]
 ) -> tuple[Float[Array, ""], Pose]:
@@ -159,6 +166,7 @@ def value_and_gradient(
     return jnp.sum(delta * delta), kernel(model, fw, delta)
 
 
+@checked
 def ik_jacobian(
     model: IKModel, pose: Pose
 ) -> tuple[Float[Array, "markers 3"], Float[Array, "markers 3 joints 3"]]:
@@ -186,6 +194,7 @@ def lever_arms(model: IKModel, fw: IKForward) -> Float[Array, "markers joints 3"
     return qa - subtree[..., None] * fw.origins[None]
 
 
+@checked
 def ik_normal_equations(
     model: IKModel,
     pose: Pose,

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 from fxspace.mesh._markers import MarkerSet, marker_influences
 from fxspace.mesh._skinning import Pose, ancestor_table, chain_bases
@@ -188,6 +189,7 @@ def _hop_tables(anc: np.ndarray) -> np.ndarray:
     )
 
 
+@checked
 def ik_model(mesh: SkinnedMesh, markers: MarkerSet, dtype=None) -> IKModel:
     """Precompute the `IKModel` of ``mesh`` with ``markers`` (host-side, once).
 
@@ -308,6 +310,7 @@ def ik_frames(model: IKModel, angles: Float[Array, "joints 3"]) -> tuple[Array, 
     return g, axes
 
 
+@checked
 def ik_forward(model: IKModel, pose: Pose) -> IKForward:
     """Forward kinematics + marker skinning at ``pose`` (shared by all gradient forms).
 
@@ -341,11 +344,13 @@ def ik_forward(model: IKModel, pose: Pose) -> IKForward:
     return IKForward(o, axes, lin, q, q.sum(axis=1))
 
 
+@checked
 def ik_markers(model: IKModel, pose: Pose) -> Float[Array, "markers 3"]:
     """Marker positions ``p_k(θ)``."""
     return ik_forward(model, pose).markers
 
 
+@checked
 def ik_residuals(
     model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]
 ) -> Float[Array, "markers 3"]:
@@ -353,6 +358,7 @@ def ik_residuals(
     return ik_markers(model, pose) - targets
 
 
+@checked
 def ik_objective(
     model: IKModel, pose: Pose, targets: Float[Array, "markers 3"]
 ) -> Float[Array, ""]:

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 from fxspace.mesh._ik_constraints import (
     IKConstraints,
@@ -80,6 +81,7 @@ class IKRegularization(NamedTuple):
     corners: IKModel | None  # the markers' triangle corners (3K "markers"), for the normals
 
 
+@checked
 def ik_regularization(
     model: IKModel,
     *,
@@ -174,6 +176,7 @@ def regularization_value_and_gradient(
     return val, grad, hdiag
 
 
+@checked
 def constraints_from_regularization(reg: IKRegularization) -> IKConstraints:
     """The same terms as `IKConstraints` (the objective is identical): the prior and the
     limits as residual blocks, the normal term on every marker."""

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from fxspace._validate import _is_tracer, as_float_array, check_indices, check_int
+from fxspace._validate import _is_tracer, as_float_array, check_indices, check_int, checked
 from fxspace.errors import FxspaceError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -152,6 +152,7 @@ def place_markers(
     return MarkerSet(jnp.asarray(tri.astype(np.int32)), jnp.asarray(bary))
 
 
+@checked
 def marker_positions(
     vertices: Float[Array, "*b verts 3"], faces: Int[Array, "faces 3"], markers: MarkerSet
 ) -> Float[Array, "*b markers 3"]:
@@ -161,6 +162,7 @@ def marker_positions(
     return jnp.einsum("...kmc,km->...kc", corners, markers.barycentric)
 
 
+@checked
 def marker_influences(mesh: SkinnedMesh, markers: MarkerSet) -> MarkerInfluences:
     """Per-marker joint weights ``W_kj`` and bind-local offsets ``u_kj`` (see module docstring).
 

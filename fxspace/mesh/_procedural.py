@@ -26,7 +26,7 @@ import dataclasses
 
 import numpy as np
 
-from fxspace._validate import check_int, check_scalar
+from fxspace._validate import check_int, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.mesh._types import Animation, AnimationChannel, SkinnedMesh
 
@@ -85,6 +85,7 @@ def _centroids(v: np.ndarray, w: np.ndarray, f: np.ndarray, n: int):
     return v2, w2, f2
 
 
+@checked
 def subdivide_mesh(
     mesh: SkinnedMesh,
     num_vertices: int | None = None,

@@ -205,6 +205,7 @@ class SkinTables(NamedTuple):
     base: Float[Array, "joints 4 4"]
 
 
+@checked
 def skin_tables(mesh: SkinnedMesh) -> SkinTables:
     """The `SkinTables` of ``mesh`` (host side, numpy; cheap: one pass over the joints)."""
     anc = ancestor_table(mesh.parents)
@@ -226,6 +227,7 @@ def _skin_trs(mesh: SkinnedMesh, tables: SkinTables, t, q, s):
     return jax.vmap(one)(t, q, s)
 
 
+@checked
 def skin_local_pose(
     mesh: SkinnedMesh, pose: LocalPose, tables: SkinTables | None = None
 ) -> Float[Array, "*b verts 3"]:
@@ -251,6 +253,7 @@ def skin_local_pose(
     return out.reshape(batch + out.shape[1:])
 
 
+@checked
 def animation_vertices(
     mesh: SkinnedMesh, animation: str | int, times: np.ndarray | float
 ) -> np.ndarray:
@@ -267,11 +270,13 @@ def animation_vertices(
     return np.asarray(skin_local_pose(mesh, pose), dtype=np.float64)
 
 
+@checked
 def rest_vertices(mesh: SkinnedMesh) -> np.ndarray:
     """Vertices skinned at the rest pose (equal to the bind pose for consistent files)."""
     return np.asarray(skin_local_pose(mesh, mesh.rest_pose()), dtype=np.float64)
 
 
+@checked
 def rest_pose(num_joints: int | SkinnedMesh, dtype=None) -> Pose:
     """The zero `Pose` (rest rotations, no translation)."""
     if isinstance(num_joints, int | np.integer) and not isinstance(num_joints, bool):
@@ -298,6 +303,7 @@ def _pose_vertices(mesh: SkinnedMesh, tables: SkinTables, angles, translation):
     return _lbs(mesh, tables, local) + translation[None, :]
 
 
+@checked
 def pose_vertices(
     mesh: SkinnedMesh, pose: Pose, tables: SkinTables | None = None
 ) -> Float[Array, "verts 3"]:
@@ -307,6 +313,7 @@ def pose_vertices(
     return _pose_vertices(mesh, tables, pose.angles, pose.translation)
 
 
+@checked
 def pose_from_local(mesh: SkinnedMesh, pose: LocalPose) -> Pose:
     """The IK `Pose` closest to local transforms ``pose`` (leading axes kept).
 

@@ -131,6 +131,7 @@ def blend_quaternions(q: Float[Array, "E ... 4"], w: Float[Array, " E"]) -> Floa
     return quat_normalize(jnp.sum(wb * sign * q, axis=0))
 
 
+@checked
 def pose_at(
     ex: ExampleSet, times: Float[Array, " E"]
 ) -> tuple[Float[Array, "E J 4"], Float[Array, "E 3"]]:
@@ -158,6 +159,7 @@ def warp_times(warps: Float[Array, "E N"], u: Float[Array, ""]) -> Float[Array, 
     return warps[:, i0] * (1 - s) + warps[:, i1] * s
 
 
+@checked
 def blend_pose(
     ex: ExampleSet, w: Float[Array, " E"], u: Float[Array, ""]
 ) -> tuple[Float[Array, "J 4"], Float[Array, " 3"]]:

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace._validate import as_float_array
+from fxspace._validate import as_float_array, checked
 from fxspace.errors import FxspaceError
 from fxspace.rotations import _xp, quat_to_matrix
+
+if TYPE_CHECKING:
+    from fxspace.motion._types import Motion
 
 __all__ = ["forward_kinematics", "fk_arrays"]
 
@@ -80,7 +85,8 @@ def fk_arrays(
     return p, R
 
 
-def forward_kinematics(motion) -> Float[Array, "frames joints 3"]:
+@checked
+def forward_kinematics(motion: Motion) -> Float[Array, "frames joints 3"]:
     """World joint positions ``(T, J, 3)`` in metres of a `Motion`.
 
     Pure and jittable (``jax.jit(forward_kinematics)(mot)``: the skeleton is static);

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from fxspace._validate import _is_tracer, as_float_array
+from fxspace._validate import _is_tracer, as_float_array, checked
 from fxspace.errors import FxspaceError
 from fxspace.rotations import quat_to_matrix
 
@@ -95,6 +95,7 @@ def absolute_rotation(
     return quat_to_matrix(vecs[:, -1])
 
 
+@checked
 def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """``R x + t`` for points ``x`` (any leading shape)."""
     x = jnp.asarray(x)

@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from fxspace._compile_cache import cached_executable
-from fxspace._validate import check_scalar
+from fxspace._validate import check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.motion._blend import blend_pose, blend_quaternions, pose_at, warp_times
 from fxspace.motion._fk import fk_arrays
@@ -79,6 +79,7 @@ class LocomotionState(NamedTuple):
     upper_weights: Float[Array, " EU"] | None = None
 
 
+@checked
 def heading_angle(q: Float[Array, "... 4"]) -> Float[Array, ...]:
     """Yaw (radians about +Y, 0 = facing +Z, positive = turning left) of a root orientation."""
     q = jnp.asarray(q)
@@ -135,6 +136,7 @@ def _move(position, yaw, d, dy):
     return position + quat_rotate(_yaw_quat(yaw), d), yaw + dy
 
 
+@checked
 def init_locomotion(
     sp: SynthesisSpaces, lower_param: Float[Array, " d"], position=None, yaw=0.0
 ) -> LocomotionState:
@@ -207,6 +209,7 @@ def _locomotion_step(sp, state, upper_param, lower_param, alpha, dt):
     return new, pose
 
 
+@checked
 def locomotion_step(
     sp: SynthesisSpaces,
     state: LocomotionState,
@@ -234,6 +237,7 @@ def locomotion_step(
     return _locomotion_step(sp, state, upper_param, lower_param, alpha, dt)
 
 
+@checked
 def locomotion_stepper(
     sp: SynthesisSpaces,
     state: LocomotionState,
@@ -267,6 +271,7 @@ def locomotion_stepper(
     return step
 
 
+@checked
 @jax.jit
 def locomotion(
     sp: SynthesisSpaces,
@@ -322,6 +327,7 @@ def _turn_rates(sp, rate):
     return jax.vmap(one)(sp.lower_weights)
 
 
+@checked
 def turn_table(sp: SynthesisSpaces, rate: float, n_grid: int = 101) -> TurnTable:
     """Steering for a walk set-up: the turning rate of every lower sample (heading change
     over the reference cycle, °/s), and a smooth curve (Gaussian kernel regression over the
@@ -340,6 +346,7 @@ def turn_table(sp: SynthesisSpaces, rate: float, n_grid: int = 101) -> TurnTable
     return TurnTable(grid, params, low, high)
 
 
+@checked
 def turn_to_lower_param(table: TurnTable, turn) -> Float[Array, " d"]:
     """The lower parameter for a turning rate (°/s, clamped to the table's range);
     jittable (linear interpolation in the table)."""
@@ -349,6 +356,7 @@ def turn_to_lower_param(table: TurnTable, turn) -> Float[Array, " d"]:
     return jax.vmap(lambda col: jnp.interp(t, g, col), in_axes=1)(P)
 
 
+@checked
 def world_positions(parents, offsets, poses: Pose) -> np.ndarray:
     """World joint positions ``(F, J, 3)`` of stacked world poses."""
     X = fk_arrays(parents, np.asarray(offsets), np.asarray(poses.root), np.asarray(poses.rotations))

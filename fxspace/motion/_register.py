@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -28,6 +28,9 @@ from fxspace.results import (
 )
 from fxspace.rotations import quat_conj, quat_mul, quat_rotate
 
+if TYPE_CHECKING:
+    from fxspace.motion._types import Motion
+
 __all__ = [
     "pose_features",
     "register_dtw",
@@ -40,7 +43,8 @@ __all__ = [
 ]
 
 
-def pose_features(motion, joints: tuple[int, ...]) -> Float[Array, "T d"]:
+@checked
+def pose_features(motion: Motion, joints: tuple[int, ...]) -> Float[Array, "T d"]:
     """Per-frame features for DTW: joints ``joints`` relative to the root, expressed in the
     root's heading frame (yaw only), flattened — invariant to where the clip is on the
     ground and where it faces."""
@@ -107,6 +111,7 @@ class RegistrationResult(NamedTuple):
         return is_successful(self.result)
 
 
+@checked
 def register_examples(
     features: list, smooth: int = 5, cyclic: bool = False, *, throw: bool = False
 ) -> RegistrationResult:
@@ -124,6 +129,7 @@ def register_examples(
     return check_result(result, throw, "register_dtw", out)
 
 
+@checked
 def register_dtw(
     features: list, smooth: int = 5, cyclic: bool = False, *, throw: bool = False
 ) -> Float[Array, "E N"]:
@@ -149,6 +155,7 @@ def _register(ref, F, lens, n_ref: int):
     return _Registered(warps, res.result, res.num_steps, res.stats)
 
 
+@checked
 def alignment_curve(
     lower_features: Float[Array, "N d"],
     upper_features: Float[Array, "M d"],
@@ -162,7 +169,8 @@ def alignment_curve(
     return smooth_warp(w, smooth, cyclic=cyclic)
 
 
-def drop_root(motion):
+@checked
+def drop_root(motion: Motion):
     """Remove a root joint that only carries its single child (e.g. the Bandai Namco BVH's
     ``joint_Root``): the child becomes the root, with the old root's rotation composed into
     its own and its world position as the root translation. Forward kinematics is unchanged
@@ -186,7 +194,8 @@ def drop_root(motion):
     )
 
 
-def gait_window(motion, foot: str, n_cycles: int = 2, skip: int = 1, shift: int = 0):
+@checked
+def gait_window(motion: Motion, foot: str, n_cycles: int = 2, skip: int = 1, shift: int = 0):
     """The frames of ``n_cycles`` full gait cycles, from one touch-down of ``foot`` to the
     ``n_cycles``-th next one, after skipping the first ``skip`` touch-downs (the start of a
     walk). Touch-downs are local minima of the foot's height that lie within 3 cm of the

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._validate import as_float_array, check_scalar
+from fxspace._validate import as_float_array, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.motion._locomotion import (
     TurnTable,
@@ -92,6 +92,7 @@ def session_controls(setup, table: TurnTable | None = None) -> dict[str, tuple[f
     return out
 
 
+@checked
 def control_defaults(setup, controls: dict) -> dict[str, float]:
     """Start values: α ½, no turning, joy ½, the hand/foot at the middle of their range."""
     d = {k: 0.5 * (lo + hi) for k, (lo, hi) in controls.items()}
@@ -101,6 +102,7 @@ def control_defaults(setup, controls: dict) -> dict[str, float]:
     return d
 
 
+@checked
 def smooth_controls(current: np.ndarray, target: np.ndarray, dt_s: float, tau_s: float):
     """One step of a first-order lag: ``c ← c + (target − c)(1 − e^{−dt/τ})``."""
     current = as_float_array(current, "current", min_frames=0, xp="numpy").astype(np.float64)
@@ -116,6 +118,7 @@ def smooth_controls(current: np.ndarray, target: np.ndarray, dt_s: float, tau_s:
     return current + (target - current) * (1.0 - np.exp(-dt_s / tau_s))
 
 
+@checked
 def controls_to_params(setup, names: list[str], values: np.ndarray, table: TurnTable | None):
     """``(F, n)`` control values (columns ``names``) → ``(upper (F, p), lower (F, d),
     alpha (F,))`` parameter arrays for `locomotion`."""

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace._validate import as_float_array, check_int, check_scalar
+from fxspace._validate import as_float_array, check_int, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.motion._blend import ExampleSet
+
+if TYPE_CHECKING:
+    from fxspace.motion._types import Motion
 
 __all__ = ["stack_examples", "find_key_times", "extract_window"]
 
 
+@checked
 def stack_examples(rotations: list, roots: list, warps: Float[Array, "E N"]) -> ExampleSet:
     """Pad clips of different lengths (repeating the last frame) into an `ExampleSet`."""
     if len(rotations) != len(roots) or len(rotations) != warps.shape[0]:
@@ -63,7 +69,8 @@ def find_key_times(
     return sorted(keys)
 
 
-def extract_window(motion, start: int, stop: int):
+@checked
+def extract_window(motion: Motion, start: int, stop: int):
     """Frames ``start:stop`` of a Motion (clamped to the clip)."""
     start = max(0, start)
     stop = min(motion.num_frames, stop)

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from fxspace._validate import _is_tracer, as_float_array, check_index, check_scalar
+from fxspace._validate import _is_tracer, as_float_array, check_index, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.motion._horn import horn_matrix
 from fxspace.rotations import (
@@ -22,6 +23,9 @@ from fxspace.rotations import (
     quat_rotate,
     quat_to_matrix,
 )
+
+if TYPE_CHECKING:
+    from fxspace.motion._types import Motion
 
 __all__ = [
     "heading_quat",
@@ -55,7 +59,8 @@ def heading_quat(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     return quat_from_axis_angle(up, yaw)
 
 
-def align_start(motion, frame: int = 0):
+@checked
+def align_start(motion: Motion, frame: int = 0):
     """A copy of ``motion`` moved on the ground so that at ``frame`` the root is above the
     origin and faces +Z (a rotation about +Y and a horizontal translation; heights kept)."""
     xp = _xp(motion.rotations, motion.root_translation)

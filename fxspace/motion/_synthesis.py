@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace._validate import check_scalar
+from fxspace._validate import check_scalar, checked
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._horn import absolute_orientation, absolute_rotation, apply_rigid
@@ -120,6 +120,7 @@ class Pose(NamedTuple):
     root: Float[Array, " 3"]
 
 
+@checked
 def splice_frame(sp: SynthesisSpaces, qL: Float[Array, "J 4"], qU: Float[Array, "J 4"]):
     """The upper body of ``qU`` spliced on the lower body of ``qL`` with the spaces' splice
     (``sp.splice``: ``"heck"`` → `heck_splice`, ``"heading"`` → `splice_pose`)."""
@@ -140,6 +141,7 @@ def _to_root_frame(x, X_root, q_root):
     return quat_rotate(quat_conj(heading_quat(q_root)), rel)
 
 
+@checked
 @jax.jit
 def lower_param_of(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, " d"]:
     """The lower parameter of a lower blend: joint ``lower_joint``'s world position (dims
@@ -148,6 +150,7 @@ def lower_param_of(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[A
     return _fk1(sp, r, q)[sp.lower_joint][jnp.asarray(sp.lower_dims)]
 
 
+@checked
 @jax.jit
 def upper_param_of(
     sp: SynthesisSpaces, w_lower: Float[Array, " EL"], w_upper: Float[Array, " EU"]
@@ -163,6 +166,7 @@ def upper_param_of(
     return _to_root_frame(X[sp.upper_joint], X[0], q[0])
 
 
+@checked
 @jax.jit
 def exact_upper_params(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, "S 3"]:
     """Re-sampling from scratch (the exact, slow route the paper rejects): the real
@@ -170,6 +174,7 @@ def exact_upper_params(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Flo
     return jax.vmap(lambda w: upper_param_of(sp, w_lower, w))(sp.upper_weights)
 
 
+@checked
 @jax.jit
 def replace_samples(sp: SynthesisSpaces, w_lower: Float[Array, " EL"]) -> Float[Array, "S 3"]:
     """§3.2 re-placement: the real parameters ``p_1..p_k`` of the first ``k = k_replace``
@@ -189,6 +194,7 @@ def _lower_weights(sp, lower_param):
     return knn_blend_weights(lower_param, sp.lower_params, sp.lower_weights, sp.knn_k).weights
 
 
+@checked
 @jax.jit
 def init_state(sp: SynthesisSpaces, lower_param: Float[Array, " d"]) -> SynthState:
     """Clocks at the start (``T_L = 0``, ``T_U = λ(0)``) and the upper samples re-placed
@@ -284,6 +290,7 @@ def _synthesize_step(spaces, state, upper_param, lower_param, alpha, dt):
     return SynthState(tl, tu, lower_param, params, wL), Pose(q, rL)
 
 
+@checked
 def synthesize_step(
     spaces: SynthesisSpaces,
     state: SynthState,
@@ -318,6 +325,7 @@ def synthesize_step(
     return _synthesize_step(spaces, state, upper_param, lower_param, alpha, dt)
 
 
+@checked
 def synthesize(
     spaces: SynthesisSpaces,
     upper_params: Float[Array, "F p"],
@@ -350,6 +358,7 @@ def _synthesize(spaces, upper_params, lower_params, alpha, dt):
     return final, poses, clocks
 
 
+@checked
 def build_spaces(
     lower: ExampleSet,
     upper: ExampleSet,

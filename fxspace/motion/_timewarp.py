@@ -196,6 +196,7 @@ class Clocks(NamedTuple):
     v: Float[Array, ""]
 
 
+@checked
 def sync_clocks(
     clocks: Clocks,
     du: Float[Array, ""],

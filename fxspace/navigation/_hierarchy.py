@@ -410,6 +410,7 @@ _LEVEL_SCALARS = (
 )  # fmt: skip
 
 
+@checked
 def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
     """A flat ``{name: array}`` of a `Hierarchy` (for `fxspace.runs.cached_arrays` or an
     ``.npz``; no pickles): ``embedding``, ``n_levels`` and, per level ``i``,
@@ -433,6 +434,7 @@ def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
     return out
 
 
+@checked
 def hierarchy_from_arrays(a: dict[str, np.ndarray]) -> Hierarchy:
     """The `Hierarchy` stored by `hierarchy_to_arrays`."""
     try:

@@ -11,6 +11,7 @@ reachable.
 from __future__ import annotations
 
 from functools import partial
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +21,9 @@ from jaxtyping import Array, Float, Int
 from fxspace._validate import checked
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
+
+if TYPE_CHECKING:
+    from fxspace.navigation._hierarchy import Level
 
 __all__ = ["center_links", "default_link_radius", "link_graph_connected", "link_pairs"]
 
@@ -127,6 +131,7 @@ def _components(adj: np.ndarray) -> np.ndarray:
     return np.array([find(i) for i in range(n)])
 
 
+@checked
 def center_links(
     embedding: Float[Array, "T 2"],
     geodesics,
@@ -192,13 +197,15 @@ def center_links(
     return links, bridges
 
 
-def link_graph_connected(level) -> bool:
+@checked
+def link_graph_connected(level: Level) -> bool:
     """Whether the level's link graph is connected."""
     if level.links is None:
         raise FxspaceError("this level has no links")
     return len(np.unique(_components(level.links))) == 1
 
 
+@checked
 def link_pairs(links) -> tuple[np.ndarray, np.ndarray]:
     """The linked pairs ``(i, j)`` with ``i < j`` of a level's links: a dense ``(c, c)``
     bool matrix (`Level`) or a sparse ``csr_array`` (`SparseLevel`), without densifying

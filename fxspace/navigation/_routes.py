@@ -13,14 +13,17 @@ from __future__ import annotations
 
 import heapq
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from fxspace._validate import as_float_array, check_indices, check_scalar
+from fxspace._validate import as_float_array, check_indices, check_scalar, checked
 from fxspace.errors import FxspaceError
 from fxspace.expression import shortest_path
 from fxspace.navigation._hierarchy import Hierarchy, Level
+
+if TYPE_CHECKING:
+    pass
 
 __all__ = [
     "NavigationError",
@@ -71,6 +74,7 @@ def _level(h: Hierarchy, level: int) -> Level:
     return lv
 
 
+@checked
 def frame_path(geodesics, key_frames: Sequence[int]) -> np.ndarray:
     """Concatenated geodesic shortest paths through ``key_frames`` (joins not repeated)."""
     kf = [int(f) for f in key_frames]
@@ -84,6 +88,7 @@ def frame_path(geodesics, key_frames: Sequence[int]) -> np.ndarray:
     return np.asarray(out, dtype=np.int64)
 
 
+@checked
 def make_route(
     h: Hierarchy,
     geodesics,
@@ -119,6 +124,7 @@ def make_route(
     return Route(int(level), tuple(cs), kf, frame_path(geodesics, kf), anc)
 
 
+@checked
 def path_candidates(
     h: Hierarchy, level: int, frames: Sequence[int], radius: float | None = None
 ) -> np.ndarray:
@@ -179,6 +185,7 @@ def _repair(lv: Level, geodesics, seq: list[int]) -> list[int]:
     return out
 
 
+@checked
 def bridge_keys(
     h: Hierarchy, geodesics, level: int, keys: Sequence[int]
 ) -> tuple[list[int], list[str]]:
@@ -215,6 +222,7 @@ def bridge_keys(
     return out, notes
 
 
+@checked
 def refine_route(
     h: Hierarchy,
     geodesics,
@@ -277,6 +285,7 @@ def refine_route(
     return make_route(h, geodesics, nxt, clean, anchors=anchor_frames)
 
 
+@checked
 def navigate(
     h: Hierarchy,
     geodesics,

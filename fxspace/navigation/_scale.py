@@ -37,6 +37,7 @@ import jax
 import numpy as np
 from jaxtyping import Array, Float
 
+from fxspace._validate import checked
 from fxspace.cluster import SparseFCMResult, sparse_fuzzy_cmeans
 from fxspace.errors import FxspaceError
 from fxspace.expression import NeighbourGraph, dijkstra_csr, sparse_shortest_path
@@ -570,6 +571,7 @@ def sparse_levels(c0: int, levels: int, n_frames: int) -> tuple[int, ...]:
     return tuple(c for c in (c0 * 2**lv for lv in range(levels)) if c <= n_frames)
 
 
+@checked
 def sparse_hierarchy(
     embedding: Float[Array, "T 2"],
     graph: NeighbourGraph,
@@ -620,6 +622,7 @@ def sparse_hierarchy(
     return out
 
 
+@checked
 def sparse_route(graph: NeighbourGraph, key_frames: Sequence[int]) -> np.ndarray:
     """Frames along shortest graph paths through the key frames in order (no repeats at
     the joins)."""

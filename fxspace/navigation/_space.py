@@ -54,6 +54,7 @@ class NavigationSpace(NamedTuple):
     threshold_source: str = "value"
 
 
+@checked
 def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
     """``(ε, criterion)`` chosen by a finished threshold-sweep run (its ``metrics.json``:
     ``best_threshold`` and ``criterion``). Raises ``FxspaceError`` naming what is missing."""

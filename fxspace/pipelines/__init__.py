@@ -71,6 +71,7 @@ __all__ = [
     "run_dict",
     "prepare_config",
     "write_docs",
+    "write_bench_page",
     "load_pipeline",
     "available",
     "sweep_config",
@@ -446,5 +447,5 @@ def summary(run_dir: str | Path) -> dict[str, Any]:
     return json.loads((Path(run_dir) / "metrics.json").read_text())
 
 
-from fxspace.pipelines._docs import write_docs  # noqa: E402
+from fxspace.pipelines._docs import write_bench_page, write_docs  # noqa: E402
 from fxspace.pipelines._sweep import sweep_config  # noqa: E402  (uses the names above)
