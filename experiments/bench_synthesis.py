@@ -47,8 +47,8 @@ def _median(f, repeats: int) -> float:
 
 
 def bench(name: str, repeats: int, steps: int) -> list[dict]:
-    """Print one set-up's figures; return its record rows (ours against our own slower
-    routes: the heading-relative splice, exact re-sampling — no like-for-like peer exists)."""
+    """Print one set-up's figures; return its record rows (the default against our own
+    alternatives: the heading-relative splice, exact re-sampling — no outside peer exists)."""
     cache: dict = {}
 
     def load(t):
@@ -139,7 +139,7 @@ def main() -> None:
     from fxspace.runs import write_bench
 
     cmd = "python experiments/bench_synthesis.py " + " ".join(sys.argv[1:])
-    write_bench("synthesis", rows, title="Parametric synthesis: one step, ours vs slower routes",
+    write_bench("synthesis", rows, title="Parametric synthesis: one step, the default against the alternatives",
                 command=cmd)  # fmt: skip
 
 

@@ -822,6 +822,6 @@ def write_bench(
             r["ratio"] = r["peer_s"] / r["ours_s"] if r["ours_s"] > 0 else None
         out.append(r)
     root = Path(root if root is not None else os.environ.get("FXSPACE_RUNS", "runs"))
-    record = {"name": name, "title": title, "command": command, "machine": machine(),
+    record = {"name": name, "title": title, "command": command.strip(), "machine": machine(),
               "rows": out}  # fmt: skip
     return write_json_atomic(root / "bench" / f"{name}.json", to_jsonable(record))

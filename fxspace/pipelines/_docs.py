@@ -334,8 +334,8 @@ def _bench_figure(rec: dict[str, Any], path: Path) -> None:
     pairs = list(dict.fromkeys((r["ours"], r["peer"]) for r in rows))
     if sized:
         for ours, peer in pairs:
-            rr = sorted((r for r in rows if (r["ours"], r["peer"]) == (ours, peer)),
-                        key=lambda r: r["size"])  # fmt: skip
+            rr = sorted((r for r in rows if (r["ours"], r["peer"]) == (ours, peer)
+                         and r["size"] is not None), key=lambda r: r["size"])  # fmt: skip
             x = [r["size"] for r in rr]
             ax.plot(x, [r["ours_s"] for r in rr], "o-", label=f"ours: {ours}")
             ax.plot(x, [r["peer_s"] for r in rr], "s--", label=f"{peer}")
