@@ -139,8 +139,8 @@ def main() -> None:
     from fxspace.runs import write_bench
 
     cmd = "python experiments/bench_synthesis.py " + " ".join(sys.argv[1:])
-    write_bench("synthesis", rows, title="Parametric synthesis: one step, the default against the alternatives",
-                command=cmd)  # fmt: skip
+    title = "Parametric synthesis: one step, the default against the alternatives"
+    write_bench("synthesis", rows, title=title, command=cmd)
 
 
 if __name__ == "__main__":
