@@ -607,8 +607,11 @@ def _resolved_hints(fn: Any) -> dict[str, Any]:
         return typing.get_type_hints(fn)
     except Exception:  # noqa: BLE001 - resolve one by one below
         pass
-    raw = getattr(_unwrap(fn), "__annotations__", {})
-    ns = {**_fxspace_types(), **getattr(_unwrap(fn), "__globals__", {})}
+    import inspect
+
+    inner = inspect.unwrap(fn)
+    raw = getattr(inner, "__annotations__", {})
+    ns = {**_fxspace_types(), **getattr(inner, "__globals__", {})}
     out = {}
     for k, a in raw.items():
         try:
@@ -616,12 +619,6 @@ def _resolved_hints(fn: Any) -> dict[str, Any]:
         except Exception:  # noqa: BLE001 - unresolvable: unchecked
             continue
     return out
-
-
-def _unwrap(fn: Any) -> Any:
-    import inspect
-
-    return inspect.unwrap(fn)
 
 
 def _class_hints(fn: Any) -> dict[str, tuple[type, bool]]:
@@ -708,8 +705,9 @@ def checked(fn: Any) -> Any:
             raise FxspaceError(f"{fn.__name__}: {e}") from None
         # an argument of an fxspace type (a mesh, a model …) must be one, unless left at
         # its default; traced stand-ins are never of another type, so this is jit-safe
-        _explain_types(fn, bound.arguments, skip={
-            k for k, v in bound.arguments.items() if v is defaults.get(k)})  # fmt: skip
+        if _class_hints(fn):
+            _explain_types(fn, bound.arguments, skip={
+                k for k, v in bound.arguments.items() if v is defaults.get(k)})  # fmt: skip
         for k, v in bound.arguments.items():
             c = checks.get(k)
             # the author's default is never second-guessed; traced values are checked
