@@ -69,6 +69,8 @@ def quat_mul(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array,
 @checked
 def quat_conj(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate (the inverse of a unit quaternion)."""
+    if np.ndim(q) < 1 or np.shape(q)[-1] != 4:
+        raise FxspaceError(f"q must be (..., 4) quaternions (w, x, y, z), got shape {np.shape(q)}")
     return q * _xp(q).asarray([1.0, -1.0, -1.0, -1.0], dtype=q.dtype).reshape(
         (1,) * (q.ndim - 1) + (4,)
     )
@@ -191,6 +193,8 @@ def quat_from_axis_angle(
     axis: Float[Array, "... 3"], angle: Float[Array, " ..."]
 ) -> Float[Array, "... 4"]:
     """Quaternion of a rotation by ``angle`` (radians) about the unit vector ``axis``."""
+    if np.ndim(axis) < 1 or np.shape(axis)[-1] != 3:
+        raise FxspaceError(f"axis must be (..., 3) unit vectors, got shape {np.shape(axis)}")
     xp = _xp(axis, angle)
     half = 0.5 * angle[..., None]
     shape = xp.broadcast_shapes(half.shape[:-1], axis.shape[:-1])

@@ -486,6 +486,12 @@ def test_nan_in_nan_out_where_results_are_arrays():
 
 # -- the wrong-type family over every public name -----------------------------------------
 WRONG_TYPES = {"None": None, "int": 3, "str": "x", "object": object()}
+# every required argument of these takes a plain number: 3 is a right answer, not a wrong
+# type (a frame count, a joint count, a 0-d frame or control value, a window centre)
+INT_IS_VALID = {
+    "level_sizes", "linear_interpolation", "motion.smooth_controls", "rest_pose",
+    "temporal_window",
+}  # fmt: skip
 _KNOWN_FILE = os.path.join(os.path.dirname(__file__), "fuzz_wrong_type_known.txt")
 
 
@@ -507,6 +513,8 @@ def _wrong_type_failures() -> dict[str, list[str]]:
         if not req:
             continue
         for label, v in WRONG_TYPES.items():
+            if label == "int" and name in INT_IS_VALID:
+                continue
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
@@ -548,3 +556,39 @@ def test_wrong_type_family_coverage_is_printed_and_never_regresses(tmp_path, mon
     fixed = sorted(known - set(bad))
     if fixed:  # may depend on the data root being there: reported, not failed
         print(f"now refuse cleanly (take them off {_KNOWN_FILE}): {fixed}")
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: fx.motion.quat_conj(3.0), "q must be"),
+        (lambda: fx.rotations.quat_from_axis_angle(3.0, 1.0), "axis must be"),
+        (lambda: fx.reconstruction_error(3.0, 3.0), "X must be"),
+        (lambda: fx.navigation.link_pairs(None), "no links"),
+        (lambda: fx.navigation.link_pairs(np.ones((2, 3), bool)), "links must be"),
+        (lambda: fx.navigation.hierarchy_from_arrays(3), "hierarchy_to_arrays"),
+        (lambda: fx.frame_path(object(), [0, 1]), "geodesics"),
+        (lambda: fx.motion.register_dtw("x"), "features"),
+        (lambda: fx.motion.register_dtw([np.zeros((4, 2)), np.zeros((3, 3))]), "share"),
+        (lambda: fx.motion.control_defaults(None, {}), "setup"),
+        (lambda: fx.controlpoints.effective_keys("x"), "keys"),
+        (lambda: fx.controlpoints.effective_keys([3]), r"keys\[0\]"),
+        (lambda: fx.controlpoints.choose_count("x", []), "Z"),
+        (lambda: fx.controlpoints.character("x", "x", "x"), "vertices"),
+        (lambda: fx.controlpoints.head_model("x"), "rest_markers"),
+        (lambda: fx.io.write_obj_sequence("out", "x", "x"), "vertices"),
+    ],
+)
+def test_wrong_types_refused_by_name(call, match, tmp_path, monkeypatch):
+    """Issue 33.6: the last names of the wrong-type family, each refused with the argument
+    named (they answered with a raw error, or accepted a scalar where a shape is needed)."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(FxspaceError, match=match):
+        call()
+    assert not any(tmp_path.iterdir())  # nothing written on the way
+
+
+def test_effective_keys_reads_a_generator_once():
+    k = fx.controlpoints.EditKey(segment=0, control=1, frame=3, offset=(0.0, 1.0, 0.0))
+    out = fx.controlpoints.effective_keys(x for x in [k])
+    assert out == {(0, 1): [k]}

@@ -64,7 +64,13 @@ class Character(NamedTuple):
 
 
 @checked
-def character(vertices, faces, marker_vertex, first=None, last=None) -> Character:
+def character(
+    vertices: Float[ArrayLike, "N 3"],
+    faces: Int[ArrayLike, "F 3"],
+    marker_vertex: Int[ArrayLike, " M"],
+    first=None,
+    last=None,
+) -> Character:
     """A validated `Character` (finite vertices, triangles and marker vertices in range,
     first/last of the mesh's shape)."""
     V = np.asarray(vertices, np.float64)

@@ -138,6 +138,7 @@ def edit_control_keys(
 @checked
 def effective_keys(keys: Sequence[EditKey]) -> dict[tuple[int, int], list[EditKey]]:
     """Per-segment keys grouped by (segment, control), the last key at each frame winning."""
+    keys = _check_keys(keys, (EditKey,))
     last: dict[tuple[int, int, int], EditKey] = {}
     for k in keys:
         last[(int(k.segment), int(k.control), int(k.frame))] = k
@@ -145,6 +146,17 @@ def effective_keys(keys: Sequence[EditKey]) -> dict[tuple[int, int], list[EditKe
     for (s, c, _), k in last.items():
         out.setdefault((s, c), []).append(k)
     return {sc: sorted(v, key=lambda k: k.frame) for sc, v in out.items()}
+
+
+def _check_keys(keys, kinds: tuple) -> list:
+    names = " or ".join(k.__name__ for k in kinds)
+    if isinstance(keys, str | bytes) or not hasattr(keys, "__iter__"):
+        raise FxspaceError(f"keys must be a sequence of {names}s, got {type(keys).__name__}")
+    keys = list(keys)
+    for i, k in enumerate(keys):
+        if not isinstance(k, kinds):
+            raise FxspaceError(f"keys[{i}] must be an {names}, got {type(k).__name__}")
+    return keys
 
 
 def _check_offset(offset, where: str) -> tuple[float, float, float]:
@@ -387,6 +399,7 @@ def save_edits(path: str | Path, keys: Sequence[EditKey | FaceKey], **meta) -> P
     """Write the keys (in order: the history) as JSON, atomically; ``meta`` is stored too.
     `FaceKey`s are written as version 2, per-segment `EditKey`s as version 1."""
     p = Path(path)
+    keys = _check_keys(keys, (EditKey, FaceKey))
     face = all(isinstance(k, FaceKey) for k in keys)
     if not face and any(isinstance(k, FaceKey) for k in keys):
         raise FxspaceError("keys must be all FaceKeys or all EditKeys; convert with convert_keys")

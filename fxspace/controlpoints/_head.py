@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from fxspace._validate import checked
 from fxspace.errors import FxspaceError
@@ -246,7 +247,7 @@ def _sphere(centre: np.ndarray, r: float, n: int = 14):
 
 @checked
 def head_model(
-    rest_markers: np.ndarray,
+    rest_markers: Float[ArrayLike, "M 3"],
     names: Sequence[str] | None = None,
     resolution: int = 72,
 ) -> HeadModel:

@@ -129,6 +129,8 @@ def reconstruction_error(X: Float[ArrayLike, "T ..."], X_hat: Float[ArrayLike, "
     """The paper's eq. (1): ``Σ_i Σ_t ‖x_i(t) − x̂_i(t)‖²`` (sum of squares over everything)."""
     X = jnp.asarray(X)
     X_hat = jnp.asarray(X_hat)
+    if X.ndim < 1:
+        raise FxspaceError(f"X must be (T, ...) frames, got a scalar of shape {X.shape}")
     if X.shape != X_hat.shape:
         raise FxspaceError(f"X {X.shape} and X_hat {X_hat.shape} must have the same shape")
     return jnp.sum((X - X_hat) ** 2)

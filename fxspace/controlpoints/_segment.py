@@ -119,7 +119,7 @@ def _refit_rss(Z: np.ndarray, cps: np.ndarray) -> float:
 
 @checked
 def choose_count(
-    Z: np.ndarray, picks: list[np.ndarray], criterion: str = "bic"
+    Z: Float[ArrayLike, "T k"], picks: list[np.ndarray], criterion: Literal["bic", "elbow"] = "bic"
 ) -> tuple[int, dict]:
     """Choose among candidate change-point sets (one per count) by BIC or the elbow of
     the refitted RSS (module docstring); returns (index into `picks`, the table)."""

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from jaxtyping import Array, Float, Int
 
 from fxspace._validate import checked
 from fxspace.errors import CorruptFileError, FxspaceError
@@ -50,7 +51,10 @@ def _check(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
 
 
 @checked
-def write_obj_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame") -> list[Path]:
+def write_obj_sequence(
+    out_dir: str | Path, vertices: Float[Array, "T N 3"], faces: Int[Array, "F 3"],
+    stem: str = "frame",
+) -> list[Path]:
     """``stem_0000.obj`` … one Wavefront OBJ per frame (1-based face indices)."""
     V, F = _check(vertices, faces)
     out = Path(out_dir)
@@ -66,7 +70,10 @@ def write_obj_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame"
 
 
 @checked
-def write_ply_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame") -> list[Path]:
+def write_ply_sequence(
+    out_dir: str | Path, vertices: Float[Array, "T N 3"], faces: Int[Array, "F 3"],
+    stem: str = "frame",
+) -> list[Path]:
     """``stem_0000.ply`` … one binary little-endian PLY per frame."""
     V, F = _check(vertices, faces)
     out = Path(out_dir)
@@ -89,7 +96,11 @@ def write_ply_sequence(out_dir: str | Path, vertices, faces, stem: str = "frame"
 
 @checked
 def write_gltf_morph(
-    path: str | Path, vertices, faces, fps: float = 30.0, name: str = "edited"
+    path: str | Path,
+    vertices: Float[Array, "T N 3"],
+    faces: Int[Array, "F 3"],
+    fps: float = 30.0,
+    name: str = "edited",
 ) -> Path:
     """One ``.glb``: base = frame 0, morph target ``t`` = frame ``t`` − frame 0, and an
     animation stepping the weights one-hot through the frames at ``fps``."""
@@ -105,9 +116,9 @@ def write_gltf_morph(
 @checked
 def write_gltf_blendshapes(
     path: str | Path,
-    neutral,
-    faces,
-    deltas,
+    neutral: Float[Array, "N 3"],
+    faces: Int[Array, "F 3"],
+    deltas: Float[Array, "K N 3"],
     names=None,
     weights=None,
     fps: float = 30.0,

@@ -111,12 +111,28 @@ class RegistrationResult(NamedTuple):
         return is_successful(self.result)
 
 
+def _check_features(features) -> None:
+    if not isinstance(features, list | tuple) or not features:
+        raise FxspaceError(
+            f"features must be a non-empty list of (T_i, d) arrays, got {type(features).__name__}"
+        )
+    for i, f in enumerate(features):
+        if isinstance(f, str | bytes) or np.ndim(f) != 2 or np.shape(f)[0] < 1:
+            raise FxspaceError(f"features[{i}] must be a (T_i, d) array, got {f!r:.60}")
+        if np.asarray(f).dtype.kind not in "fiu":
+            raise FxspaceError(f"features[{i}] must be numeric, got dtype {np.asarray(f).dtype}")
+    d = {np.shape(f)[1] for f in features}
+    if len(d) != 1:
+        raise FxspaceError(f"features must share their feature size d, got {sorted(d)}")
+
+
 @checked
 def register_examples(
     features: list, smooth: int = 5, cyclic: bool = False, *, throw: bool = False
 ) -> RegistrationResult:
     """`register_dtw` with its result record (issue 18's vocabulary); ``throw=True``
     raises `FxspaceError` when a feature holds NaN/inf."""
+    _check_features(features)
     lens = [int(np.shape(f)[0]) for f in features]
     T = max(lens)
     F = np.stack([np.concatenate([f, np.repeat(f[-1:], T - len(f), 0)]) for f in features])

@@ -59,6 +59,16 @@ def _check_setup(setup) -> None:
         )
 
 
+def _check_controls(controls) -> None:
+    if not isinstance(controls, dict) or not all(
+        isinstance(v, tuple | list) and len(v) == 2 for v in controls.values()
+    ):
+        raise FxspaceError(
+            "controls must map each control's name to its (low, high) range "
+            "(fxspace.motion.session_controls)"
+        )
+
+
 def session_turn_table(setup) -> TurnTable | None:
     """The set-up's turning table (walks), ``None`` otherwise."""
     _check_setup(setup)
@@ -95,6 +105,8 @@ def session_controls(setup, table: TurnTable | None = None) -> dict[str, tuple[f
 @checked
 def control_defaults(setup, controls: dict) -> dict[str, float]:
     """Start values: α ½, no turning, joy ½, the hand/foot at the middle of their range."""
+    _check_setup(setup)
+    _check_controls(controls)
     d = {k: 0.5 * (lo + hi) for k, (lo, hi) in controls.items()}
     d["alpha"] = 0.5
     if "turn" in d:
@@ -122,6 +134,13 @@ def smooth_controls(current: np.ndarray, target: np.ndarray, dt_s: float, tau_s:
 def controls_to_params(setup, names: list[str], values: np.ndarray, table: TurnTable | None):
     """``(F, n)`` control values (columns ``names``) → ``(upper (F, p), lower (F, d),
     alpha (F,))`` parameter arrays for `locomotion`."""
+    _check_setup(setup)
+    values = as_float_array(values, "values", xp="numpy")
+    if isinstance(names, str) or values.ndim != 2 or len(names) != values.shape[1]:
+        raise FxspaceError(
+            f"values must be (F, n) with one column per name in names, got shape "
+            f"{values.shape} for {len(names) if not isinstance(names, str) else 'a string'} names"
+        )
     sp = setup.spaces
     col = {n: values[:, i] for i, n in enumerate(names)}
     F = values.shape[0]

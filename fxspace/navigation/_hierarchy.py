@@ -437,6 +437,11 @@ def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
 @checked
 def hierarchy_from_arrays(a: dict[str, np.ndarray]) -> Hierarchy:
     """The `Hierarchy` stored by `hierarchy_to_arrays`."""
+    if not hasattr(a, "__getitem__") or not hasattr(a, "__contains__") or isinstance(a, str):
+        raise FxspaceError(
+            f"a must be the arrays of hierarchy_to_arrays (a dict or an NpzFile), got "
+            f"{type(a).__name__}"
+        )
     try:
         n = int(a["n_levels"])
         levels = []

@@ -211,10 +211,16 @@ def link_pairs(links) -> tuple[np.ndarray, np.ndarray]:
     bool matrix (`Level`) or a sparse ``csr_array`` (`SparseLevel`), without densifying
     the sparse one (for drawing the links of 100 000 centres)."""
     if links is None:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        raise FxspaceError("links is None: this level has no links (build it with geodesics)")
     if hasattr(links, "tocoo"):
         m = links.tocoo()
         keep = (m.row < m.col) & (np.asarray(m.data) != 0)
         return np.asarray(m.row[keep], np.int64), np.asarray(m.col[keep], np.int64)
-    i, j = np.nonzero(np.triu(np.asarray(links), 1))
+    L = np.asarray(links)
+    if L.ndim != 2 or L.shape[0] != L.shape[1] or L.dtype.kind not in "biu":
+        raise FxspaceError(
+            f"links must be a (c, c) bool matrix or a csr_array, got {type(links).__name__} "
+            f"of shape {L.shape}"
+        )
+    i, j = np.nonzero(np.triu(L, 1))
     return i.astype(np.int64), j.astype(np.int64)

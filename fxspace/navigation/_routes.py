@@ -77,6 +77,8 @@ def _level(h: Hierarchy, level: int) -> Level:
 @checked
 def frame_path(geodesics, key_frames: Sequence[int]) -> np.ndarray:
     """Concatenated geodesic shortest paths through ``key_frames`` (joins not repeated)."""
+    if isinstance(key_frames, str | bytes) or not hasattr(key_frames, "__iter__"):
+        raise NavigationError(f"key_frames must be a sequence of frame indices, got {key_frames!r}")
     kf = [int(f) for f in key_frames]
     if not kf:
         raise NavigationError("key_frames is empty: pick at least one key frame")
@@ -84,6 +86,11 @@ def frame_path(geodesics, key_frames: Sequence[int]) -> np.ndarray:
     for a, b in zip(kf[:-1], kf[1:], strict=True):
         if a == b:
             continue
+        if not hasattr(geodesics, "next_hop"):  # one key needs no path (nor geodesics)
+            raise NavigationError(
+                f"geodesics must be the frame graph's Geodesics (with next_hop), got "
+                f"{type(geodesics).__name__}"
+            )
         out.extend(int(f) for f in shortest_path(geodesics, a, b)[1:])
     return np.asarray(out, dtype=np.int64)
 

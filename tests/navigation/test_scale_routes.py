@@ -190,5 +190,7 @@ def test_link_pairs_dense_and_sparse_agree(space):
             np.sort(i * lv.n_clusters + j), np.sort(di * lv.n_clusters + dj)
         )
         assert np.all(i < j) and len(i) == lv.links.nnz // 2
-    e = link_pairs(None)
+    e = link_pairs(np.zeros((3, 3), bool))
     assert len(e[0]) == len(e[1]) == 0
+    with pytest.raises(fx.FxspaceError, match="no links"):
+        link_pairs(None)  # a level without links says so (never an empty answer)
