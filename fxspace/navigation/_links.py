@@ -115,20 +115,11 @@ def _links_kernel(xy, next_hop, center_frames, iu, ju, rho, max_len: int, chunk:
 
 
 def _components(adj: np.ndarray) -> np.ndarray:
-    n = adj.shape[0]
-    parent = np.arange(n)
+    """Component label of each centre of a symmetric (c, c) bool adjacency."""
+    from scipy.sparse import csr_array
+    from scipy.sparse.csgraph import connected_components
 
-    def find(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for i, j in zip(*np.nonzero(np.triu(adj, 1)), strict=True):
-        ri, rj = find(i), find(j)
-        if ri != rj:
-            parent[ri] = rj
-    return np.array([find(i) for i in range(n)])
+    return connected_components(csr_array(np.asarray(adj, bool)), directed=False)[1]
 
 
 @checked
@@ -178,15 +169,13 @@ def center_links(
     if bridge:
         D = np.asarray(geodesics.distances)[np.ix_(cf, cf)].astype(np.float64)
         np.fill_diagonal(D, np.inf)
+        comp = _components(links)  # once; each bridge then merges two labels
         while True:
-            comp = _components(links)
-            roots = np.unique(comp)
+            roots, sizes = np.unique(comp, return_counts=True)
             if len(roots) == 1:
                 break
             # connect the smallest component to its geodesically nearest centre
-            sizes = [(np.sum(comp == r), r) for r in roots]
-            _, r = min(sizes)
-            inside = comp == r
+            inside = comp == roots[np.argmin(sizes)]
             sub = D[np.ix_(inside, ~inside)]
             if not np.isfinite(sub).any():
                 break  # the frame graph itself is disconnected here
@@ -194,6 +183,7 @@ def center_links(
             i, j = np.flatnonzero(inside)[a], np.flatnonzero(~inside)[b]
             links[i, j] = links[j, i] = True
             bridges[i, j] = bridges[j, i] = True
+            comp[inside] = comp[j]
     return links, bridges
 
 
