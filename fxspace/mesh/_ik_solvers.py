@@ -36,6 +36,7 @@ tr = fx.track_ik(model, frames, solver=fx.mesh.LevenbergMarquardt(rtol=1e-3))
 from __future__ import annotations
 
 import dataclasses
+import functools
 from functools import partial
 from typing import Literal, NamedTuple
 
@@ -622,6 +623,14 @@ def _pick_constraints(constraints) -> IKConstraints:
     return constraints
 
 
+@functools.lru_cache(maxsize=64)
+def _rest_init(nj: int, dtype) -> Pose:
+    """The rest pose (zeros) as device arrays, made once per size and dtype: a per-frame
+    call then pays no allocation for its default start (arrays are immutable)."""
+    with jax.ensure_compile_time_eval():  # concrete even when first called under jit
+        return Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
+
+
 def _prepare(model, targets, init, solver, constraints, normals, frames: bool):
     """Checked arguments of `_solve` / `_track` (shared by the public entry points)."""
     if not isinstance(model, IKModel):
@@ -646,7 +655,7 @@ def _prepare(model, targets, init, solver, constraints, normals, frames: bool):
         targets = targets.astype(dtype)
     nj = model.ancestors.shape[0]
     if init is None:
-        init = Pose(jnp.zeros((nj, 3), dtype), jnp.zeros((3,), dtype))
+        init = _rest_init(nj, jnp.dtype(dtype))
     elif (
         not isinstance(init, Pose) or init.angles.shape != (nj, 3) or init.translation.shape != (3,)
     ):
