@@ -327,6 +327,11 @@ def main(argv: list[str] | None = None) -> int:
          "ours_s": row[f"paper: BFGS factored, rtol 1e-3 [{start}]"],
          "peer": "BFGS naive, rtol 1e-3", "peer_s": row[f"BFGS naive, rtol 1e-3 [{start}]"]}
         for start in ("cold", "warm")
+    ] + [
+        {"case": f"the per-frame call a user makes, {name.split(', ')[1]}",
+         "ours": "fx.solve_ik (public)", "ours_s": med_s,
+         "peer": "jax.jit(solve_ik), float64", "peer_s": k_med}
+        for name, med_s, _, _ in users
     ]  # fmt: skip
     from fxspace.runs import write_bench
 
