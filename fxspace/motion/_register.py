@@ -119,8 +119,10 @@ def _check_features(features) -> None:
     for i, f in enumerate(features):
         if isinstance(f, str | bytes) or np.ndim(f) != 2 or np.shape(f)[0] < 1:
             raise FxspaceError(f"features[{i}] must be a (T_i, d) array, got {f!r:.60}")
-        if np.asarray(f).dtype.kind not in "fiu":
-            raise FxspaceError(f"features[{i}] must be numeric, got dtype {np.asarray(f).dtype}")
+        # the dtype without copying an array off its device
+        dt = np.dtype(f.dtype) if hasattr(f, "dtype") else np.asarray(f).dtype
+        if dt.kind not in "fiu":
+            raise FxspaceError(f"features[{i}] must be numeric, got dtype {dt}")
     d = {np.shape(f)[1] for f in features}
     if len(d) != 1:
         raise FxspaceError(f"features must share their feature size d, got {sorted(d)}")
