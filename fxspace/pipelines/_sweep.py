@@ -10,7 +10,9 @@ thread per worker process); where Dask is not installed, a
 tasks to a running cluster (``dask scheduler`` / ``dask worker`` on machines sharing the
 run folder, or ``dask-jobqueue``'s SLURM/PBS clusters). Every worker runs XLA with one
 intra-op thread (so N workers do not oversubscribe the cores) and keeps the persistent
-compilation cache of `fxspace._compile_cache`.
+compilation cache of `fxspace._compile_cache`. Local workers are forked from a process
+that has not started JAX (they begin with fxspace imported) and take the runs in
+consecutive blocks of the config's order, so each compiles its shapes once.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ __all__ = ["sweep_config", "SweepResult", "WORKER_ENV"]
 
 #: The environment each worker runs with: one XLA/Eigen thread per worker process.
 WORKER_ENV = {
-    "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1",
+    "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false",
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
@@ -127,6 +129,8 @@ def sweep_config(
         except ImportError:
             engine = "processes"
     where = f"scheduler {scheduler}" if scheduler else f"{engine}, {workers} workers"
+    if engine in ("dask", "processes") and scheduler is None:
+        where += f", started by {_start_method()}"
     print(f"[sweep] {len(args)} runs under {out} ({where})", flush=True)
     if engine == "serial":
         results = []
@@ -197,7 +201,7 @@ def _run_processes(args: list[tuple], workers: int, fail_fast: bool, fn=_task) -
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    ctx = mp.get_context("spawn")  # a fresh interpreter: JAX starts with WORKER_ENV
+    ctx = mp.get_context(_start_method())  # JAX starts in each worker with WORKER_ENV
     with (
         _worker_env(WORKER_ENV),
         ProcessPoolExecutor(
@@ -227,20 +231,30 @@ def _run_dask(
     cluster = None
     with _worker_env(WORKER_ENV):
         if scheduler is None:
-            cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True,
-                dashboard_address=None, env=dict(WORKER_ENV),
-            )  # fmt: skip
+            import dask
+
+            with dask.config.set({"distributed.worker.multiprocessing-method": _start_method()}):
+                cluster = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True,
+                    dashboard_address=None, env=dict(WORKER_ENV),
+                )  # fmt: skip
             client = Client(cluster)
         else:
             client = Client(scheduler)
     try:
         # pure=False: every run is its own task; retries: a task lost with a killed
         # worker is rerun elsewhere (it resumes from its cached stages)
+        where = [None] * len(args)
+        if cluster is not None and fn is _task:  # our own workers: a block of runs each
+            client.wait_for_workers(workers)
+            names = sorted(client.scheduler_info()["workers"])
+            where = [[names[b]] for b in _blocks(len(args), len(names))]
+        # allow_other_workers: a block is a preference; a lost or idle worker's runs move
         futures = {
-            client.submit(fn, *a, key=f"fxspace-run-{i}-{time.time_ns()}", retries=3): str(a[2])
-            for i, a in enumerate(args)
-        }
+            client.submit(fn, *a, key=f"fxspace-run-{i}-{time.time_ns()}", retries=3,
+                          workers=w, allow_other_workers=w is not None): str(a[2])
+            for i, (a, w) in enumerate(zip(args, where, strict=True))
+        }  # fmt: skip
 
         def cancel():
             client.cancel(list(futures))
@@ -251,6 +265,28 @@ def _run_dask(
         if cluster is not None:
             cluster.close()
     return _ordered(got, args, fn)
+
+
+def _start_method() -> str:
+    """How local workers start: ``fork`` while this process has not started a JAX backend
+    (a worker then begins with fxspace imported, about 2 s sooner on two cores; its JAX
+    starts afresh with `WORKER_ENV`), else ``spawn`` (forking a running XLA runtime is
+    unsafe). JAX has no public test for a started backend, so any doubt means spawn."""
+    try:
+        from jax._src import xla_bridge
+
+        started = xla_bridge.backends_are_initialized()
+    except Exception:  # noqa: BLE001 - the private test moved: the safe choice
+        return "spawn"
+    return "spawn" if started else "fork"
+
+
+def _blocks(n: int, workers: int) -> list[int]:
+    """The worker index of each of ``n`` runs: consecutive blocks of the config's order.
+    Neighbouring runs share the slower-varying swept values (often the array shapes), so
+    a worker reuses its compiled programs instead of every worker compiling every shape."""
+    size = -(-n // workers)
+    return [i // size for i in range(n)]
 
 
 def _ordered(got: dict, args: list[tuple], fn) -> list:

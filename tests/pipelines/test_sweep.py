@@ -121,8 +121,25 @@ def test_workers_match_serial_bit_for_bit(tmp_path):
     r2 = subprocess.run([*cli, "--workers", "2", "--out", str(b)], env=_env(),
                         capture_output=True, text=True, timeout=900)  # fmt: skip
     assert r2.returncode == 0, r2.stderr[-2000:]
+    r3 = subprocess.run([*cli, "--engine", "processes", "--out", str(tmp_path / "proc")],
+                        env=_env(), capture_output=True, text=True, timeout=900)  # fmt: skip
+    assert r3.returncode == 0, r3.stderr[-2000:]
     ma, mb = _metrics(a), _metrics(b)
-    assert len(ma) == 4 and ma == mb
+    assert len(ma) == 4 and ma == mb == _metrics(tmp_path / "proc")
+    # the workers were forked from the CLI (no JAX backend there yet), the runs in blocks
+    assert "fork" in r2.stdout and "fork" in r3.stdout
+
+
+def test_local_workers_take_blocks_and_fork_only_without_a_backend():
+    from fxspace.pipelines._sweep import _blocks, _start_method
+
+    assert _blocks(4, 2) == [0, 0, 1, 1]
+    assert _blocks(5, 2) == [0, 0, 0, 1, 1]
+    assert _blocks(3, 4) == [0, 1, 2]
+    import jax.numpy as jnp
+
+    jnp.zeros(1).block_until_ready()  # this process has a JAX backend now
+    assert _start_method() == "spawn"
 
 
 def test_two_concurrent_sweeps_run_every_run_once(tmp_path):
