@@ -24,6 +24,25 @@ def test_features_match_pdist(rng):
         np.testing.assert_allclose(F[t], np.sqrt(2) * pdist(X[t]), rtol=1e-6)
 
 
+def test_long_sequences_in_blocks_match_pdist_nan_jit_vmap_grad(rng):
+    """Past one block of frames (`_FRAMES_PER_BLOCK`) the features come in blocks: the
+    same numbers as pdist, NaN kept, under jit / vmap / grad."""
+    from fxspace.expression._features import _FRAMES_PER_BLOCK
+
+    T = 2 * _FRAMES_PER_BLOCK + 37  # a ragged last block
+    X = rng.standard_normal((T, 6, 3)) * 30
+    X[T - 5, 2] = np.nan  # a missing marker in the padded last block
+    F = np.asarray(fx.distance_features(X))
+    ref = np.sqrt(2) * np.stack([pdist(x) for x in X])
+    assert F.shape == (T, 15)
+    np.testing.assert_allclose(F, ref, rtol=1e-5)  # NaN where the reference has NaN
+    np.testing.assert_array_equal(np.asarray(jax.jit(fx.distance_features)(X)), F)
+    V = np.asarray(jax.vmap(fx.distance_features)(X[None].repeat(2, 0)))
+    np.testing.assert_array_equal(V[1], F)
+    g = jax.grad(lambda x: jnp.sum(fx.distance_features(x)))(jnp.asarray(X[: T - 10]))
+    assert g.shape == (T - 10, 6, 3) and np.all(np.isfinite(np.asarray(g)))
+
+
 def test_state_distance_is_the_papers_full_matrix_distance(rng):
     """Kim & Jung §2.2: the state is the whole M×M distance matrix laid out as a vector;
     the straight-line distance between two states is the Frobenius distance."""
