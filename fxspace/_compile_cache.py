@@ -338,18 +338,45 @@ class CachedExecutable:
     process found that XLA cannot serialise this program).
     """
 
-    def __init__(self, fn: Any, compiled: Any, source: str):
+    def __init__(self, fn: Any, compiled: Any, source: str, path: Path | None = None):
         self.fn = fn
         self.compiled = compiled
         self.source = source
+        self._unproved = path if source == "disk" else None  # its first run not yet seen
 
     def __call__(self, *args: Any) -> Any:
         if self.compiled is not None:
             try:
-                return self.compiled(*args)
+                out = self.compiled(*args)
             except TypeError:  # another structure, dtype or shape than it was built for
-                pass
+                return self.fn(*args)
+            if self._unproved is None:
+                return out
+            import jax
+
+            # XLA can serialise an executable without the code of fusions its process had
+            # compiled before; such a file loads but fails on its first run ("Function …
+            # not found"). The first run of a loaded one is awaited: on failure the file
+            # is dropped and marked, and this and later calls use the jitted function.
+            try:
+                jax.block_until_ready(out)
+            except Exception:  # noqa: BLE001 - jax.errors.JaxRuntimeError
+                _drop_executable(self._unproved)
+                self.compiled, self.source, self._unproved = None, "jit", None
+                return self.fn(*args)
+            self._unproved = None
+            return out
         return self.fn(*args)
+
+
+def _drop_executable(path: Path) -> None:
+    """A serialised executable that failed to run: removed, its key marked (see
+    `_mark_unserialisable`) so later processes use the jitted function."""
+    try:
+        path.unlink()
+    except OSError:
+        pass
+    _mark_unserialisable(path)
 
 
 def cached_executable(fn: Any, *args: Any) -> CachedExecutable:
@@ -391,7 +418,7 @@ def cached_executable(fn: Any, *args: Any) -> CachedExecutable:
                 payload, in_tree, out_tree, targets = pickle.load(f)
             if _prepare_targets(set(targets)):
                 out = CachedExecutable(
-                    fn, se.deserialize_and_load(payload, in_tree, out_tree), "disk"
+                    fn, se.deserialize_and_load(payload, in_tree, out_tree), "disk", path
                 )
                 os.utime(path)
         except Exception:  # noqa: BLE001 - a torn or foreign file: compile instead

@@ -178,6 +178,33 @@ def test_cached_executable_torn_file_is_recompiled(exe_cache):
     np.testing.assert_allclose(np.asarray(again(A, b)[0]), np.asarray(_horn_like(A, b)[0]))
 
 
+def test_cached_executable_that_fails_its_first_run_is_dropped(exe_cache):
+    """XLA can write an executable without the code of fusions its process compiled
+    earlier: it loads, then fails on its first run ("Function ... not found"). The first
+    run of a loaded executable is awaited; on failure the answer comes from the jitted
+    function, the file is removed and its key marked, so no later process loads it."""
+    cc = exe_cache
+    A, b = _inputs()
+    cc.cached_executable(_horn_like, A, b)
+    (path,) = cc.executable_cache_dir().glob("*.exe")
+    cc._MEMO.clear()
+    loaded = cc.cached_executable(_horn_like, A, b)
+    assert loaded.source == "disk"
+
+    class _Broken:  # what a loaded executable without its code returns
+        def block_until_ready(self):
+            raise jax.errors.JaxRuntimeError("NOT_FOUND: Function fusion.3 not found")
+
+    loaded.compiled = lambda *a: (_Broken(), _Broken())
+    got = loaded(A, b)
+    for g, w in zip(got, _horn_like(A, b), strict=True):
+        np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-6)
+    assert loaded.source == "jit" and loaded.compiled is None
+    assert not path.exists() and path.with_suffix(".noexe").exists()
+    cc._MEMO.clear()
+    assert cc.cached_executable(_horn_like, A, b).source == "jit"
+
+
 def test_cached_executable_off_without_the_compile_cache():
     from fxspace import _compile_cache as cc
 
