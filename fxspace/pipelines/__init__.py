@@ -28,7 +28,7 @@ import re
 import time
 from pathlib import Path
 from types import ModuleType
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 from fxspace._compile_cache import compile_timer
 from fxspace.config import (
@@ -70,6 +70,8 @@ __all__ = [
     "run_config",
     "run_dict",
     "prepare_config",
+    "resolve_config",
+    "RunSpec",
     "write_docs",
     "write_bench_page",
     "load_pipeline",
@@ -230,7 +232,78 @@ def _check_seed(seed: Any) -> int:
     return seed
 
 
-def _plan(raw: dict[str, Any], out: Path, base_dir: Path | None) -> list[tuple]:
+class RunSpec(NamedTuple):
+    """One run a config describes (`resolve_config`): its `pipeline` module, `run_dir`,
+    validated `config` (the pipeline's ``Config``), `seed`, `text` (the resolved TOML a run
+    folder keeps as ``config.toml``) and the sweep `label` (``""`` for a single run)."""
+
+    pipeline: ModuleType
+    run_dir: Path
+    config: Any
+    seed: int
+    text: str
+    label: str
+
+
+def resolve_config(
+    config: str | Path | dict[str, Any],
+    out: str | Path | None = None,
+    *,
+    experiment: str | tuple[str, ...] | None = None,
+) -> list[RunSpec]:
+    """The runs a config describes, each resolved and validated: the one room where a
+    TOML becomes runs (`run_config`, `fxspace sweep` and every studio app read it here).
+
+    **Arguments:**
+
+    - `config`: a TOML file, a run folder (its ``config.toml``) or a dict.
+    - `out`: the output folder (default: the run folder itself, ``runs/<file stem>`` for a
+      file, ``runs/config`` for a dict); a ``[sweep]``'s runs are sub-folders.
+    - `experiment`: the experiment(s) the caller can open; another is refused naming both.
+
+    **Returns:** one `RunSpec` per run (all of a ``[sweep]``, in its order); relative
+    ``data.paths`` resolve against the config file's folder.
+
+    **Example:**
+
+    ```python
+    (spec,) = fx.pipelines.resolve_config("configs/navigation.toml")
+    spec.config.hierarchy.c0, spec.seed, spec.run_dir   # (4, 0, PosixPath('runs/navigation'))
+    ```
+    """
+    where, base_dir = "", None
+    if isinstance(config, dict):
+        raw, default_out = config, Path("runs") / "config"
+    elif isinstance(config, str | Path):
+        p = Path(config)
+        f = p / "config.toml" if p.is_dir() else p
+        if not f.is_file():
+            raise ConfigError(f"{config}: not a config file nor a run folder with config.toml")
+        raw, where, base_dir = load_toml(f), f"{f}: ", f.resolve().parent
+        default_out = p if p.is_dir() else Path("runs") / p.stem
+    else:
+        raise ConfigError(
+            f"config must be a TOML path, a run folder or a dict, got {type(config).__name__}"
+        )
+    if experiment is not None:
+        allowed = (experiment,) if isinstance(experiment, str) else tuple(experiment)
+        if isinstance(raw, dict) and raw.get("experiment") not in allowed:
+            raise ConfigError(
+                f"{where}experiment must be {' or '.join(map(repr, allowed))}, "
+                f"got {raw.get('experiment')!r}"
+            )
+    if isinstance(raw, dict) and "search" in raw:
+        raise ConfigError(f"{where}a [search] config runs through fxspace sweep CONFIG")
+    try:
+        plan = _plan(raw, Path(out) if out is not None else default_out, base_dir)
+    except ConfigError as e:
+        if where and not str(e).startswith(where):
+            raise ConfigError(f"{where}{e}") from None
+        raise
+    return plan
+
+
+def _plan(raw: dict[str, Any], out: Path, base_dir: Path | None) -> list[RunSpec]:
     """Resolve and validate every run of the config (all of a ``[sweep]``) up front."""
     if not isinstance(raw, dict):
         raise ConfigError(f"a config must be a table (dict), got {type(raw).__name__}")
@@ -249,8 +322,10 @@ def _plan(raw: dict[str, Any], out: Path, base_dir: Path | None) -> list[tuple]:
         except ConfigError as e:
             raise ConfigError(f"{e}{where}") from None
         resolved = {"experiment": raw["experiment"], "seed": seed, **config_to_dict(cfg)}
-        plan.append((out / label if label else out, cfg, seed, dumps_toml(resolved)))
-    return [(mod, *p) for p in plan]
+        plan.append(
+            RunSpec(mod, out / label if label else out, cfg, seed, dumps_toml(resolved), label)
+        )
+    return plan
 
 
 def _is_run_folder(d: Path) -> bool:
@@ -262,13 +337,13 @@ def _refuse_overwrite(plan: list[tuple], out: Path, force: bool) -> None:
     it writes, are never overwritten without ``force``."""
     if force:
         return
-    dirs = [p[1] for p in plan]
+    dirs = [p.run_dir for p in plan]
     if dirs != [out] and (out / "metrics.json").is_file() and _is_run_folder(out):
         raise ConfigError(
             f"{out} holds a finished run of another experiment; pass --force to replace "
             "it, or choose another --out"
         )
-    for _, run_dir, _, _, text in plan:
+    for run_dir, text in ((p.run_dir, p.text) for p in plan):
         cfg_p = run_dir / "config.toml"
         if not _is_run_folder(run_dir):
             theirs = [n for n in _RUN_FILES if (run_dir / n).exists()]
@@ -294,7 +369,7 @@ def _clean_tree(out: Path, plan: list[tuple] = ()) -> None:
     the new results. Any other run nested under ``out`` is never touched."""
     if not out.is_dir():
         return
-    dirs = [out, *(p[1] for p in plan)]
+    dirs = [out, *(p.run_dir for p in plan)]
     for d in dict.fromkeys(dirs):
         if (d / MANIFEST).is_file():
             clean_run(d)
@@ -315,7 +390,7 @@ def _run_one(
     run of another config there meanwhile)."""
     with run_lock(run_dir, wait=wait):
         if not force:
-            _refuse_overwrite([(mod, run_dir, cfg, seed, text)], run_dir, False)
+            _refuse_overwrite([RunSpec(mod, run_dir, cfg, seed, text, "")], run_dir, False)
         return _run_locked(mod, run_dir, cfg, seed, text, experiment, force)
 
 
@@ -386,8 +461,8 @@ def run_dict(
     if force:
         _clean_tree(out, plan)
     return [
-        _run_one(mod, run_dir, cfg, seed, text, raw["experiment"], force)
-        for mod, run_dir, cfg, seed, text in plan
+        _run_one(r.pipeline, r.run_dir, r.config, r.seed, r.text, raw["experiment"], force)
+        for r in plan
     ]
 
 
@@ -417,7 +492,7 @@ def prepare_config(path: str | Path, out: str | Path | None = None) -> Path:
     raw = load_toml(path)
     out = Path("runs") / Path(path).stem if out is None else Path(out)
     plan = _plan(raw, out, Path(path).resolve().parent)
-    mod, run_dir, cfg, seed, text = plan[0]
+    mod, run_dir, cfg, seed, text, _ = plan[0]
     prep = getattr(mod, "prepare_app", None)
     if prep is None:
         return run_config(path, out)[0]

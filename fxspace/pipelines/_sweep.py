@@ -50,10 +50,10 @@ def _task(config: str, out: str, run_dir: str, force: bool) -> dict[str, Any]:
     try:
         raw = load_toml(config)
         plan = _plan(raw, Path(out), Path(config).resolve().parent)
-        (entry,) = [p for p in plan if str(p[1]) == run_dir]
-        mod, d, cfg, seed, text = entry
-        _run_one(mod, d, cfg, seed, text, raw["experiment"], force, wait=None)
-        metrics = json.loads((d / "metrics.json").read_text())
+        (entry,) = [p for p in plan if str(p.run_dir) == run_dir]
+        _run_one(entry.pipeline, entry.run_dir, entry.config, entry.seed, entry.text,
+                 raw["experiment"], force, wait=None)  # fmt: skip
+        metrics = json.loads((entry.run_dir / "metrics.json").read_text())
         return SweepResult(run_dir=run_dir, status="complete", error=None, metrics=metrics)
     except Exception as e:  # noqa: BLE001 - reported per run, the sweep goes on
         tb = traceback.format_exc(limit=3)
@@ -118,7 +118,7 @@ def sweep_config(
     _refuse_overwrite(plan, out, force)
     if force:
         _clean_tree(out, plan)
-    args = [(str(path), str(out), str(p[1]), force) for p in plan]
+    args = [(str(path), str(out), str(p.run_dir), force) for p in plan]
     if scheduler is not None:
         engine = "dask"
     elif engine == "auto":

@@ -27,7 +27,7 @@ import numpy as np
 
 from fxspace import motion as M
 from fxspace._progress import progress
-from fxspace.config import ConfigError, config_from_dict, load_toml
+from fxspace.config import ConfigError
 from fxspace.data import data_path
 from fxspace.io import Motion, read_amc, read_bvh, write_bvh
 from fxspace.runs import cached, cached_arrays, run_key, save_figure_atomic, write_json_atomic
@@ -142,21 +142,15 @@ def load_setup(config: str | Path, setup: str | None = None) -> M.Setup:
     folder's cache is bound to this config, data and code (its ``cache/KEY`` equals the
     run key `fxspace run` would compute now): the studio opens in seconds, never on
     another config's spaces."""
+    from fxspace.pipelines import resolve_config  # the package front, built after this module
+
     p = Path(config)
     cfg_p = p / "config.toml" if p.is_dir() else p
-    if not cfg_p.is_file():
-        raise ConfigError(f"{config}: not a config file nor a run folder with config.toml")
-    raw = load_toml(cfg_p)
-    if raw.get("experiment") != "parametric_synthesis":
-        raise ConfigError(
-            f"{cfg_p}: experiment must be 'parametric_synthesis', got {raw.get('experiment')!r}"
-        )
-    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name", "sweep")}
-    cfg = config_from_dict(Config, body)
+    spec = resolve_config(config, experiment="parametric_synthesis")[0]  # a sweep: its first
+    cfg, seed = spec.config, spec.seed
     name = setup or cfg.setups[0]
     if name not in cfg.setups:
         raise ConfigError(f"setup {name!r} is not among the config's setups {list(cfg.setups)}")
-    seed = int(raw.get("seed", 0))
     ck = (str(cfg_p.resolve()), cfg_p.stat().st_mtime_ns, name)
     if ck not in _SETUPS and p.is_dir():
         stored = _stored_setup(p, name, cfg)

@@ -52,7 +52,6 @@ from fxspace.studio._server import (
     ServeOptions,
     attach_stop,
     new_server,
-    read_run_config,
     run_until_interrupted,
     serialized,
 )
@@ -77,8 +76,9 @@ def load_ik_mesh(target):
 
     if not (p.is_dir() or p.is_file()):
         raise FxspaceError(f"{target}: not a .glb, a mesh_ik run folder or a mesh_ik config")
-    _, raw = read_run_config(p, "mesh_ik")
-    spec = (raw.get("meshes") or ["CesiumMan:Anim_0"])[0]
+    from fxspace.pipelines import resolve_config
+
+    spec = resolve_config(p, experiment="mesh_ik")[0].config.meshes[0]
     stem, _, anim = spec.partition(":")
     mesh = read_gltf(data_path("mesh", f"{stem}.glb"))
     return mesh, (anim or (mesh.animation_names[0] if mesh.animations else None))

@@ -39,7 +39,6 @@ from fxspace.studio._server import (
     density_rgba,
     frame_density,
     new_server,
-    read_run_config,
     run_until_interrupted,
     serialized,
 )
@@ -261,8 +260,7 @@ def load_setup(target: str | Path, setup: str | None = None) -> M.Setup:
     `fxspace.pipelines.parametric_synthesis.load_setup`)."""
     from fxspace.pipelines import parametric_synthesis as ps
 
-    read_run_config(target, "parametric_synthesis")  # a clear error for another experiment
-    return ps.load_setup(target, setup)
+    return ps.load_setup(target, setup)  # another experiment: an error naming both
 
 
 def _bones(parents) -> tuple[np.ndarray, np.ndarray]:

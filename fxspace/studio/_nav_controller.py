@@ -44,7 +44,7 @@ from fxspace.navigation import (
     sparse_path_candidates,
     sparse_refine_route,
 )
-from fxspace.studio._server import FrameDensity, frame_density, read_run_config
+from fxspace.studio._server import FrameDensity, frame_density
 
 __all__ = ["DENSITY_ABOVE", "NavData", "NavigatorController", "load_nav_data"]
 
@@ -120,20 +120,14 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
     """
     import dataclasses
 
-    from fxspace.config import ConfigError, config_from_dict
     from fxspace.datasets import load_face
     from fxspace.pipelines import navigation as nav
+    from fxspace.pipelines import resolve_config
 
-    cfg_path, raw = read_run_config(target)
-    if raw.get("experiment") == "navigation_scale":
-        return _load_scale_data(target, cfg_path, raw)
-    read_run_config(target, "navigation")  # a clear error for another experiment
-    seed = int(raw.get("seed", 0))
-    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name")}
-    try:
-        cfg = config_from_dict(nav.Config, body)
-    except ConfigError as e:
-        raise ConfigError(f"{cfg_path}: {e}") from None
+    spec = resolve_config(target, experiment=("navigation", "navigation_scale"))[0]
+    if spec.pipeline.__name__.endswith("navigation_scale"):
+        return _load_scale_data(target, spec)
+    cfg, seed = spec.config, spec.seed
     if restarts is not None:
         cfg = dataclasses.replace(
             cfg, hierarchy=dataclasses.replace(cfg.hierarchy, restarts=int(restarts))
@@ -147,17 +141,11 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
     )  # fmt: skip
 
 
-def _load_scale_data(target, cfg_path: Path, raw: dict) -> NavData:
-    from fxspace.config import ConfigError, config_from_dict
+def _load_scale_data(target, spec) -> NavData:
     from fxspace.datasets import load_face
     from fxspace.pipelines import navigation_scale as ns
 
-    seed = int(raw.get("seed", 0))
-    body = {k: v for k, v in raw.items() if k not in ("experiment", "seed", "name")}
-    try:
-        cfg = config_from_dict(ns.Config, body)
-    except ConfigError as e:
-        raise ConfigError(f"{cfg_path}: {e}") from None
+    cfg, seed = spec.config, spec.seed
     face = load_face(cfg.data, seed)
     run_dir = Path(target) if Path(target).is_dir() else None
     ss = ns.load_scale_space(cfg, face.positions, run_dir, seed)
