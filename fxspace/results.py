@@ -46,6 +46,7 @@ __all__ = [
     "is_successful",
     "result_code",
     "member_code",
+    "result_from_code",
     "result_from_flags",
     "result_message",
     "result_messages",
@@ -112,6 +113,15 @@ def member_code(item: Any) -> int:
     for ``jax.distributed.initialize``)."""
     (leaf,) = jax.tree_util.tree_leaves(item)
     return int(np.asarray(leaf))
+
+
+def result_from_code(code: int) -> Any:
+    """The `RESULTS` member whose integer code is ``code`` (as `member_code` reads it), for
+    records stored as plain numbers (``.npz`` caches)."""
+    for n in _MEMBERS:
+        if member_code(getattr(RESULTS, n)) == int(code):
+            return getattr(RESULTS, n)
+    raise FxspaceError(f"no RESULTS member has code {code!r}; codes: {sorted(result_messages())}")
 
 
 def result_messages() -> dict[int, str]:

@@ -18,9 +18,8 @@ reachable.
 
 from __future__ import annotations
 
-import time
 from functools import partial
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +40,7 @@ from fxspace.navigation._links import (
     default_link_radius,
     link_graph_connected,
 )
+from fxspace.results import RESULTS, member_code, result_from_code
 
 __all__ = [
     "cold_levels",
@@ -67,18 +67,19 @@ class Level(NamedTuple):
     - `centers`: (c, 2) FCM centres in the expression space.
     - `memberships`: (T, c) fuzzy memberships of every frame.
     - `center_frames`: (c,) the frame nearest each centre (how a centre is shown).
-    - `objective`, `num_steps`, `converged`: the FCM diagnostics of this level.
-    - `num_steps_cold`: iterations one cold (k-means++) start needed (-1 if not measured).
-    - `objective_cold`: its objective (nan if not measured).
+    - `objective`, `num_steps`: the winning FCM run's objective and iterations.
+    - `result`: its [`RESULTS`][fxspace.RESULTS] member (`converged` is derived from it).
     - `links`: (c, c) symmetric bool, False on the diagonal (None if not computed).
     - `bridges`: (c, c) bool, the subset of `links` added only to keep the level connected.
     - `radius`: the ρ used for the links.
-    - `time_s`: wall time of this level's FCM (all starts; compilation included on a new
-      shape).
-    - `init`: the start that won: ``"split"``, ``"kmeans++-extend"``, ``"kmeans++"`` or
-      ``"frames"`` (c = T).
-    - `num_steps_split`: iterations of the split start alone (-1 when not run).
-    - `total_steps`: iterations of all starts together (the level's cost).
+    - `stats`: how the level was started: ``init`` (the start that won: ``"split"``,
+      ``"kmeans++-extend"``, ``"kmeans++"`` or ``"frames"`` for c = T),
+      ``num_steps_split`` (iterations of the split start alone, -1 when not run) and
+      ``total_steps`` (iterations of all starts together: the level's cost). Also read
+      as the properties `init`, `num_steps_split`, `total_steps`.
+
+    Timings and the cold-start comparison are benchmarks, not part of a level: see
+    `cold_levels` and the navigation pipeline's metrics.
     """
 
     n_clusters: int
@@ -87,16 +88,28 @@ class Level(NamedTuple):
     center_frames: np.ndarray
     objective: float
     num_steps: int
-    converged: bool
-    num_steps_cold: int
-    objective_cold: float
+    result: Any
     links: np.ndarray | None
     bridges: np.ndarray | None
     radius: float
-    time_s: float
-    init: str = ""
-    num_steps_split: int = -1
-    total_steps: int = -1
+    stats: dict[str, Any]
+
+    @property
+    def converged(self) -> bool:
+        """``result == RESULTS.successful`` (derived, not stored)."""
+        return bool(self.result == RESULTS.successful)
+
+    @property
+    def init(self) -> str:
+        return str(self.stats.get("init", ""))
+
+    @property
+    def num_steps_split(self) -> int:
+        return int(self.stats.get("num_steps_split", -1))
+
+    @property
+    def total_steps(self) -> int:
+        return int(self.stats.get("total_steps", -1))
 
     @property
     def labels(self) -> np.ndarray:
@@ -240,9 +253,8 @@ def _level_starts(x, c, prev, k_cold, k_ext, *, warm_start, restarts, split,
     ]
 
 
-def _level(x, c: int, T: int, res, runs, best: int, prev, dt: float, steps_cold: int,
-           obj_cold: float, geodesics, max_link_centres, rho_scale: float, warm_start: bool,
-           split: bool) -> Level:  # fmt: skip
+def _level(x, c: int, T: int, res, runs, best: int, prev, geodesics, max_link_centres,
+           rho_scale: float, warm_start: bool, split: bool) -> Level:  # fmt: skip
     """One `Level` of `build_hierarchy` from its winning FCM run: the centres' frames, the
     links (with ``geodesics``), how it was started."""
     frames = nearest_frames(x, res.centers)
@@ -257,6 +269,9 @@ def _level(x, c: int, T: int, res, runs, best: int, prev, dt: float, steps_cold:
         init_name = "kmeans++"
     else:
         init_name = "split" if (split and best == 0) else "kmeans++-extend"
+    split_steps = -1
+    if split and init_name.startswith(("split", "kmeans++-")):
+        split_steps = int(runs[0].num_steps)
     return Level(
         n_clusters=c,
         centers=np.asarray(res.centers),
@@ -264,19 +279,13 @@ def _level(x, c: int, T: int, res, runs, best: int, prev, dt: float, steps_cold:
         center_frames=frames,
         objective=float(res.objective),
         num_steps=int(res.num_steps),
-        converged=bool(res.converged),
-        num_steps_cold=steps_cold,
-        objective_cold=obj_cold,
+        result=res.result,
         links=links,
         bridges=bridges,
         radius=rho,
-        time_s=dt,
-        init=init_name,
-        num_steps_split=int(runs[0].num_steps)
-        if split and init_name.startswith(("split", "kmeans++-"))
-        else -1,
-        total_steps=int(sum(int(r.num_steps) for r in runs)),
-    )
+        stats={"init": init_name, "num_steps_split": split_steps,
+               "total_steps": int(sum(int(r.num_steps) for r in runs))},
+    )  # fmt: skip
 
 
 @checked
@@ -293,7 +302,6 @@ def build_hierarchy(
     restarts: int = 1,
     split: bool = True,
     first_level_seeds: int = 8,
-    compare_cold: bool = False,
     rho_scale: float = 0.5,
     max_link_centres: int | None = None,
     criterion: Literal["max", "fro"] = "max",
@@ -317,8 +325,6 @@ def build_hierarchy(
       which need ``restarts`` ≥ 1).
     - `first_level_seeds`: k-means++ seeds at the first level (cheap there, and it decides
       the coarse structure every finer level inherits).
-    - `compare_cold`: also run every warm-started level cold (one k-means++ seed) to
-      measure the iterations the warm start saves (``num_steps_cold``/``objective_cold``).
     - `rho_scale`: ρ = rho_scale × median nearest-centre spacing of the level.
     - `max_link_centres`: skip links for levels with more centres (None: all levels).
 
@@ -345,9 +351,8 @@ def build_hierarchy(
                 first_level_seeds=first_level_seeds, m=m)  # fmt: skip
     levels: list[Level] = []
     prev: FCMResult | None = None
-    for li, c in enumerate(level_sizes(T, c0)):
+    for c in level_sizes(T, c0):
         key, k_cold, k_ext = jax.random.split(key, 3)
-        t0 = time.perf_counter()
         inits = _level_starts(x, c, prev, k_cold, k_ext, **opts)
         # the starts run one after another: on CPU a vmapped while-loop costs more than the
         # sum of the single runs (every lane pays for the slowest)
@@ -357,16 +362,9 @@ def build_hierarchy(
         objs = np.asarray([float(r.objective) for r in runs])
         best = int(np.argmin(np.where(np.isnan(objs), np.inf, objs)))
         res = runs[best]
-        dt = time.perf_counter() - t0
-        steps_cold, obj_cold = -1, float("nan")
-        if compare_cold and warm_start and 0 < li and c < T:
-            cold = fuzzy_cmeans(x, c, m, key=k_cold, **fcm_kw)
-            steps_cold, obj_cold = int(cold.num_steps), float(cold.objective)
-        elif li == 0 or not warm_start or c == T:
-            steps_cold, obj_cold = int(res.num_steps), float(res.objective)
         levels.append(_level(
-            x, c, T, res, runs, best, prev, dt, steps_cold, obj_cold, geodesics,
-            max_link_centres, rho_scale, warm_start, split,
+            x, c, T, res, runs, best, prev, geodesics, max_link_centres, rho_scale,
+            warm_start, split,
         ))  # fmt: skip
         prev = res
     return Hierarchy(tuple(levels), np.asarray(x))
@@ -383,11 +381,10 @@ def cold_levels(
     max_steps: int = 300,
     criterion: Literal["max", "fro"] = "max",
 ) -> list[dict]:
-    """The cold runs that `build_hierarchy` (``compare_cold=True``) would make, on their
-    own: for every warm-started level (not the first, not the finest), fuzzy c-means from
-    one k-means++ seed drawn from the same key sequence, so the numbers are the ones
-    ``compare_cold`` stores in each `Level`. A benchmark of the warm start, kept out of
-    the hierarchy an app builds. Returns ``[{"n_clusters", "num_steps_cold",
+    """The warm start's benchmark, apart from the hierarchy: for every warm-started level
+    of `build_hierarchy` (not the first, not the finest), fuzzy c-means from one
+    k-means++ seed drawn from the same key sequence (each level's ``k_cold``). The
+    hierarchy an app builds runs none of it. Returns ``[{"n_clusters", "num_steps_cold",
     "objective_cold"}]`` per level (``-1``/NaN where no cold run applies)."""
     x = jnp.asarray(embedding)
     T = x.shape[0]
@@ -404,10 +401,8 @@ def cold_levels(
     return out
 
 
-_LEVEL_SCALARS = (
-    "n_clusters", "objective", "num_steps", "converged", "num_steps_cold", "objective_cold",
-    "radius", "time_s", "num_steps_split", "total_steps",
-)  # fmt: skip
+_LEVEL_SCALARS = ("n_clusters", "objective", "num_steps", "radius")
+_LEVEL_STATS = ("num_steps_split", "total_steps")
 
 
 @checked
@@ -415,8 +410,8 @@ def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
     """A flat ``{name: array}`` of a `Hierarchy` (for `fxspace.runs.cached_arrays` or an
     ``.npz``; no pickles): ``embedding``, ``n_levels`` and, per level ``i``,
     ``l{i}_centers``, ``l{i}_memberships`` (float32), ``l{i}_center_frames``,
-    ``l{i}_links``/``l{i}_bridges`` (absent when not computed), ``l{i}_init`` and the
-    scalars. `hierarchy_from_arrays` inverts it."""
+    ``l{i}_links``/``l{i}_bridges`` (absent when not computed), ``l{i}_result`` (the
+    `RESULTS` code), ``l{i}_init`` and the scalars and stats. `hierarchy_from_arrays` inverts it."""
     out: dict[str, np.ndarray] = {
         "embedding": np.asarray(h.embedding), "n_levels": np.asarray(len(h.levels)),
     }  # fmt: skip
@@ -429,8 +424,11 @@ def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
         if lv.links is not None:
             out[p + "links"] = np.asarray(lv.links, bool)
             out[p + "bridges"] = np.asarray(lv.bridges, bool)
+        out[p + "result"] = np.asarray(member_code(lv.result))
         for f in _LEVEL_SCALARS:
             out[p + f] = np.asarray(getattr(lv, f))
+        for f in _LEVEL_STATS:
+            out[p + f] = np.asarray(lv.stats.get(f, -1))
     return out
 
 
@@ -454,7 +452,9 @@ def hierarchy_from_arrays(a: dict[str, np.ndarray]) -> Hierarchy:
                 center_frames=np.asarray(a[p + "center_frames"]),
                 links=np.asarray(a[p + "links"]) if p + "links" in a else None,
                 bridges=np.asarray(a[p + "bridges"]) if p + "bridges" in a else None,
-                init=str(a[p + "init"]),
+                result=result_from_code(a[p + "result"].item()),
+                stats={"init": str(a[p + "init"]),
+                       **{f: int(a[p + f].item()) for f in _LEVEL_STATS}},
                 **sc,
             ))  # fmt: skip
         return Hierarchy(tuple(levels), np.asarray(a["embedding"]))

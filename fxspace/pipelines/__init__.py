@@ -268,7 +268,7 @@ def resolve_config(
 
     ```python
     (spec,) = fx.pipelines.resolve_config("configs/navigation.toml")
-    spec.config.hierarchy.c0, spec.seed, spec.run_dir   # (4, 0, PosixPath('runs/navigation'))
+    spec.config.hierarchy.c0, spec.seed, spec.run_dir   # (10, 0, PosixPath('runs/navigation'))
     ```
     """
     where, base_dir = "", None

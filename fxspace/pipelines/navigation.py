@@ -234,13 +234,13 @@ def _space(P: Callable, eps: float) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def build_levels(cfg: Config, Y, geo, seed: int, restarts: int, compare_cold: bool = False):
+def build_levels(cfg: Config, Y, geo, seed: int, restarts: int):
     """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer)."""
     hc = cfg.hierarchy
     return build_hierarchy(
         Y, geo, c0=hc.c0, m=hc.m, key=jax.random.PRNGKey(seed), tol=hc.tol,
         max_steps=hc.max_steps, warm_start=True, restarts=restarts,
-        compare_cold=compare_cold, rho_scale=hc.rho_scale,
+        rho_scale=hc.rho_scale,
         max_link_centres=hc.max_link_centres or None,
     )  # fmt: skip
 
@@ -381,9 +381,9 @@ def _write_outputs(
 
 
 def _level_metrics(lv, cold: dict | None = None) -> dict:
-    cold = cold or {"num_steps_cold": lv.num_steps_cold, "objective_cold": lv.objective_cold}
-    if cold["num_steps_cold"] < 0 and lv.num_steps_cold >= 0:  # first / finest level
-        cold = {"num_steps_cold": lv.num_steps_cold, "objective_cold": lv.objective_cold}
+    if lv.init in ("kmeans++", "frames"):  # first / finest level: the run itself is cold
+        cold = {"num_steps_cold": lv.num_steps, "objective_cold": lv.objective}
+    cold = cold or {"num_steps_cold": -1, "objective_cold": float("nan")}
     return {
         "centres": lv.n_clusters,
         "init": lv.init,
@@ -399,7 +399,6 @@ def _level_metrics(lv, cold: dict | None = None) -> dict:
         "bridges": int(lv.bridges.sum() // 2) if lv.bridges is not None else None,
         "link_graph_connected": link_graph_connected(lv) if lv.links is not None else None,
         "radius": lv.radius,
-        "fcm_time_s": lv.time_s,
     }
 
 

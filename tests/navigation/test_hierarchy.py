@@ -26,7 +26,7 @@ def space():
     eps = float(fx.connecting_threshold(P)) * 1.3
     W = fx.epsilon_graph(P, eps)
     geo = fx.geodesic_distances(W)
-    h = fx.build_hierarchy(X, geo, c0=8, key=jax.random.PRNGKey(0), compare_cold=True)
+    h = fx.build_hierarchy(X, geo, c0=8, key=jax.random.PRNGKey(0))
     return X, W, geo, h
 
 
@@ -59,8 +59,8 @@ def test_finer_level_never_worse_in_objective(space):
     objs = [lv.objective for lv in h.levels]
     assert all(b <= a for a, b in zip(objs[:-1], objs[1:], strict=True)), objs
     for lv in h.levels[1:-1]:
-        assert lv.init in ("split", "kmeans++-extend")
-        assert lv.num_steps_cold > 0 and np.isfinite(lv.objective_cold)
+        assert lv.init in ("split", "kmeans++-extend") and lv.init == lv.stats["init"]
+        assert lv.total_steps >= lv.num_steps > 0 and lv.converged
 
 
 def test_warm_start_never_worse_than_its_split_start(space):
@@ -153,15 +153,22 @@ def test_embedding_with_nan_rejected():
         fx.build_hierarchy(X)
 
 
-def test_cold_levels_are_the_cold_runs_of_compare_cold(space):
+def test_cold_levels_are_the_cold_runs_apart_from_the_hierarchy(space):
     """Issue 31.9 / 29.3: the warm start's benchmark runs apart from the hierarchy (the
-    app builds none of it) and gives the numbers ``compare_cold`` stores."""
+    app builds none of it; `Level` carries no benchmark fields): every warm-started level
+    gets fuzzy c-means from one k-means++ seed of the hierarchy's own key sequence."""
     from fxspace.navigation import cold_levels
 
     X, _, _, h = space
+    assert not {"num_steps_cold", "objective_cold", "time_s"} & set(h.levels[0]._fields)
     cold = cold_levels(X, c0=8, key=jax.random.PRNGKey(0))
     assert [c["n_clusters"] for c in cold] == list(h.sizes)
-    for lv, c in zip(h.levels[1:-1], cold[1:-1], strict=True):  # warm-started levels
-        assert c["num_steps_cold"] == lv.num_steps_cold > 0
-        assert c["objective_cold"] == pytest.approx(lv.objective_cold, rel=1e-6)
-    assert cold[0]["num_steps_cold"] == -1 and cold[-1]["num_steps_cold"] == -1
+    key = jax.random.PRNGKey(0)
+    for c, lv in zip(cold, h.levels, strict=True):
+        key, k_cold, _ = jax.random.split(key, 3)
+        if c is cold[0] or c is cold[-1]:
+            assert c["num_steps_cold"] == -1 and np.isnan(c["objective_cold"])
+            continue
+        ref = fx.fuzzy_cmeans(jnp.asarray(X), lv.n_clusters, key=k_cold)
+        assert c["num_steps_cold"] == int(ref.num_steps) > 0
+        assert c["objective_cold"] == pytest.approx(float(ref.objective), rel=1e-9)

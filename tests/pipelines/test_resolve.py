@@ -41,14 +41,17 @@ def test_a_file_a_run_folder_and_a_dict(tmp_path):
 def test_relative_data_paths_resolve_against_the_config_folder(tmp_path):
     (tmp_path / "take.trc").write_text("x")
     cfg = tmp_path / "c.toml"
-    cfg.write_text('experiment = "threshold_sweep"\n[data]\nsource = "files"\npaths = ["take.trc"]\n')
+    cfg.write_text(
+        'experiment = "threshold_sweep"\n[data]\nsource = "files"\npaths = ["take.trc"]\n'
+    )
     (spec,) = resolve_config(cfg)
     assert spec.config.data.paths == (str(tmp_path / "take.trc"),)
 
 
 def test_refusals_name_the_file_and_the_fix(tmp_path):
     nav = ROOT / "configs" / "navigation.toml"
-    with pytest.raises(ConfigError, match=r"navigation.toml: experiment must be 'mesh_ik'.*'navigation'"):
+    msg = r"navigation.toml: experiment must be 'mesh_ik'.*'navigation'"
+    with pytest.raises(ConfigError, match=msg):
         resolve_config(nav, experiment="mesh_ik")
     bad = tmp_path / "bad.toml"
     bad.write_text('experiment = "threshold_sweep"\n[graph]\nnum_thresholds = 0\n')

@@ -204,8 +204,8 @@ def _many_frames(T=30_000, c=8, seed=0):
     links[np.arange(c), (np.arange(c) + 1) % c] = True
     links |= links.T
     mem = np.full((T, c), 1.0 / c)
-    lv = Level(c, xy[cf], mem, cf, 0.0, 0, True, -1, float("nan"), links,
-               np.zeros_like(links), 1.0, 0.0)  # fmt: skip
+    lv = Level(c, xy[cf], mem, cf, 0.0, 0, fx.RESULTS.successful, links,
+               np.zeros_like(links), 1.0, {"init": "kmeans++"})  # fmt: skip
     fine = lv._replace(n_clusters=T, centers=xy, memberships=np.zeros((0, 0)),
                        center_frames=np.arange(T), links=None, bridges=None)  # fmt: skip
     return NavData(Hierarchy((lv, fine), xy), None, np.zeros((T, 3, 3)))
