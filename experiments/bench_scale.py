@@ -10,7 +10,7 @@ ours:   features → sparse neighbourhood graph → max-min landmarks + landmark
         (10, 20, 40, … centres), links on the sparse graph and a route between centres;
         then the finest level (every frame a centre, links on the graph's edges; skip
         with ``--no-finest``) and a route query: 4 key centres of the coarsest level
-        refined level by level down to frames (`fxspace.navigation.sparse_navigate`).
+        refined level by level down to frames (`fxspace.navigation.navigate` on the k-NN graph).
 peers:  the route a user would otherwise take in the same run — scipy Dijkstra from the
         same landmarks on the same graph, scikit-learn's k-NN graph, and scikit-learn
         ``Isomap`` end to end (its own landmark-free graph) where it fits in memory.
@@ -199,22 +199,24 @@ def main(argv=None) -> int:
 
     if not a.no_navigation and mds is not None:
         from fxspace.navigation import (
+            Hierarchy,
+            bridge_keys,
+            build_hierarchy,
             finest_level,
-            sparse_bridge_keys,
-            sparse_hierarchy,
-            sparse_navigate,
-            sparse_route,
+            frame_path,
+            navigate,
         )
 
         h = None
         with Stage("hierarchy + links"):
-            h = sparse_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed))
+            h = build_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed))
+            h = list(h.levels)
             out["levels"] = [int(lv.n_clusters) for lv in h]
             out["links"] = [int(lv.links.nnz // 2) for lv in h]
         with Stage("route"):
             lv = h[-1]
             keys = lv.center_frames[np.linspace(0, lv.n_clusters - 1, 4).astype(int)]
-            out["route_frames"] = int(len(sparse_route(g, keys)))
+            out["route_frames"] = int(len(frame_path(g, keys)))
         if not a.no_finest and h is not None:
             fine = None
             with Stage("finest level (all frames) + links"):
@@ -222,10 +224,10 @@ def main(argv=None) -> int:
                 out["links_finest"] = int(fine.links.nnz // 2)
                 out["links_finest_bridges"] = int(fine.bridges.nnz // 2)
             with Stage("route: 4 keys, coarsest → frames"):
-                hl = [*h, fine]
+                hl = Hierarchy((*h, fine), np.asarray(mds.embedding, np.float64))
                 picks = np.linspace(0, h[0].n_clusters - 1, 4).astype(int).tolist()
-                keys, _ = sparse_bridge_keys(hl, g, 0, picks)
-                routes = sparse_navigate(hl, mds.embedding, g, keys)
+                keys, _ = bridge_keys(hl, g, 0, picks)
+                routes = navigate(hl, g, keys)
                 fr = routes[-1].frames
                 csr = to_scipy(g)
                 out["route_levels_centres"] = [len(r.centres) for r in routes]

@@ -2,17 +2,24 @@
 levels, links between centres, routes refined level by level, playback.
 """
 
+from fxspace.navigation._front import bridge_keys as bridge_keys
+from fxspace.navigation._front import build_hierarchy as build_hierarchy
+from fxspace.navigation._front import center_links as center_links
+from fxspace.navigation._front import frame_path as frame_path
+from fxspace.navigation._front import hierarchy_from_arrays as hierarchy_from_arrays
+from fxspace.navigation._front import hierarchy_to_arrays as hierarchy_to_arrays
+from fxspace.navigation._front import is_sparse as is_sparse
+from fxspace.navigation._front import make_route as make_route
+from fxspace.navigation._front import navigate as navigate
+from fxspace.navigation._front import path_candidates as path_candidates
+from fxspace.navigation._front import refine_route as refine_route
 from fxspace.navigation._hierarchy import Hierarchy as Hierarchy
 from fxspace.navigation._hierarchy import Level as Level
-from fxspace.navigation._hierarchy import build_hierarchy as build_hierarchy
 from fxspace.navigation._hierarchy import cold_levels as cold_levels
-from fxspace.navigation._hierarchy import hierarchy_from_arrays as hierarchy_from_arrays
-from fxspace.navigation._hierarchy import hierarchy_to_arrays as hierarchy_to_arrays
 from fxspace.navigation._hierarchy import level_sizes as level_sizes
 from fxspace.navigation._hierarchy import nearest_frames as nearest_frames
 from fxspace.navigation._hierarchy import split_centers as split_centers
 from fxspace.navigation._index import GridIndex as GridIndex
-from fxspace.navigation._links import center_links as center_links
 from fxspace.navigation._links import default_link_radius as default_link_radius
 from fxspace.navigation._links import link_graph_connected as link_graph_connected
 from fxspace.navigation._links import link_pairs as link_pairs
@@ -21,26 +28,10 @@ from fxspace.navigation._playback import playback as playback
 from fxspace.navigation._playback import rigid_align as rigid_align
 from fxspace.navigation._routes import NavigationError as NavigationError
 from fxspace.navigation._routes import Route as Route
-from fxspace.navigation._routes import bridge_keys as bridge_keys
-from fxspace.navigation._routes import frame_path as frame_path
 from fxspace.navigation._routes import is_graph_walk as is_graph_walk
-from fxspace.navigation._routes import make_route as make_route
-from fxspace.navigation._routes import navigate as navigate
-from fxspace.navigation._routes import path_candidates as path_candidates
-from fxspace.navigation._routes import refine_route as refine_route
 from fxspace.navigation._scale import SparseLevel as SparseLevel
 from fxspace.navigation._scale import finest_level as finest_level
 from fxspace.navigation._scale import frame_links as frame_links
-from fxspace.navigation._scale import sparse_hierarchy as sparse_hierarchy
-from fxspace.navigation._scale import sparse_levels_from_arrays as sparse_levels_from_arrays
-from fxspace.navigation._scale import sparse_levels_to_arrays as sparse_levels_to_arrays
-from fxspace.navigation._scale import sparse_links as sparse_links
-from fxspace.navigation._scale import sparse_route as sparse_route
-from fxspace.navigation._scale_routes import sparse_bridge_keys as sparse_bridge_keys
-from fxspace.navigation._scale_routes import sparse_make_route as sparse_make_route
-from fxspace.navigation._scale_routes import sparse_navigate as sparse_navigate
-from fxspace.navigation._scale_routes import sparse_path_candidates as sparse_path_candidates
-from fxspace.navigation._scale_routes import sparse_refine_route as sparse_refine_route
 from fxspace.navigation._space import SWEEP_THRESHOLDS as SWEEP_THRESHOLDS
 from fxspace.navigation._space import THRESHOLD_CRITERIA as THRESHOLD_CRITERIA
 from fxspace.navigation._space import NavigationSpace as NavigationSpace
@@ -62,6 +53,7 @@ __all__ = [
     "cold_levels",
     "hierarchy_from_arrays",
     "hierarchy_to_arrays",
+    "is_sparse",
     "center_links",
     "default_link_radius",
     "level_sizes",
@@ -82,16 +74,6 @@ __all__ = [
     "playback",
     "rigid_align",
     "SparseLevel",
-    "sparse_hierarchy",
-    "sparse_links",
-    "sparse_route",
-    "sparse_levels_to_arrays",
-    "sparse_levels_from_arrays",
     "frame_links",
     "finest_level",
-    "sparse_make_route",
-    "sparse_bridge_keys",
-    "sparse_path_candidates",
-    "sparse_refine_route",
-    "sparse_navigate",
 ]

@@ -22,9 +22,11 @@ sparse `fxspace.expression.NeighbourGraph`:
   forest of the link components (no Dijkstra over the whole graph);
 - **routes**: key frames joined by shortest graph paths
   (`fxspace.sparse_shortest_path`); routes refined level by level in
-  `fxspace.navigation.sparse_navigate`.
+  `fxspace.navigate` on the graph.
 
 Memory O(T·(K + B)) for a batch of B centres' Dijkstra rows; the finest level O(T·K).
+This is the sparse implementation behind `fxspace.build_hierarchy`, `center_links`,
+`frame_path` and `hierarchy_to_arrays` (`._front`) when they are given a `NeighbourGraph`.
 """
 
 from __future__ import annotations

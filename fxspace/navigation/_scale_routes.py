@@ -1,7 +1,7 @@
 """Key-frame navigation through the sparse hierarchy (seed paper §4–5, at scale).
 
 The same steps as `fxspace.make_route` / `fxspace.refine_route` / `fxspace.navigate`, on
-the `SparseLevel`\\ s of `fxspace.navigation.sparse_hierarchy` and the sparse
+the `SparseLevel`\\ s of a sparse `fxspace.build_hierarchy` and the sparse
 `fxspace.expression.NeighbourGraph` instead of a ``(c, c)`` link matrix and a ``T × T``
 next-hop matrix:
 
@@ -16,7 +16,10 @@ next-hop matrix:
   found by a Dijkstra bounded by the link's length (a direct edge as is), so the finest
   level (every frame a centre) costs no Dijkstra over the whole graph.
 
-All functions are pure: a `Route` in, a new `Route` out.
+All functions are pure: a `Route` in, a new `Route` out. They are the sparse
+implementation behind the public `fxspace.navigation` names (`._front`), which choose it
+when the hierarchy's levels are `SparseLevel`\\ s and the paths a `NeighbourGraph`; the
+``fx.navigation.sparse_*`` names in the examples below are these implementations.
 """
 
 from __future__ import annotations

@@ -8,14 +8,15 @@ neighbour graph (`fxspace.expression.neighbourhood_graph`, memory O(T·k)) → g
 from max-min landmarks and landmark MDS (the 2-D expression space; its r against the
 landmark geodesics is reported) → fuzzy c-means levels with sparse memberships, their
 links and the **finest level, where every frame is a centre**
-(`fxspace.navigation.sparse_hierarchy(..., finest=True)`: links as ``csr_array``\\ s) →
+(`fxspace.navigation.build_hierarchy` on the graph, ``finest=True``: links as
+``csr_array``\\ s) →
 a scripted route (key centres along links at level 0, refined level by level to frames,
-`fxspace.navigation.sparse_navigate`). ``fxspace studio`` opens the run in the navigator
+`fxspace.navigation.navigate`). ``fxspace studio`` opens the run in the navigator
 (the pad shows the frames' density past 20 000 frames).
 
 Stages (`STAGES`, cached in ``run_dir/cache``; an interrupted run resumes and the
 navigator reads them): ``space`` (the graph and the embedding) and ``hierarchy`` (the
-levels, `fxspace.navigation.sparse_levels_to_arrays`).
+levels, `fxspace.navigation.hierarchy_to_arrays`).
 """
 
 from __future__ import annotations
@@ -46,12 +47,12 @@ from fxspace.expression import (
 from fxspace.navigation import (
     Hierarchy,
     SparseLevel,
+    bridge_keys,
+    build_hierarchy,
+    hierarchy_from_arrays,
+    hierarchy_to_arrays,
+    navigate,
     playback,
-    sparse_bridge_keys,
-    sparse_hierarchy,
-    sparse_levels_from_arrays,
-    sparse_levels_to_arrays,
-    sparse_navigate,
 )
 from fxspace.runs import cached_arrays, save_figure_atomic, write_json_atomic
 
@@ -187,12 +188,12 @@ def load_scale_space(cfg: Config, positions, run_dir: Path | None, seed: int) ->
     stage(f"{hc.levels} FCM levels from c0 = {hc.c0}" + (" + every frame" if hc.finest else ""))
 
     def levels() -> dict:
-        h = sparse_hierarchy(Y, g, levels=hc.levels, c0=hc.c0, key=jax.random.key(seed),
-                             nearest=hc.nearest, finest=hc.finest)  # fmt: skip
-        return sparse_levels_to_arrays(h)
+        h = build_hierarchy(Y, g, levels=hc.levels, c0=hc.c0, key=jax.random.key(seed),
+                            nearest=hc.nearest, finest=hc.finest)  # fmt: skip
+        return hierarchy_to_arrays(h)
 
     ha = _stage(run_dir, "hierarchy", levels)
-    return ScaleSpace(g, Y, sparse_levels_from_arrays(ha), float(sp["r"]))
+    return ScaleSpace(g, Y, list(hierarchy_from_arrays(ha).levels), float(sp["r"]))
 
 
 def auto_scale_keys(levels, embedding, n: int, level: int = 0) -> list[int]:
@@ -233,8 +234,8 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     t0 = time.perf_counter()
     stage(f"{len(levels)} levels {[lv.n_clusters for lv in levels]}: route through {keys}")
     try:
-        keys, notes = sparse_bridge_keys(levels, g, 0, keys)
-        routes = sparse_navigate(levels, Y, g, keys)
+        keys, notes = bridge_keys(ss.hierarchy, g, 0, keys)
+        routes = navigate(ss.hierarchy, g, keys)
     except FxspaceError as e:  # a NavigationError names the centre
         raise ConfigError(f"navigation.key_centres: {e}") from e
     timings["navigation_s"] = time.perf_counter() - t0

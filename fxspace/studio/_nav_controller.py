@@ -39,10 +39,6 @@ from fxspace.navigation import (
     playback,
     refine_route,
     rigid_align,
-    sparse_bridge_keys,
-    sparse_make_route,
-    sparse_path_candidates,
-    sparse_refine_route,
 )
 from fxspace.studio._server import FrameDensity, frame_density
 
@@ -60,7 +56,7 @@ class NavData:
     At scale (a ``navigation_scale`` run) ``hierarchy`` holds
     `fxspace.navigation.SparseLevel` objects (links as ``csr_array``), ``geodesics`` is None
     and ``graph`` is the frames' `fxspace.expression.NeighbourGraph`: routes are then made,
-    bridged and refined on the graph (`fxspace.navigation.sparse_make_route` & co.), with
+    bridged and refined on the graph (the same `fxspace.navigation.make_route` & co.), with
     no ``T × T`` or ``c × c`` matrix anywhere."""
 
     hierarchy: Hierarchy
@@ -79,35 +75,24 @@ class NavData:
 
 
 class _Routes:
-    """The route operations of the dense hierarchy (geodesic matrices) or of the sparse
-    one (neighbourhood graph): one interface for the controller."""
+    """The route operations on the data's hierarchy and paths (the geodesics, or the
+    neighbourhood graph at scale): one interface, `fxspace.navigation`'s."""
 
     def __init__(self, data: NavData):
         self.d = data
+        self.paths = data.graph if data.sparse else data.geodesics
 
     def make(self, level: int, centres, anchors=None) -> Route:
-        d = self.d
-        if d.sparse:
-            return sparse_make_route(d.hierarchy.levels, d.graph, level, centres, anchors)
-        return make_route(d.hierarchy, d.geodesics, level, centres, anchors=anchors)
+        return make_route(self.d.hierarchy, self.paths, level, centres, anchors=anchors)
 
     def bridge(self, level: int, keys) -> tuple[list[int], list[str]]:
-        d = self.d
-        if d.sparse:
-            return sparse_bridge_keys(d.hierarchy.levels, d.graph, level, keys)
-        return bridge_keys(d.hierarchy, d.geodesics, level, keys)
+        return bridge_keys(self.d.hierarchy, self.paths, level, keys)
 
     def refine(self, route: Route) -> Route:
-        d = self.d
-        if d.sparse:
-            return sparse_refine_route(d.hierarchy.levels, d.hierarchy.embedding, d.graph, route)
-        return refine_route(d.hierarchy, d.geodesics, route)
+        return refine_route(self.d.hierarchy, self.paths, route)
 
     def candidates(self, level: int, frames) -> np.ndarray:
-        d = self.d
-        if d.sparse:
-            return sparse_path_candidates(d.hierarchy.levels, d.hierarchy.embedding, level, frames)
-        return path_candidates(d.hierarchy, level, frames)
+        return path_candidates(self.d.hierarchy, level, frames)
 
 
 def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData:

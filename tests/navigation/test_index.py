@@ -33,5 +33,6 @@ def test_ids_duplicates_and_errors():
 def test_links_module_keeps_old_names():
     from fxspace.navigation import _hierarchy, _links
 
-    assert _hierarchy.center_links is _links.center_links is fx.center_links
+    assert _hierarchy.center_links is _links.center_links  # the dense implementation
+    assert fx.center_links is fx.navigation.center_links  # the front: dense or sparse
     assert fx.link_graph_connected is _links.link_graph_connected

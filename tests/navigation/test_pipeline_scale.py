@@ -63,16 +63,16 @@ def test_interrupted_after_the_space_resumes(tmp_path, monkeypatch):
     calls = []
     real_space = nsc._space
     monkeypatch.setattr(nsc, "_space", lambda *a: calls.append(1) or real_space(*a))
-    real_h = nsc.sparse_hierarchy
+    real_h = nsc.build_hierarchy
 
     def interrupt(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(nsc, "sparse_hierarchy", interrupt)
+    monkeypatch.setattr(nsc, "build_hierarchy", interrupt)
     with pytest.raises(KeyboardInterrupt):
         run_dict(SMALL, tmp_path / "a")
     assert (tmp_path / "a" / "cache" / "space.npz").is_file() and len(calls) == 1
-    monkeypatch.setattr(nsc, "sparse_hierarchy", real_h)
+    monkeypatch.setattr(nsc, "build_hierarchy", real_h)
     (d,) = run_dict(SMALL, tmp_path / "a")
     assert len(calls) == 1  # the space came from the cache
     assert _metrics(d) == _metrics(ref)

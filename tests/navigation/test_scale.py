@@ -4,12 +4,15 @@ import pytest
 
 import fxspace as fx
 from fxspace.navigation import (
+    build_hierarchy,
+    center_links,
     finest_level,
     frame_links,
-    sparse_hierarchy,
-    sparse_links,
-    sparse_route,
+    frame_path,
 )
+
+# the sparse implementation itself, for its `near` / `batch` options
+from fxspace.navigation._scale import sparse_links as _sparse_links
 
 
 def _ring(rng, n=400):
@@ -22,7 +25,7 @@ def test_route_is_a_shortest_walk_through_the_keys(rng):
     X = _ring(rng)
     g = fx.neighbourhood_graph(X, k=6, reduce_dim=None)
     keys = [0, 100, 250, 399]
-    r = sparse_route(g, keys)
+    r = frame_path(g, keys)
     assert r[0] == 0 and r[-1] == 399
     assert all(k in r.tolist() for k in keys)
     A = fx.expression.to_scipy(g).toarray()
@@ -44,7 +47,9 @@ def test_links_follow_the_ring_and_never_cross_it(rng):
             for a in angles
         ]
     )
-    links, bridges = sparse_links(g, X, cf, near=4)
+    links, bridges = _sparse_links(g, X, cf, near=4)
+    L2, B2 = center_links(X, g, cf)  # the public front, default near
+    assert (L2 != links).nnz == 0 and (B2 != bridges).nnz == 0
     # each centre is linked to its two ring neighbours only: the path to any other centre
     # passes next to a centre in between
     assert links.sum(axis=1).tolist() == [2] * 8 and bridges.nnz == 0
@@ -55,7 +60,7 @@ def test_links_follow_the_ring_and_never_cross_it(rng):
 def test_hierarchy_levels_and_links(rng):
     X = _ring(rng, 600)
     g = fx.neighbourhood_graph(X, k=6, reduce_dim=None)
-    h = sparse_hierarchy(X, g, levels=3, c0=4, key=jax.random.key(0))
+    h = build_hierarchy(X, g, levels=3, c0=4, key=jax.random.key(0)).levels
     assert [lv.n_clusters for lv in h] == [4, 8, 16]
     for lv in h:
         assert lv.fcm.memberships.shape == (600, min(8, lv.n_clusters))
@@ -69,7 +74,7 @@ def test_hierarchy_levels_and_links(rng):
 def test_route_needs_keys():
     g = fx.graph_from_dense(np.array([[0.0, 1.0], [1.0, 0.0]]))
     with pytest.raises(fx.FxspaceError, match="key_frames"):
-        sparse_route(g, [])
+        frame_path(g, [])
 
 
 # -- issue 24: sparse links against the dense (c, c) implementation they replace ---------
@@ -160,7 +165,7 @@ def test_sparse_links_equal_the_dense_reference(seed, near, batch, k, split):
     for nc in (30, 90):
         cf = rng.choice(len(Y), nc, replace=False)
         L0, B0 = _dense_reference_links(g, Y, cf, near=near, batch=batch)
-        L1, B1 = sparse_links(g, Y, cf, near=near, batch=batch)
+        L1, B1 = _sparse_links(g, Y, cf, near=near, batch=batch)
         assert _is_sym_bool_csr(L1, nc) and _is_sym_bool_csr(B1, nc)
         assert np.array_equal(L1.toarray(), L0) and np.array_equal(B1.toarray(), B0)
         assert B0.any()  # the case exercises the bridging
@@ -172,7 +177,7 @@ def test_frame_links_equal_the_general_rule_with_every_frame_a_centre(seed, near
     _, Y, g = _random_case(seed, n=200, k=k, split=split)
     T = len(Y)
     L0, B0 = _dense_reference_links(g, Y, np.arange(T), near=near)
-    L1, B1 = sparse_links(g, Y, np.arange(T), near=near)
+    L1, B1 = _sparse_links(g, Y, np.arange(T), near=near)
     L2, B2 = frame_links(g, Y, near=near)
     assert _is_sym_bool_csr(L2, T) and _is_sym_bool_csr(B2, T)
     for L, B in ((L1, B1), (L2, B2)):
@@ -189,7 +194,7 @@ def test_frame_links_equal_the_general_rule_with_every_frame_a_centre(seed, near
 def test_finest_level_appended(rng):
     X = _ring(rng, 300)
     g = fx.neighbourhood_graph(X, k=6, reduce_dim=None)
-    h = sparse_hierarchy(X, g, levels=2, c0=4, key=jax.random.key(0), finest=True)
+    h = build_hierarchy(X, g, levels=2, c0=4, key=jax.random.key(0), finest=True).levels
     assert [lv.n_clusters for lv in h] == [4, 8, 300]
     top = h[-1]
     assert top.fcm is None and np.array_equal(top.center_frames, np.arange(300))
@@ -201,16 +206,16 @@ def test_finest_level_appended(rng):
 
     assert connected_components(top.links, directed=False)[0] == 1
     assert finest_level(X, g, links=False).links.nnz == 0
-    assert len(sparse_hierarchy(X, g, levels=2, c0=4, key=jax.random.key(0))) == 2
+    assert len(build_hierarchy(X, g, levels=2, c0=4, key=jax.random.key(0)).levels) == 2
 
 
 def test_link_inputs_are_checked(rng):
     X = _ring(rng, 50)
     g = fx.neighbourhood_graph(X, k=4, reduce_dim=None)
     with pytest.raises(fx.FxspaceError, match="embedding"):
-        sparse_links(g, X[:10], np.arange(5))
+        center_links(X[:10], g, np.arange(5))
     with pytest.raises(fx.FxspaceError, match="center_frames"):
-        sparse_links(g, X, np.array([0, 99]))
+        center_links(X, g, np.array([0, 99]))
     with pytest.raises(fx.FxspaceError, match="near"):
         frame_links(g, X, near=0)
     with pytest.raises(fx.FxspaceError, match="rho"):

@@ -6,15 +6,16 @@ import pytest
 
 import fxspace as fx
 from fxspace.navigation import (
+    Hierarchy,
     NavigationError,
     Route,
+    bridge_keys,
+    build_hierarchy,
     is_graph_walk,
-    sparse_bridge_keys,
-    sparse_hierarchy,
-    sparse_make_route,
-    sparse_navigate,
-    sparse_path_candidates,
-    sparse_refine_route,
+    make_route,
+    navigate,
+    path_candidates,
+    refine_route,
 )
 
 
@@ -27,7 +28,7 @@ def space():
     g = fx.neighbourhood_graph(X, k=8, reduce_dim=None)
     assert fx.expression.sparse_components(g)[0] == 1
     Y = X[:, :2]
-    h = sparse_hierarchy(Y, g, levels=3, c0=4, key=jax.random.key(0), finest=True)
+    h = build_hierarchy(Y, g, levels=3, c0=4, key=jax.random.key(0), finest=True)
     W = fx.expression.to_scipy(g).toarray()
     W[W == 0] = np.inf
     return Y, g, h, W
@@ -39,11 +40,11 @@ def _linked(lv, cs):
 
 def test_navigate_links_every_level_and_walks_the_graph(space):
     Y, g, h, W = space
-    keys, _ = sparse_bridge_keys(h, g, 0, [0, 2, 3, 1])
-    routes = sparse_navigate(h, Y, g, keys)
-    assert [r.level for r in routes] == list(range(len(h)))
+    keys, _ = bridge_keys(h, g, 0, [0, 2, 3, 1])
+    routes = navigate(h, g, keys)
+    assert [r.level for r in routes] == list(range(len(h.levels)))
     for r in routes:
-        lv = h[r.level]
+        lv = h.levels[r.level]
         assert _linked(lv, r.centres)
         if r.level > 0:  # refinement cuts loops: no centre repeats
             assert len(set(r.centres)) == len(r.centres)
@@ -54,7 +55,7 @@ def test_navigate_links_every_level_and_walks_the_graph(space):
     # at the finest level every frame is a centre: the key frames are the frames
     assert np.array_equal(fine.frames, fine.key_frames)
     # the route spans the animator's first to last frame down to the frames
-    one_way = sparse_navigate(h, Y, g, sparse_bridge_keys(h, g, 0, [0, 3])[0])
+    one_way = navigate(h, g, bridge_keys(h, g, 0, [0, 3])[0])
     anchors = one_way[0].anchors
     assert one_way[-1].frames[0] == anchors[0] and one_way[-1].frames[-1] == anchors[-1]
 
@@ -63,10 +64,10 @@ def test_frame_path_is_the_shortest_walk_through_the_keys(space):
     Y, g, h, W = space
     from scipy.sparse.csgraph import dijkstra
 
-    lv = h[1]
+    lv = h.levels[1]
     a = 0
     b = int(lv.neighbours(a)[0])
-    r = sparse_make_route(h, g, 1, [a, b])
+    r = make_route(h, g, 1, [a, b])
     D = dijkstra(fx.expression.to_scipy(g), directed=False)
     length = sum(W[u, v] for u, v in zip(r.frames[:-1], r.frames[1:], strict=True))
     assert np.isclose(length, D[lv.center_frames[a], lv.center_frames[b]])
@@ -75,53 +76,52 @@ def test_frame_path_is_the_shortest_walk_through_the_keys(space):
 
 def test_unlinked_picks_are_refused_and_bridged(space):
     Y, g, h, _ = space
-    lv = h[-1]
+    lv = h.levels[-1]
     a = 0
     nb = set(lv.neighbours(a).tolist())
     b = next(k for k in range(1, lv.n_clusters) if k not in nb)
     with pytest.raises(NavigationError, match="not linked"):
-        sparse_make_route(h, g, len(h) - 1, [a, b])
-    keys, notes = sparse_bridge_keys(h, g, len(h) - 1, [a, a, b])
+        make_route(h, g, len(h.levels) - 1, [a, b])
+    keys, notes = bridge_keys(h, g, len(h.levels) - 1, [a, a, b])
     assert keys[0] == a and keys[-1] == b and _linked(lv, keys)
     assert any("dropped" in n for n in notes) and any("bridged" in n for n in notes)
 
 
 def test_refine_with_picks_and_candidates(space):
     Y, g, h, _ = space
-    r0 = sparse_make_route(h, g, 0, [0, int(h[0].neighbours(0)[0])])
-    cands = sparse_path_candidates(h, Y, 1, r0.frames)
-    assert len(cands) and np.all(cands < h[1].n_clusters)
-    d = np.min(
-        np.linalg.norm(Y[h[1].center_frames[cands]][:, None] - Y[r0.frames][None], axis=-1), 1
-    )
-    assert np.all(d <= h[1].radius + 1e-12)
-    auto = sparse_refine_route(h, Y, g, r0)
-    assert isinstance(auto, Route) and auto.level == 1 and _linked(h[1], auto.centres)
-    picked = sparse_refine_route(h, Y, g, r0, picks=auto.centres[:2])
+    r0 = make_route(h, g, 0, [0, int(h.levels[0].neighbours(0)[0])])
+    cands = path_candidates(h, 1, r0.frames)
+    assert len(cands) and np.all(cands < h.levels[1].n_clusters)
+    cpos = Y[h.levels[1].center_frames[cands]]
+    d = np.min(np.linalg.norm(cpos[:, None] - Y[r0.frames][None], axis=-1), 1)
+    assert np.all(d <= h.levels[1].radius + 1e-12)
+    auto = refine_route(h, g, r0)
+    assert isinstance(auto, Route) and auto.level == 1 and _linked(h.levels[1], auto.centres)
+    picked = refine_route(h, g, r0, picks=auto.centres[:2])
     assert picked.centres == auto.centres[:2]
-    fine = sparse_navigate(h, Y, g, r0.centres, to_level=len(h) - 1)[-1]
+    fine = navigate(h, g, r0.centres, to_level=len(h.levels) - 1)[-1]
     with pytest.raises(NavigationError, match="finest"):
-        sparse_refine_route(h, Y, g, fine)
+        refine_route(h, g, fine)
 
 
 def test_bad_requests_name_the_argument(space):
     Y, g, h, _ = space
     with pytest.raises(NavigationError, match="level"):
-        sparse_make_route(h, g, 9, [0])
+        make_route(h, g, 9, [0])
     with pytest.raises(NavigationError, match="centre 99"):
-        sparse_make_route(h, g, 0, [99])
+        make_route(h, g, 0, [99])
     with pytest.raises(NavigationError, match="centres is empty"):
-        sparse_make_route(h, g, 0, [])
+        make_route(h, g, 0, [])
     with pytest.raises(NavigationError, match="levels"):
-        sparse_make_route([], g, 0, [0])
+        make_route([], g, 0, [0])
     with pytest.raises(NavigationError, match="graph"):
-        sparse_make_route(h, np.eye(3), 0, [0])
+        make_route(h, np.eye(3), 0, [0])
     with pytest.raises(NavigationError, match="embedding"):
-        sparse_refine_route(h, Y[:5], g, sparse_make_route(h, g, 0, [0]))
+        refine_route(Hierarchy(h.levels, Y[:5]), g, make_route(h, g, 0, [0]))
     with pytest.raises(NavigationError, match="to_level"):
-        sparse_navigate(h, Y, g, [0], to_level=7)
+        navigate(h, g, [0], to_level=7)
     with pytest.raises(NavigationError, match="frames"):
-        sparse_path_candidates(h, Y, 0, [])
+        path_candidates(h, 0, [])
 
 
 @pytest.mark.slow
@@ -137,31 +137,31 @@ def test_finest_level_and_route_at_20000_frames():
     X = X.astype(np.float32)  # the tests run with x64 on: float64 would be ~10× slower here
     g = fx.neighbourhood_graph(X, k=8, reduce_dim=None)
     Y = X[:, :2]
-    h = sparse_hierarchy(Y, g, levels=3, c0=10, key=jax.random.key(0))
-    h.append(finest_level(Y, g))
-    top = h[-1]
+    h = build_hierarchy(Y, g, levels=3, c0=10, key=jax.random.key(0))
+    h = Hierarchy((*h.levels, finest_level(Y, g)), h.embedding)
+    top = h.levels[-1]
     assert top.n_clusters == n and connected_components(top.links, directed=False)[0] == 1
     assert top.links.nnz < 20 * n  # O(T·K)
-    keys, _ = sparse_bridge_keys(h, g, 0, [0, 4, 9])
-    routes = sparse_navigate(h, Y, g, keys)
+    keys, _ = bridge_keys(h, g, 0, [0, 4, 9])
+    routes = navigate(h, g, keys)
     csr = fx.expression.to_scipy(g)
     for r in routes:
-        assert _linked(h[r.level], r.centres)
+        assert _linked(h.levels[r.level], r.centres)
         f = r.frames
         assert np.all(f[1:] != f[:-1]) and np.all(csr[f[:-1], f[1:]] > 0)
 
 
 def test_levels_round_trip_through_arrays(space, tmp_path):
-    """`sparse_levels_to_arrays` → ``.npz`` → `sparse_levels_from_arrays`: the same centres,
+    """`hierarchy_to_arrays` → ``.npz`` → `hierarchy_from_arrays`: the same centres,
     links, bridges and lengths, and the same routes navigated on the levels read back."""
-    from fxspace.navigation import sparse_levels_from_arrays, sparse_levels_to_arrays
+    from fxspace.navigation import hierarchy_from_arrays, hierarchy_to_arrays
 
     Y, g, h, _ = space
-    np.savez(tmp_path / "h.npz", **sparse_levels_to_arrays(h))
+    np.savez(tmp_path / "h.npz", **hierarchy_to_arrays(h))
     with np.load(tmp_path / "h.npz") as z:
-        back = sparse_levels_from_arrays(z)
-    assert len(back) == len(h)
-    for a, b in zip(h, back, strict=True):
+        back = hierarchy_from_arrays(z)
+    assert len(back.levels) == len(h.levels)
+    for a, b in zip(h.levels, back.levels, strict=True):
         assert a.n_clusters == b.n_clusters and b.fcm is None
         np.testing.assert_array_equal(a.center_frames, b.center_frames)
         np.testing.assert_array_equal(a.centers, b.centers)
@@ -169,12 +169,12 @@ def test_levels_round_trip_through_arrays(space, tmp_path):
             assert (getattr(a, m) != getattr(b, m)).nnz == 0
         np.testing.assert_array_equal(a.lengths.toarray(), b.lengths.toarray())
         assert a.radius == b.radius
-    keys, _ = sparse_bridge_keys(h, g, 0, [0, h[0].n_clusters - 1])
-    r1 = sparse_navigate(h, Y, g, keys)
-    r2 = sparse_navigate(back, Y, g, keys)
+    keys, _ = bridge_keys(h, g, 0, [0, h.levels[0].n_clusters - 1])
+    r1 = navigate(h, g, keys)
+    r2 = navigate(back, g, keys)
     np.testing.assert_array_equal(r1[-1].frames, r2[-1].frames)
     with pytest.raises(fx.errors.FxspaceError, match="n_levels"):
-        sparse_levels_from_arrays({"x": np.zeros(1)})
+        hierarchy_from_arrays({"x": np.zeros(1)})
 
 
 def test_link_pairs_dense_and_sparse_agree(space):
@@ -183,7 +183,7 @@ def test_link_pairs_dense_and_sparse_agree(space):
     from fxspace.navigation import link_pairs
 
     _, _, h, _ = space
-    for lv in h:
+    for lv in h.levels:
         i, j = link_pairs(lv.links)
         di, dj = link_pairs(lv.links.toarray())
         np.testing.assert_array_equal(
