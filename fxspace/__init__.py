@@ -9,7 +9,7 @@
    stable names of DESIGN.md and their companions — plus the result vocabulary
    (`RESULTS`) and the error types, each listed explicitly below and each the same
    object as on its subpackage's front (`fx.fuzzy_cmeans is fx.cluster.fuzzy_cmeans`).
-   Every other public name lives on its subpackage only (`fx.cluster.sparse_fuzzy_cmeans`,
+   Every other public name lives on its subpackage only (`fx.cluster.kernel_kmeans_gram`,
    `fx.motion.advance_clock`); readers and writers stay under `fx.io`, generators
    under `fx.synthetic`, figures under `fx.plot`.
 3. Subpackages that pull in a heavy or optional library — `plot` (matplotlib),
@@ -123,7 +123,6 @@ from fxspace.expression import pairwise_distances as pairwise_distances
 from fxspace.expression import pearson_score as pearson_score
 from fxspace.expression import place_frames as place_frames
 from fxspace.expression import shortest_path as shortest_path
-from fxspace.expression import sparse_shortest_path as sparse_shortest_path
 from fxspace.expression import threshold_grid as threshold_grid
 from fxspace.expression import threshold_sweep as threshold_sweep
 from fxspace.mesh import IKForward as IKForward

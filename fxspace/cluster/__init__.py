@@ -7,12 +7,11 @@ Every routine returns a result record with `.result` (a `fxspace.RESULTS` member
 from fxspace.cluster._fcm import FCMResult as FCMResult
 from fxspace.cluster._fcm import fcm_memberships as fcm_memberships
 from fxspace.cluster._fcm import fcm_objective as fcm_objective
-from fxspace.cluster._fcm import fuzzy_cmeans as fuzzy_cmeans
 from fxspace.cluster._fcm import kmeanspp_extend as kmeanspp_extend
 from fxspace.cluster._fcm import kmeanspp_init as kmeanspp_init
 from fxspace.cluster._fcm import squared_distances as squared_distances
+from fxspace.cluster._fcm_front import fuzzy_cmeans as fuzzy_cmeans
 from fxspace.cluster._fcm_sparse import SparseFCMResult as SparseFCMResult
-from fxspace.cluster._fcm_sparse import sparse_fuzzy_cmeans as sparse_fuzzy_cmeans
 from fxspace.cluster._kernel_kmeans import KernelKMeansResult as KernelKMeansResult
 from fxspace.cluster._kernel_kmeans import gaussian_kernel as gaussian_kernel
 from fxspace.cluster._kernel_kmeans import kernel_kmeans as kernel_kmeans
@@ -28,7 +27,6 @@ __all__ = [
     "kmeanspp_init",
     "squared_distances",
     "SparseFCMResult",
-    "sparse_fuzzy_cmeans",
     "KernelKMeansResult",
     "gaussian_kernel",
     "kernel_kmeans",

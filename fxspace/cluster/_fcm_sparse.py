@@ -32,7 +32,8 @@ __all__ = ["SparseFCMResult", "sparse_fuzzy_cmeans"]
 
 
 class SparseFCMResult(NamedTuple):
-    """Result of [`sparse_fuzzy_cmeans`][fxspace.cluster.sparse_fuzzy_cmeans].
+    """Result of [`fuzzy_cmeans`][fxspace.cluster.fuzzy_cmeans] with ``nearest``
+    (truncated memberships).
 
     **Fields:**
 
@@ -159,7 +160,7 @@ def sparse_fuzzy_cmeans(
     **Example:**
 
     ```python
-    res = fx.cluster.sparse_fuzzy_cmeans(Y, 640, nearest=8, key=jax.random.key(0))
+    res = fx.cluster.fuzzy_cmeans(Y, 640, nearest=8, key=jax.random.key(0))
     ```
     """
     x = jnp.asarray(x)
@@ -185,4 +186,4 @@ def sparse_fuzzy_cmeans(
     else:
         v0 = kmeanspp_init(x, c, key)
     res = _loop(x, v0, float(m), p, jnp.asarray(tol, x.dtype), int(max_steps), min(int(chunk), n))
-    return check_result(res.result, throw, "sparse_fuzzy_cmeans", res)
+    return check_result(res.result, throw, "fuzzy_cmeans", res)

@@ -39,7 +39,6 @@ from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr
 from fxspace.expression._sparse import graph_from_dense as graph_from_dense
 from fxspace.expression._sparse import neighbourhood_graph as neighbourhood_graph
 from fxspace.expression._sparse import sparse_components as sparse_components
-from fxspace.expression._sparse import sparse_shortest_path as sparse_shortest_path
 from fxspace.expression._sparse import to_scipy as to_scipy
 from fxspace.expression._sweep import CRITERIA as CRITERIA
 from fxspace.expression._sweep import SweepResult as SweepResult
@@ -77,7 +76,6 @@ __all__ = [
     "graph_from_dense",
     "neighbourhood_graph",
     "sparse_components",
-    "sparse_shortest_path",
     "to_scipy",
     "dijkstra_csr",
     "GapFill",

@@ -24,6 +24,8 @@ from jaxtyping import Array, Float, Int
 
 from fxspace._validate import as_float_array, check_choice, check_int, check_scalar, checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
+from fxspace.expression._sparse import NeighbourGraph
+from fxspace.expression._sparse import sparse_shortest_path as _graph_shortest_path
 
 __all__ = [
     "Geodesics",
@@ -539,8 +541,19 @@ def geodesic_distances(
 
 
 @checked
-def shortest_path(geo: Geodesics, i: int, j: int) -> np.ndarray:
-    """Frames of a shortest path from ``i`` to ``j`` inclusive (host-side walk of next hops)."""
+def shortest_path(geo: Geodesics | NeighbourGraph, i: int, j: int) -> np.ndarray:
+    """Frames of a shortest path from ``i`` to ``j`` inclusive: a host-side walk of the
+    ``Geodesics``' next hops, or on a `NeighbourGraph` one single-source Dijkstra with
+    predecessors (O(E log T), stopped once ``j`` is settled: no ``T × T`` matrix).
+
+    **Raises:** `DisconnectedGraphError` when ``j`` is unreachable from ``i``."""
+    if isinstance(geo, NeighbourGraph):
+        return _graph_shortest_path(geo, i, j)
+    if not hasattr(geo, "next_hop"):
+        raise FxspaceError(
+            f"geo must be the Geodesics of geodesic_distances or a NeighbourGraph, got "
+            f"{type(geo).__name__}"
+        )
     nxt = np.asarray(geo.next_hop)
     n = nxt.shape[0]
     for name, v in (("i", i), ("j", j)):

@@ -6,7 +6,7 @@ The dense navigation (`fxspace.build_hierarchy`, `fxspace.make_route`) walks a
 sparse `fxspace.expression.NeighbourGraph`:
 
 - **levels**: fuzzy c-means with sparse memberships
-  (`fxspace.cluster.sparse_fuzzy_cmeans`) at c0·2^l centres; each centre is shown
+  (`fxspace.cluster.fuzzy_cmeans` with ``nearest``) at c0·2^l centres; each centre is shown
   as its nearest frame; optionally a **finest level** where every frame is a centre;
 - **links**: centres i—j are linked when the shortest graph path between their frames
   passes no frame within 2-D distance ρ of any other centre (the seed's rule), tested
@@ -21,7 +21,7 @@ sparse `fxspace.expression.NeighbourGraph`:
   local search bounded by the edge's length, and the bridges are the minimum spanning
   forest of the link components (no Dijkstra over the whole graph);
 - **routes**: key frames joined by shortest graph paths
-  (`fxspace.sparse_shortest_path`); routes refined level by level in
+  (`fxspace.shortest_path` on the graph); routes refined level by level in
   `fxspace.navigate` on the graph.
 
 Memory O(T·(K + B)) for a batch of B centres' Dijkstra rows; the finest level O(T·K).
@@ -40,9 +40,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from fxspace._validate import checked
-from fxspace.cluster import SparseFCMResult, sparse_fuzzy_cmeans
+from fxspace.cluster import SparseFCMResult, fuzzy_cmeans
 from fxspace.errors import FxspaceError
-from fxspace.expression import NeighbourGraph, dijkstra_csr, sparse_shortest_path
+from fxspace.expression import NeighbourGraph, dijkstra_csr, shortest_path
 
 __all__ = [
     "SparseLevel",
@@ -610,7 +610,7 @@ def sparse_hierarchy(
     key = jax.random.key(0) if key is None else key
     out = []
     for lv, c in enumerate(sparse_levels(c0, levels, Y.shape[0])):
-        res = sparse_fuzzy_cmeans(Y, c, nearest=nearest, key=jax.random.fold_in(key, lv))
+        res = fuzzy_cmeans(Y, c, nearest=nearest, key=jax.random.fold_in(key, lv))
         centers = np.asarray(res.centers)
         cf = _nearest_frames(Yn, centers)
         rho = _default_rho(cKDTree(Yn[cf]), Yn[cf])
@@ -633,7 +633,7 @@ def sparse_route(graph: NeighbourGraph, key_frames: Sequence[int]) -> np.ndarray
         raise FxspaceError("key_frames must name at least one frame")
     frames = [np.asarray(keys[:1], np.int64)]
     for a, b in zip(keys[:-1], keys[1:], strict=True):
-        frames.append(sparse_shortest_path(graph, a, b)[1:])
+        frames.append(shortest_path(graph, a, b)[1:])
     return np.concatenate(frames)
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import fxspace as fx
-from fxspace.cluster import sparse_fuzzy_cmeans
+from fxspace.cluster import fuzzy_cmeans
 from fxspace.errors import FxspaceError
 
 
@@ -18,7 +18,7 @@ def test_all_centres_kept_equals_dense_fcm(rng):
     x, _ = _blobs(rng)
     v0 = fx.kmeanspp_init(jnp.asarray(x), 6, jax.random.key(1))
     dense = fx.fuzzy_cmeans(x, 6, init_centers=v0, tol=0.0, max_steps=40, check_every=1)
-    sp = sparse_fuzzy_cmeans(x, 6, nearest=6, init_centers=v0, tol=0.0, max_steps=40)
+    sp = fuzzy_cmeans(x, 6, nearest=6, init_centers=v0, tol=0.0, max_steps=40)
     np.testing.assert_allclose(np.asarray(sp.centers), np.asarray(dense.centers), atol=1e-8)
     U = np.zeros((len(x), 6))
     np.put_along_axis(U, np.asarray(sp.indices), np.asarray(sp.memberships), axis=1)
@@ -28,7 +28,7 @@ def test_all_centres_kept_equals_dense_fcm(rng):
 
 def test_few_nearest_centres_find_the_blobs(rng):
     x, truth = _blobs(rng, 3000, 8)
-    sp = sparse_fuzzy_cmeans(x, 8, nearest=3, key=jax.random.key(0), max_steps=200)
+    sp = fuzzy_cmeans(x, 8, nearest=3, key=jax.random.key(0), max_steps=200)
     assert sp.indices.shape == (3000, 3) and sp.memberships.shape == (3000, 3)  # O(n·p)
     np.testing.assert_allclose(np.asarray(sp.memberships).sum(axis=1), 1.0, rtol=1e-10)
     got = np.asarray(sp.centers)
@@ -40,14 +40,31 @@ def test_few_nearest_centres_find_the_blobs(rng):
 
 def test_jit_and_bad_arguments(rng):
     x, _ = _blobs(rng, 200, 3)
-    f = jax.jit(lambda v: sparse_fuzzy_cmeans(x, 3, nearest=2, init_centers=v).centers)
+    f = jax.jit(lambda v: fuzzy_cmeans(x, 3, nearest=2, init_centers=v).centers)
     v0 = jnp.asarray(x[:3])
     np.testing.assert_allclose(
-        np.asarray(f(v0)), np.asarray(sparse_fuzzy_cmeans(x, 3, nearest=2, init_centers=v0).centers)
+        np.asarray(f(v0)), np.asarray(fuzzy_cmeans(x, 3, nearest=2, init_centers=v0).centers)
     )
     with pytest.raises(FxspaceError, match="n_clusters"):
-        sparse_fuzzy_cmeans(x, 0, key=jax.random.key(0))
+        fuzzy_cmeans(x, 0, nearest=2, key=jax.random.key(0))
     with pytest.raises(FxspaceError, match="key"):
-        sparse_fuzzy_cmeans(x, 3)
+        fuzzy_cmeans(x, 3, nearest=2)
     with pytest.raises(FxspaceError, match="fuzzifier"):
-        sparse_fuzzy_cmeans(x, 3, m=1.0, key=jax.random.key(0))
+        fuzzy_cmeans(x, 3, m=1.0, nearest=2, key=jax.random.key(0))
+
+
+def test_one_name_full_or_truncated_memberships_and_options_refused_by_name():
+    """Issue 29: `fuzzy_cmeans` is one routine; ``nearest`` picks truncated memberships
+    (a `SparseFCMResult`), and an option of the other implementation is refused."""
+    x = np.random.default_rng(3).normal(size=(120, 2))
+    full = fuzzy_cmeans(x, 4, key=jax.random.key(0))
+    assert isinstance(full, fx.FCMResult) and full.memberships.shape == (120, 4)
+    cut = fuzzy_cmeans(x, 4, nearest=4, init_centers=full.centers, tol=1e-9, max_steps=500)
+    assert isinstance(cut, fx.cluster.SparseFCMResult) and cut.memberships.shape == (120, 4)
+    # p = c: the truncated FCM is FCM (the same fixed point as the full run)
+    np.testing.assert_allclose(np.sort(np.asarray(cut.centers), 0),
+                               np.sort(np.asarray(full.centers), 0), atol=1e-3)  # fmt: skip
+    with pytest.raises(fx.FxspaceError, match="n_init.*full memberships"):
+        fuzzy_cmeans(x, 4, nearest=2, n_init=3, key=jax.random.key(0))
+    with pytest.raises(fx.FxspaceError, match="chunk.*nearest"):
+        fuzzy_cmeans(x, 4, chunk=64, key=jax.random.key(0))

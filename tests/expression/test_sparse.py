@@ -68,7 +68,7 @@ def test_sparse_paths_equal_dense_floyd_paths(rng, factor):
     g = fx.graph_from_dense(W)
     D = np.asarray(geo.distances)
     for i, j in [(0, 149), (3, 77), (40, 41), (100, 5), (7, 7)]:
-        p = fx.sparse_shortest_path(g, i, j)
+        p = fx.shortest_path(g, i, j)
         np.testing.assert_array_equal(p, fx.shortest_path(geo, i, j))
         assert np.isclose(sum(W[a, b] for a, b in zip(p[:-1], p[1:], strict=True)), D[i, j])
 
@@ -81,7 +81,7 @@ def test_sparse_components_and_disconnection(rng):
     with pytest.raises(DisconnectedGraphError, match="2 connected components"):
         fx.expression.check_sparse_connected(g)
     with pytest.raises(DisconnectedGraphError, match="not reachable"):
-        fx.sparse_shortest_path(g, 0, 99)
+        fx.shortest_path(g, 0, 99)
     ref = sp_shortest(fx.expression.to_scipy(g), directed=False, indices=[0])
     assert np.isinf(ref[0, 99])
 
