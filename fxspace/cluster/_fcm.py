@@ -359,50 +359,10 @@ def fuzzy_cmeans(
     check_every: int = 4,
     throw: bool = False,
 ) -> FCMResult:
-    """Fuzzy c-means clustering (Bezdek's alternating updates) as one jitted while-loop.
-
-    **Arguments:**
-
-    - `x`: data, (n_samples, n_features) — not transposed as in scikit-fuzzy.
-    - `n_clusters`: number of centres c (1 ≤ c ≤ n_samples).
-    - `m`: fuzzifier, m > 1 (2 is the usual choice and has a fast path).
-    - `key`: PRNG key for k-means++ seeding (required unless an initial state is given).
-    - `tol`: stop when max_ik |u_ik^(t) − u_ik^(t−1)| < tol (per entry, so it means the
-      same in float32 at any n and c).
-    - `max_steps`: iteration cap.
-    - `n_init`: restarts from independent k-means++ seeds, run together under `vmap`;
-      the lowest objective wins.
-    - `init_centers`: warm start from these (c, d) centres (e.g. a coarser level's centres
-      split in two); `key`/`n_init` are then unused.
-    - `init_memberships`: start from these (n, c) memberships (rows are normalised), e.g.
-      to reproduce scikit-fuzzy's ``init=`` runs.
-    - `criterion`: ``"max"`` (per-entry change, the default) or ``"fro"`` (Frobenius norm of
-      the change, scikit-fuzzy's and fuzzy-c-means' rule, for like-for-like comparisons).
-    - `check_every`: measure the change every this many steps (the steps in between update
-      the centres only, which is cheaper); `num_steps` is then a multiple of it (or
-      `max_steps`). 1 checks every step.
-    - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] when the result is not
-      `RESULTS.successful` (NaN/inf in `x` is named by position before any work; under
-      `jit` the check runs through `equinox.error_if`). With `False` (the default) the
-      outcome is reported in `.result`, so a `vmap`ped sweep keeps going.
-
-    **Returns:** an [`FCMResult`][fxspace.FCMResult] with `.result`, `.num_steps` and
-    `.stats`. Cost O(n c d) per step, O(n c) memory. Empty clusters keep their previous
-    centre; coincident centres stay finite. NaN/inf input gives
-    `result == RESULTS.nonfinite_input` (and NaN centres), never `successful`.
-
-    **Example:**
-
-    ```python
-    import jax
-    import numpy as np
-    import fxspace as fx
-
-    X = np.random.default_rng(0).normal(size=(200, 2))
-    res = fx.fuzzy_cmeans(X, 3, key=jax.random.key(0))
-    assert res.result == fx.RESULTS.successful
-    ```
-    """
+    """Fuzzy c-means with full memberships (Bezdek's alternating updates) as one jitted
+    while-loop: the implementation behind `fxspace.cluster.fuzzy_cmeans` (`._fcm_front`,
+    where the arguments, returns and an example are documented) when no ``nearest`` is
+    given."""
     x = as_float_array(x, "x", axes=("n_samples", "n_features"), finite="allow")
     if throw and not _is_tracer(x):
         check_finite(x, "x")  # names where the NaN/inf are

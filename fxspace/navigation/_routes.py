@@ -237,14 +237,9 @@ def refine_route(
     picks: Sequence[int] | None = None,
     radius: float | None = None,
 ) -> Route:
-    """Move ``route`` one level finer.
-
-    With ``picks`` (centres of the finer level) the animator's choice is validated and
-    used. Without, the refinement is automatic: each key frame maps to the finer level's
-    nearest centre, the candidates near the current path (`path_candidates`) are
-    inserted in path order, and any consecutive pair that is not linked is joined by the
-    shortest chain of links.
-    """
+    """Move ``route`` one level finer on a dense hierarchy: the implementation behind
+    `fxspace.navigation.refine_route` (`._front`, which documents the picks and the
+    automatic refinement)."""
     nxt = route.level + 1
     if nxt >= len(h.levels):
         raise NavigationError(f"route is already at the finest level ({route.level})")
