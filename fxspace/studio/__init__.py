@@ -19,11 +19,11 @@ from fxspace.studio._edit_controller import EditorData as EditorData
 from fxspace.studio._edit_controller import load_editor_data as load_editor_data
 from fxspace.studio._edit_controller import save_editor_data as save_editor_data
 from fxspace.studio._editor import serve_editor as serve_editor
-from fxspace.studio._ik import IKController as IKController
-from fxspace.studio._ik import load_ik_mesh as load_ik_mesh
 from fxspace.studio._ik import serve_ik as serve_ik
-from fxspace.studio._motion import MotionController as MotionController
+from fxspace.studio._ik_controller import IKController as IKController
+from fxspace.studio._ik_controller import load_ik_mesh as load_ik_mesh
 from fxspace.studio._motion import serve_motion as serve_motion
+from fxspace.studio._motion_controller import MotionController as MotionController
 from fxspace.studio._nav_controller import DENSITY_ABOVE as DENSITY_ABOVE
 from fxspace.studio._nav_controller import NavData as NavData
 from fxspace.studio._nav_controller import NavigatorController as NavigatorController

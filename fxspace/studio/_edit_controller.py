@@ -417,37 +417,26 @@ class EditorController:
         self.message = f"exported {len(paths)} files to {out}"
         return [Path(p) for p in paths]
 
-    def timeline(self, width: int = 60) -> str:
-        """One line of text: ``|`` segment boundaries, ``◆`` key frames, ``▲`` the
-        current frame, ``·`` other frames (``width`` cells over the scene)."""
-        T = self.n_frames
-        cells = ["·"] * min(width, T)
-        n = len(cells)
-
-        def cell(f: int) -> int:
-            return min(n - 1, int(f * n / T))
-
-        for b in self.data.scene.boundaries:
-            cells[cell(int(b))] = "|"
-        for f in self.key_frames():
-            cells[cell(f)] = "◆"
-        cells[cell(self.frame)] = "▲"
-        return "".join(cells)
-
-    def status(self) -> str:
+    def status(self) -> dict:
+        """What the status panel shows, as data (the editor's view renders it): the
+        ``frame`` of ``n_frames``, its ``segment`` and that segment's ``span`` (first and
+        last frame), the ``boundaries``, the shown ``mode``, the number of edit ``keys``
+        and their ``key_frames``, ``edit_diff`` (largest edited-minus-model coordinate at
+        this frame), ``playing`` and the last ``message``."""
         s, _ = segment_of_frame(self.data.scene.boundaries, self.frame)
-        b = self.data.scene.boundaries
+        b = np.asarray(self.data.scene.boundaries)
         diff = float(np.abs(self.sequence("edited")[self.frame]
                             - self.sequence("control points")[self.frame]).max())  # fmt: skip
-        kf = self.key_frames()
-        return (
-            f"**Frame {self.frame}** of {self.n_frames - 1} — segment {s} "
-            f"(frames {int(b[s])}–{int(b[s + 1])})  \n"
-            f"Showing: {self.mode}  \n"
-            f"Edit keys: {len(self.keys)}  \n"
-            f"Keys at frames: {', '.join(map(str, kf)) if kf else 'none'}  \n"
-            f"`{self.timeline()}`  \n"
-            f"Edited vs model here: {diff:.3f} max  \n"
-            f"{'Playing' if self.playing else 'Paused'}  \n"
-            f"_{self.message}_"
-        )
+        return {
+            "frame": int(self.frame),
+            "n_frames": int(self.n_frames),
+            "segment": int(s),
+            "span": (int(b[s]), int(b[s + 1])),
+            "boundaries": b.astype(int).tolist(),
+            "mode": self.mode,
+            "keys": len(self.keys),
+            "key_frames": [int(f) for f in self.key_frames()],
+            "edit_diff": diff,
+            "playing": bool(self.playing),
+            "message": self.message,
+        }

@@ -42,6 +42,7 @@ from fxspace.studio._server import (
     new_server,
     run_until_interrupted,
     serialized,
+    status_markdown,
     studio_face,
 )
 
@@ -52,7 +53,47 @@ __all__ = [
     "load_editor_data",
     "serve_editor",
     "serve",
+    "status_text",
+    "timeline",
 ]
+
+
+def timeline(st: dict, width: int = 60) -> str:
+    """One line of text from `EditorController.status`: ``|`` segment boundaries, ``◆``
+    key frames, ``▲`` the current frame, ``·`` other frames (``width`` cells over the
+    scene)."""
+    T = st["n_frames"]
+    cells = ["·"] * min(width, T)
+    n = len(cells)
+
+    def cell(f: int) -> int:
+        return min(n - 1, int(f * n / T))
+
+    for b in st["boundaries"]:
+        cells[cell(b)] = "|"
+    for f in st["key_frames"]:
+        cells[cell(f)] = "◆"
+    cells[cell(st["frame"])] = "▲"
+    return "".join(cells)
+
+
+def status_text(st: dict) -> str:
+    """The status panel's Markdown from `EditorController.status` (data in, text out)."""
+    kf = st["key_frames"]
+    a, b = st["span"]
+    return status_markdown(
+        f"Frame {st['frame']}",
+        [
+            f"Showing: {st['mode']}",
+            f"Edit keys: {st['keys']}",
+            f"Keys at frames: {', '.join(map(str, kf)) if kf else 'none'}",
+            f"`{timeline(st)}`",
+            f"Edited vs model here: {st['edit_diff']:.3f} max",
+            "Playing" if st["playing"] else "Paused",
+        ],
+        st["message"],
+        after_title=f" of {st['n_frames'] - 1} — segment {st['segment']} (frames {a}–{b})",
+    )
 
 
 def _view_frame(V0: np.ndarray, names: tuple[str, ...], marker_vertex) -> np.ndarray:
@@ -94,7 +135,7 @@ class EditorView:
 
     def _build(self) -> None:
         gui, ctl = self.server.gui, self.ctl
-        self.status = gui.add_markdown(ctl.status())
+        self.status = gui.add_markdown(status_text(ctl.status()))
         self.frame_slider = gui.add_slider(
             "Frame", min=0, max=ctl.n_frames - 1, step=1, initial_value=0
         )
@@ -203,7 +244,7 @@ class EditorView:
 
     def _refit(self) -> None:
         self.ctl.message = "re-fitting …"
-        self.status.content = self.ctl.status()
+        self.status.content = status_text(self.ctl.status())
         try:
             self.ctl.refit(int(self.seg_sl.value), int(self.cp_sl.value), float(self.g_sl.value))
         except Exception as e:  # shown to the user, not raised into the server thread
@@ -291,7 +332,7 @@ class EditorView:
         if controls:
             self.draw_controls()
             self.draw_curves()
-        self.status.content = self.ctl.status()
+        self.status.content = status_text(self.ctl.status())
         if int(self.frame_slider.value) != self.ctl.frame:
             self.frame_slider.value = self.ctl.frame
 

@@ -14,9 +14,9 @@ spaces and serves a viser page with:
   upper samples re-placed (§3.2) around the character, moving when the foot target moves;
 - record → BVH.
 
-`MotionController` holds the state and the actions (testable without a browser);
-`serve_motion` draws it and wires the page to it; `serve` builds it from a run
-folder or config.
+`MotionController` (``_motion_controller``) holds the state and the actions
+(testable without a browser); `MotionView` draws it, `serve_motion` wires the page to
+it and `serve` builds it from a run folder or config.
 """
 
 from __future__ import annotations
@@ -25,13 +25,10 @@ import dataclasses
 import time
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 from fxspace import motion as M
-from fxspace.errors import FxspaceError
-from fxspace.io import write_bvh
-from fxspace.rotations import quat_rotate
+from fxspace.studio._motion_controller import MotionController, load_setup
 from fxspace.studio._server import (
     Player,
     ServeOptions,
@@ -41,226 +38,33 @@ from fxspace.studio._server import (
     new_server,
     run_until_interrupted,
     serialized,
+    status_markdown,
 )
 
-__all__ = ["MotionController", "load_setup", "serve_motion", "serve", "START_DELAY_S"]
+__all__ = [
+    "MotionController",
+    "MotionView",
+    "load_setup",
+    "serve_motion",
+    "serve",
+    "status_text",
+    "START_DELAY_S",
+]
 
 START_DELAY_S = 1.0
 """Seconds the first page is given to draw the scene before the walker starts walking."""
 
 
-class MotionController:
-    """State and actions of the live controller (no UI).
-
-    **Arguments:** ``setup`` (`fxspace.motion.Setup`), ``alpha`` (eqs. 2–3), ``loop``
-    (continuous locomotion: the clocks wrap and the walker walks on, `locomotion_step`;
-    ``False`` stops at the end of the lower reference clip), ``smoothing_s`` (controls are
-    followed by two cascaded lags of half this time, as in `run_session`).
-    """
-
-    def __init__(self, setup: M.Setup, alpha: float = 0.5, loop: bool = True,
-                 smoothing_s: float = 0.3):  # fmt: skip
-        self.setup = setup
-        self.sp = sp = setup.spaces
-        self.skel = setup.skeleton
-        self.alpha = float(alpha)
-        self.loop = loop
-        self.smoothing_s = float(smoothing_s)
-        self.parametric = sp.upper_joint >= 0
-        self.joy = 0.5
-        try:
-            self.table = M.session_turn_table(setup)
-        except FxspaceError:  # examples that do not turn: no steering
-            self.table = None
-        self.turn = 0.0 if self.table is None else float(np.clip(0.0, self.table.low,
-                                                                 self.table.high))  # fmt: skip
-        self.lower_param = (
-            np.asarray(M.turn_to_lower_param(self.table, self.turn), np.float64)
-            if self.table is not None else np.asarray(sp.lower_params[0], np.float64)
-        )  # fmt: skip
-        self.hand_param = np.asarray(sp.upper_params[0], np.float64) if self.parametric else None
-        self._lag = [np.concatenate([self.lower_param, self._upper_target()])] * 2
-        self.state = M.init_locomotion(sp, jnp.asarray(self.lower_param, sp.lam.dtype))
-        up, low = self._params()
-        # compiled ahead of time and kept on disk: a new process skips tracing the step
-        self._step = M.locomotion_stepper(sp, self.state, up, low)
-        self.cycle_origin = (np.zeros(3), 0.0)
-        self.recording: list[tuple[np.ndarray, np.ndarray]] | None = None
-        self.frame = 0
-        self.message = ""
-        self.rotations, self.root = self._pose_now()
-
-    # ------------------------------------------------------------------ parameters
-    def _upper_target(self) -> np.ndarray:
-        if self.parametric:
-            return np.asarray(self.hand_param, np.float64)
-        return np.asarray([self.joy, 1.0 - self.joy])
-
-    def upper_param(self) -> jnp.ndarray:
-        return jnp.asarray(self._lag[1][self.lower_param.size :])
-
-    def set_joy(self, w: float) -> None:
-        """Joy weight in [0, 1] (sad = 1 − joy); the mood walk's upper control."""
-        self.joy = float(np.clip(w, 0.0, 1.0))
-
-    def set_alpha(self, a: float) -> None:
-        self.alpha = float(np.clip(a, 0.0, 1.0))
-
-    def turn_range(self) -> tuple[float, float]:
-        """Turning rates the examples span (°/s, positive = left); ``(0, 0)`` without."""
-        return (0.0, 0.0) if self.table is None else (self.table.low, self.table.high)
-
-    def set_turn(self, deg_per_s: float) -> None:
-        """Steer: the turning rate (°/s, clamped to the examples' range) → lower parameter."""
-        if self.table is None:
-            return
-        self.turn = float(np.clip(deg_per_s, *self.turn_range()))
-        self.lower_param = np.asarray(M.turn_to_lower_param(self.table, self.turn), np.float64)
-
-    def nudge_turn(self, sign: int) -> None:
-        """Arrow keys / buttons: one tenth of the range to the left (+1) or right (−1)."""
-        lo, hi = self.turn_range()
-        self.set_turn(self.turn + sign * 0.1 * (hi - lo))
-
-    def _to_cycle_frame(self, world) -> np.ndarray:
-        pos, yaw = self.cycle_origin
-        rel = np.asarray(world, np.float64) - pos
-        c, s = np.cos(-yaw), np.sin(-yaw)
-        return np.asarray([c * rel[0] + s * rel[2], rel[1], -s * rel[0] + c * rel[2]])
-
-    def _from_cycle_frame(self, p: np.ndarray) -> np.ndarray:
-        pos, yaw = self.cycle_origin
-        c, s = np.cos(yaw), np.sin(yaw)
-        p = np.atleast_2d(p)
-        out = np.stack([c * p[:, 0] + s * p[:, 2], p[:, 1], -s * p[:, 0] + c * p[:, 2]], 1)
-        return out + pos
-
-    def set_foot_target(self, world) -> None:
-        """The lower parameter from a world point, in the frame where the current cycle
-        started (start-aligned clips: at the start that is the world); only the parameter's
-        dimensions (e.g. x, z) are taken."""
-        w = self._to_cycle_frame(world)
-        self.lower_param = w[np.asarray(self.sp.lower_dims)]
-
-    def set_hand_target(self, world) -> None:
-        """The upper parameter from a world point, expressed in the character's current
-        root frame (ground position and heading)."""
-        if not self.parametric:
-            return
-        X = self.joints()
-        rel = np.asarray(world, np.float64) - np.asarray([X[0, 0], 0.0, X[0, 2]])
-        h = M.heading_quat(jnp.asarray(self.rotations[0]))
-        self.hand_param = np.asarray(quat_rotate(M.quat_conj(h), jnp.asarray(rel)))
-
-    def foot_target_world(self) -> np.ndarray:
-        out = np.zeros(3)
-        out[np.asarray(self.sp.lower_dims)] = self.lower_param
-        return self._from_cycle_frame(out)[0]
-
-    def hand_target_world(self) -> np.ndarray | None:
-        if not self.parametric:
-            return None
-        return self._from_root_frame(self.hand_param[None])[0]
-
-    # ------------------------------------------------------------------ playing
-    def _params(self):
-        n = self.lower_param.size
-        c = self._lag[1]
-        dt = self.sp.lam.dtype
-        return jnp.asarray(c[n:], dt), jnp.asarray(c[:n], dt)
-
-    def _pose_now(self):
-        up, low = self._params()
-        _, pose = self._step(self.state, up, low, self.alpha, 0.0)
-        return np.asarray(pose.rotations), np.asarray(pose.root)
-
-    def step(self) -> None:
-        """One animation frame: the controls followed (lags), then `locomotion_step`."""
-        target = np.concatenate([self.lower_param, self._upper_target()])
-        dt_s, tau = 1.0 / float(self.skel.rate), self.smoothing_s / 2
-        a = M.smooth_controls(self._lag[0], target, dt_s, tau)
-        self._lag = [a, M.smooth_controls(self._lag[1], a, dt_s, tau)]
-        up, low = self._params()
-        cycles = float(self.state.cycles)
-        self.state, pose = self._step(self.state, up, low, self.alpha, 1.0)
-        if float(self.state.cycles) != cycles:  # a new cycle starts here
-            self.cycle_origin = (np.asarray(self.state.position, np.float64),
-                                 float(self.state.yaw))  # fmt: skip
-        self.rotations, self.root = np.asarray(pose.rotations), np.asarray(pose.root)
-        self.frame += 1
-        if self.recording is not None:
-            self.recording.append((self.rotations, self.root))
-        if not self.loop and float(self.state.cycles) > 0:
-            self.state = M.init_locomotion(self.sp, low)
-
-    def joints(self) -> np.ndarray:
-        """World joint positions of the current pose, ``(J, 3)``."""
-        X = M.fk_arrays(self.skel.parents, np.asarray(self.skel.offsets), self.root, self.rotations)
-        return np.asarray(X[0])
-
-    def contacts(self, height: float = 0.04) -> list[bool]:
-        """Whether each foot (`Setup.feet`) touches the ground plane (within ``height``)."""
-        X = self.joints()
-        return [bool(X[j, 1] < height) for j in self.setup.feet]
-
-    def _from_root_frame(self, p: np.ndarray) -> np.ndarray:
-        X = self.joints()
-        h = np.asarray(M.heading_quat(jnp.asarray(self.rotations[0])))
-        w = np.asarray(quat_rotate(jnp.broadcast_to(h, (p.shape[0], 4)), jnp.asarray(p)))
-        return w + np.asarray([X[0, 0], 0.0, X[0, 2]])
-
-    def upper_samples_world(self) -> np.ndarray | None:
-        """The re-placed upper samples (§3.2), drawn around the character (paper Fig. 2)."""
-        if not self.parametric:
-            return None
-        return self._from_root_frame(np.asarray(self.state.synth.upper_params))
-
-    def lower_samples_world(self) -> np.ndarray:
-        P = np.asarray(self.sp.lower_params)
-        out = np.zeros((P.shape[0], 3))
-        out[:, np.asarray(self.sp.lower_dims)] = P
-        return self._from_cycle_frame(out)
-
-    # ------------------------------------------------------------------ recording
-    def start_recording(self) -> None:
-        self.recording = []
-        self.message = "recording …"
-
-    def stop_recording(self, path: str | Path) -> Path | None:
-        """Write the recorded frames as BVH; returns the path (``None`` if nothing)."""
-        rec, self.recording = self.recording, None
-        if not rec:
-            self.message = "nothing recorded"
-            return None
-        q = np.stack([r[0] for r in rec])
-        r = np.stack([r[1] for r in rec])
-        mot = dataclasses.replace(self.skel, root_translation=r, rotations=q)
-        out = write_bvh(path, mot, scale=self.setup.scale)
-        self.message = f"wrote {len(rec)} frames to {out}"
-        return out
-
-    def status(self) -> str:
-        s = self.state.synth
-        up = (
-            f"joy {self.joy:.2f}"
-            if not self.parametric
-            else "hand " + " ".join(f"{v:+.2f}" for v in self.hand_param)
-        )
-        turn = f" · turn {self.turn:+.0f}°/s" if self.table is not None else ""
-        return (
-            f"**{self.setup.name}** · frame {self.frame} · T_L {float(s.t_lower):.1f} · "
-            f"T_U {float(s.t_upper):.1f} · α {self.alpha:.2f} · {up}{turn}  \n{self.message}"
-        )
-
-
-def load_setup(target: str | Path, setup: str | None = None) -> M.Setup:
-    """Build the set-up of a ``parametric_synthesis`` run folder (its ``config.toml``) or
-    config file; ``setup`` picks one of the config's ``setups`` (default the first). A
-    finished run folder's stored set-up is read, not rebuilt (see
-    `fxspace.pipelines.parametric_synthesis.load_setup`)."""
-    from fxspace.pipelines import parametric_synthesis as ps
-
-    return ps.load_setup(target, setup)  # another experiment: an error naming both
+def status_text(st: dict) -> str:
+    """The status line's Markdown from `MotionController.status` (data in, text out)."""
+    up = (f"joy {st['joy']:.2f}" if st["hand"] is None
+          else "hand " + " ".join(f"{v:+.2f}" for v in st["hand"]))  # fmt: skip
+    turn = f" · turn {st['turn']:+.0f}°/s" if st["turn"] is not None else ""
+    return status_markdown(
+        st["setup"], [], st["message"],
+        after_title=(f" · frame {st['frame']} · T_L {st['t_lower']:.1f} · T_U "
+                     f"{st['t_upper']:.1f} · α {st['alpha']:.2f} · {up}{turn}"),
+    )  # fmt: skip
 
 
 def _bones(parents) -> tuple[np.ndarray, np.ndarray]:
@@ -431,58 +235,123 @@ class _Body:
                 self.samples.visible = up is not None
 
 
-def _panel(server, ctl):
-    """The separate panel: the lower samples (and, parametric, the upper ones)."""
-    with server.gui.add_folder("Parameter spaces (samples)"):
-        P = np.asarray(ctl.sp.lower_params)[:, :2]
-        low = server.gui.add_image(samples_image(P, ctl.lower_param[:2]), label="Lower")
-        upp = None
+class MotionView:
+    """The live controller's page: the ground, the body (`_Body`), the samples' panel,
+    the controls and the target gizmos, each control wired to one `MotionController`
+    method (``server.fxspace_view``); `tick` plays one frame."""
+
+    def __init__(self, server, ctl: MotionController, export_path, playing: bool = True):
+        self.server, self.ctl = server, ctl
+        self.ground, self.grid = _scene(server)
+        self._panel()
+        self.body = _Body(server, ctl)
+        self.redraw = serialized(server)(self._redraw)
+        self._controls(export_path, playing)
+        self._targets()
+        self.snapped: tuple | None = None
+        self.seen: dict = {}  # page → when it was first seen
+
+    def _panel(self) -> None:
+        """The separate panel: the lower samples (and, parametric, the upper ones)."""
+        ctl = self.ctl
+        with self.server.gui.add_folder("Parameter spaces (samples)"):
+            self.P = np.asarray(ctl.sp.lower_params)[:, :2]
+            self.low = self.server.gui.add_image(
+                samples_image(self.P, ctl.lower_param[:2]), label="Lower"
+            )
+            self.upp = None
+            if ctl.parametric:
+                U = np.asarray(ctl.state.synth.upper_params)[:, [0, 1]]
+                self.upp = self.server.gui.add_image(
+                    samples_image(U, ctl.hand_param[[0, 1]]), label="Upper"
+                )
+
+    def refresh_panel(self) -> None:
+        ctl = self.ctl
+        self.low.image = samples_image(self.P, ctl.lower_param[:2])
+        if self.upp is not None:
+            U = np.asarray(ctl.state.synth.upper_params)[:, [0, 1]]
+            self.upp.image = samples_image(U, ctl.hand_param[[0, 1]])
+
+    def _controls(self, export_path, playing: bool) -> None:
+        """The GUI controls, each wired to one controller method."""
+        g, ctl = self.server.gui, self.ctl
+        self.status = g.add_markdown(status_text(ctl.status()))
+        self.play = g.add_checkbox("Playing", playing)
+        self.follow = g.add_checkbox("Follow camera", True)
+        lo, hi = ctl.turn_range()
+        self.turn = g.add_slider(
+            "Turn", min(lo, -1.0), max(hi, 1.0), 0.5, ctl.turn,
+            hint="turning rate, deg/s (+ left)", disabled=ctl.table is None,
+        )  # fmt: skip
+        left, right = g.add_button("◀ Left"), g.add_button("Right ▶")
+        joy = g.add_slider("Joy", 0.0, 1.0, 0.01, ctl.joy, disabled=ctl.parametric)
+        alpha = g.add_slider("Alpha", 0.0, 1.0, 0.01, ctl.alpha)
+        self.show = g.add_checkbox("Show samples", True)
+        rec, stop = g.add_button("Record"), g.add_button("Stop and write BVH")
+        self.turn.on_update(lambda _e: self._act(lambda: ctl.set_turn(self.turn.value)))
+        left.on_click(lambda _e: self._act(lambda: ctl.nudge_turn(+1)))
+        right.on_click(lambda _e: self._act(lambda: ctl.nudge_turn(-1)))
+        joy.on_update(lambda _e: self._act(lambda: ctl.set_joy(joy.value)))
+        alpha.on_update(lambda _e: self._act(lambda: ctl.set_alpha(alpha.value)))
+        rec.on_click(lambda _e: self._act(ctl.start_recording))
+        stop.on_click(lambda _e: self._act(lambda: ctl.stop_recording(export_path)))
+
+    def _act(self, action) -> None:
+        """Run a controller action, show the turn it left, redraw."""
+        action()
+        if self.turn.value != self.ctl.turn:
+            self.turn.value = self.ctl.turn
+        self.redraw()
+
+    def _targets(self) -> None:
+        """The draggable foot (lower parameter) and hand (upper parameter) targets."""
+        ctl, scene = self.ctl, self.server.scene
+        foot = scene.add_transform_controls(
+            "/targets/foot", scale=0.25, position=tuple(ctl.foot_target_world()),
+            disable_rotations=True,
+        )  # fmt: skip
+        foot.on_update(lambda _e: ctl.set_foot_target(np.asarray(foot.position)))
         if ctl.parametric:
-            U = np.asarray(ctl.state.synth.upper_params)[:, [0, 1]]
-            upp = server.gui.add_image(samples_image(U, ctl.hand_param[[0, 1]]), label="Upper")
+            hand = scene.add_transform_controls(
+                "/targets/hand", scale=0.2, position=tuple(ctl.hand_target_world()),
+                disable_rotations=True,
+            )  # fmt: skip
+            hand.on_update(lambda _e: ctl.set_hand_target(np.asarray(hand.position)))
 
-    def update() -> None:
-        low.image = samples_image(P, ctl.lower_param[:2])
-        if upp is not None:
-            U = np.asarray(ctl.state.synth.upper_params)[:, [0, 1]]
-            upp.image = samples_image(U, ctl.hand_param[[0, 1]])
+    def _redraw(self) -> None:
+        self.body.draw(bool(self.show.value))
+        self.status.content = status_text(self.ctl.status())
 
-    return update
+    def tick(self) -> None:
+        """One played frame: the step and the body every frame; the rest at a lower rate
+        (a page rendered in software WebGL falls behind when every control changes 30
+        times a second)."""
+        ctl = self.ctl
+        ctl.step()
+        self.body.draw(bool(self.show.value))
+        r = ctl.root * np.asarray([1.0, 0.0, 1.0])
+        snap = tuple(np.round(r / 10.0) * 10.0)
+        if snap != self.snapped:
+            self.ground.position = self.grid.position = self.snapped = snap
+        if self.follow.value and ctl.frame % 2 == 0:
+            _follow_camera(self.server, r + np.asarray([0.0, 0.9, 0.0]))
+        if ctl.frame % 6 == 0:
+            self.status.content = status_text(ctl.status())
+        if ctl.frame % 15 == 0:
+            self.refresh_panel()
 
-
-def _controls(server, ctl, draw, export_path, playing: bool):
-    """The GUI controls, each wired to one controller method."""
-    g = server.gui
-    status = g.add_markdown(ctl.status())
-    play = g.add_checkbox("Playing", playing)
-    follow = g.add_checkbox("Follow camera", True)
-    lo, hi = ctl.turn_range()
-    turn = g.add_slider(
-        "Turn", min(lo, -1.0), max(hi, 1.0), 0.5, ctl.turn,
-        hint="turning rate, deg/s (+ left)", disabled=ctl.table is None,
-    )  # fmt: skip
-    left, right = g.add_button("◀ Left"), g.add_button("Right ▶")
-    joy = g.add_slider("Joy", 0.0, 1.0, 0.01, ctl.joy, disabled=ctl.parametric)
-    alpha = g.add_slider("Alpha", 0.0, 1.0, 0.01, ctl.alpha)
-    show = g.add_checkbox("Show samples", True)
-    rec, stop = g.add_button("Record"), g.add_button("Stop and write BVH")
-
-    def act(fn):
-        def cb(_e) -> None:
-            fn()
-            turn.value = ctl.turn
-            draw()
-
-        return cb
-
-    turn.on_update(lambda _e: (ctl.set_turn(turn.value), draw()))
-    left.on_click(act(lambda: ctl.nudge_turn(+1)))
-    right.on_click(act(lambda: ctl.nudge_turn(-1)))
-    joy.on_update(lambda _e: (ctl.set_joy(joy.value), draw()))
-    alpha.on_update(lambda _e: (ctl.set_alpha(alpha.value), draw()))
-    rec.on_click(act(ctl.start_recording))
-    stop.on_click(act(lambda: ctl.stop_recording(export_path)))
-    return status, play, follow, show
+    def playing_now(self) -> bool:
+        """Plays only while a page is open (the walker does not walk off before anyone
+        looks, and no frames are made that nobody receives), and only once the first
+        page has had `START_DELAY_S` to draw the scene (a page still starting, flooded
+        with 30 updates a second, drew its first frame seconds later in software)."""
+        clients = self.server.get_clients()
+        if not (self.play.value and clients):
+            return False
+        now = time.monotonic()
+        first = min(self.seen.setdefault(c, now) for c in clients)
+        return now - first >= START_DELAY_S
 
 
 def serve_motion(
@@ -508,65 +377,10 @@ def serve_motion(
     o = options or ServeOptions(port, host, fps, block, environment_map)
     server = server if server is not None else new_server(o.port, o.host, o.environment_map)
     ctl = MotionController(setup)
-    ground, grid = _scene(server)
-    refresh_panel = _panel(server, ctl)
-    state: dict = {}
-    body = _Body(server, ctl)
-
-    @serialized(server)
-    def draw() -> None:
-        body.draw(bool(state["show"].value))
-        state["status"].content = ctl.status()
-
-    state["status"], state["play"], state["follow"], state["show"] = _controls(
-        server, ctl, draw, export_path, playing
-    )
-    foot = server.scene.add_transform_controls(
-        "/targets/foot", scale=0.25, position=tuple(ctl.foot_target_world()), disable_rotations=True
-    )
-    foot.on_update(lambda _e: ctl.set_foot_target(np.asarray(foot.position)))
-    if ctl.parametric:
-        hand = server.scene.add_transform_controls(
-            "/targets/hand", scale=0.2, position=tuple(ctl.hand_target_world()),
-            disable_rotations=True,
-        )  # fmt: skip
-        hand.on_update(lambda _e: ctl.set_hand_target(np.asarray(hand.position)))
-
-    snapped: list = [None]
-
-    @serialized(server)
-    def tick() -> None:
-        # every frame: the step and the body; the rest at a lower rate (a page rendered in
-        # software WebGL falls behind when every control changes 30 times a second)
-        ctl.step()
-        body.draw(bool(state["show"].value))
-        r = ctl.root * np.asarray([1.0, 0.0, 1.0])
-        snap = tuple(np.round(r / 10.0) * 10.0)
-        if snap != snapped[0]:
-            ground.position = grid.position = snapped[0] = snap
-        if state["follow"].value and ctl.frame % 2 == 0:
-            _follow_camera(server, r + np.asarray([0.0, 0.9, 0.0]))
-        if ctl.frame % 6 == 0:
-            state["status"].content = ctl.status()
-        if ctl.frame % 15 == 0:
-            refresh_panel()
-
-    draw()
-    # plays only while a page is open: the walker does not walk off before anyone looks,
-    # and no frames are made that nobody receives; and only once the first page has had
-    # a moment to draw the scene (a page still starting, flooded with 30 updates a second,
-    # drew its first frame seconds later when rendered in software)
-    seen: dict = {}
-
-    def playing_now() -> bool:
-        clients = server.get_clients()
-        if not (state["play"].value and clients):
-            return False
-        now = time.monotonic()
-        first = min(seen.setdefault(c, now) for c in clients)
-        return now - first >= START_DELAY_S
-
-    attach_stop(server, Player(tick, playing_now, o.fps))
+    view = MotionView(server, ctl, export_path, playing)
+    server.fxspace_view = view
+    view.redraw()
+    attach_stop(server, Player(serialized(server)(view.tick), view.playing_now, o.fps))
     if o.block:
         run_until_interrupted(server, "motion controller", o.host)
     return server, ctl

@@ -596,44 +596,38 @@ class NavigatorController:
         self.message = "exported " + ", ".join(p.name for p in paths)
         return [Path(p) for p in paths]
 
-    def status(self) -> str:
-        lv = self.data.hierarchy.levels[self.level]
-        keys = " → ".join(map(str, self.picks)) if self.picks else "none"
-        if len(self.picks) > 16:  # a refined route at a fine level: its ends and the count
-            keys = (" → ".join(map(str, self.picks[:6])) + f" → … ({len(self.picks) - 12} "
-                    "more) → " + " → ".join(map(str, self.picks[-6:])))  # fmt: skip
-        prev = f"Preview: centre {self.preview}  \n" if self.preview is not None else ""
-        if self.picks:
-            prev += f"Selected key: #{self.selected_key}  \n"
-        n = len(self.route.frames) if self.route is not None else 0
-        rl = f" (level {self.route.level})" if self.route is not None else ""
-        cand = self.candidates()
-        dens = (
-            f"Frames: {self.n_frames}, shown by density"
-            f"{' (centres too)' if self.centres_by_density else ''}  \n"
-            if self.pad_mode == "density"
-            else ""
-        )
-        guide = (
-            f"Candidates here (near the level-{self.guide.level} route): {_short(cand) or '—'}"
-            f"{' — picks held to them' if self._restricted() else ''}  \n"
-            if self.guide is not None
-            else ""
-        )
-        return (
-            f"**Level {self.level}** of {self.n_levels - 1}: {lv.n_clusters} centres  \n"
-            f"{dens}"
-            f"Key centres: {keys}  \n"
-            f"{prev}"
-            f"Route: {n} frames{rl}  \n"
-            f"{guide}"
-            f"Candidates at level {self.level + 1}: {_short(self.next_candidates()) or '—'}  \n"
-            f"Frame: {self.selected_frame}  \n"
-            f"{'Playing' if self.playing else 'Paused'}  \n"
-            f"_{self.message}_"
-        )
+    def status(self) -> dict:
+        """What the status panel shows, as data (`NavigatorView` renders it): the shown
+        ``level`` of ``n_levels`` with ``n_clusters`` centres, the ``keys``, the
+        ``preview`` centre and ``selected_key`` (or ``None``), the route's ``route_frames``
+        and ``route_level``, ``density`` (frames drawn as one image) with ``n_frames`` and
+        ``centres_by_density``, ``guide_level`` (the kept route's level or ``None``) with
+        its ``candidates`` and whether picks are ``restricted`` to them, the
+        ``next_candidates`` one level down, the selected ``frame``, ``playing`` and the
+        last ``message``."""
+        r = self.route
+        return {
+            "level": self.level,
+            "n_levels": self.n_levels,
+            "n_clusters": int(self.data.hierarchy.levels[self.level].n_clusters),
+            "keys": [int(k) for k in self.picks],
+            "preview": None if self.preview is None else int(self.preview),
+            "selected_key": int(self.selected_key) if self.picks else None,
+            "route_frames": 0 if r is None else len(r.frames),
+            "route_level": None if r is None else int(r.level),
+            "density": self.pad_mode == "density",
+            "n_frames": self.n_frames,
+            "centres_by_density": bool(self.centres_by_density),
+            "guide_level": None if self.guide is None else int(self.guide.level),
+            "candidates": np.asarray(self.candidates()).tolist(),
+            "restricted": self._restricted(),
+            "next_candidates": np.asarray(self.next_candidates()).tolist(),
+            "frame": int(self.selected_frame),
+            "playing": bool(self.playing),
+            "message": self.message,
+        }
 
 
-def _short(a: np.ndarray, n: int = 30) -> str:
+def _short(a, n: int = 30) -> str:
     a = np.asarray(a)
     return ", ".join(map(str, a[:n].tolist())) + (" …" if len(a) > n else "")

@@ -40,6 +40,7 @@ from fxspace.studio._nav_controller import (
     DENSITY_ABOVE,
     NavData,
     NavigatorController,
+    _short,
     load_nav_data,
 )
 from fxspace.studio._server import (
@@ -52,6 +53,7 @@ from fxspace.studio._server import (
     ray_plane_z0,
     run_until_interrupted,
     serialized,
+    status_markdown,
     studio_face,
 )
 
@@ -64,7 +66,40 @@ __all__ = [
     "serve",
     "NavigatorView",
     "HOTKEYS",
+    "status_text",
 ]
+
+
+def status_text(st: dict) -> str:
+    """The status panel's Markdown from `NavigatorController.status` (data in, text out)."""
+    keys = st["keys"]
+    shown = " → ".join(map(str, keys)) if keys else "none"
+    if len(keys) > 16:  # a refined route at a fine level: its ends and the count
+        shown = (" → ".join(map(str, keys[:6])) + f" → … ({len(keys) - 12} more) → "
+                 + " → ".join(map(str, keys[-6:])))  # fmt: skip
+    g, rl = st["guide_level"], st["route_level"]
+    return status_markdown(
+        f"Level {st['level']}",
+        [
+            f"Frames: {st['n_frames']}, shown by density"
+            f"{' (centres too)' if st['centres_by_density'] else ''}"
+            if st["density"]
+            else "",
+            f"Key centres: {shown}",
+            f"Preview: centre {st['preview']}" if st["preview"] is not None else "",
+            f"Selected key: #{st['selected_key']}" if st["selected_key"] is not None else "",
+            f"Route: {st['route_frames']} frames" + (f" (level {rl})" if rl is not None else ""),
+            f"Candidates here (near the level-{g} route): {_short(st['candidates']) or '—'}"
+            f"{' — picks held to them' if st['restricted'] else ''}"
+            if g is not None
+            else "",
+            f"Candidates at level {st['level'] + 1}: {_short(st['next_candidates']) or '—'}",
+            f"Frame: {st['frame']}",
+            "Playing" if st["playing"] else "Paused",
+        ],
+        st["message"],
+        after_title=f" of {st['n_levels'] - 1}: {st['n_clusters']} centres",
+    )
 
 
 def _segments(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -116,7 +151,7 @@ class NavigatorView:
         self.fc = self.P[0].mean(0) + ((rest.max(0) + rest.min(0)) / 2) @ self.R
         self.F = (self.P - self.fc) @ self.R.T
         self.fscale = 1.7 / max(float(np.ptp(rest[:, 1])), 1e-12)  # the head ~1.7 tall
-        self.gui_status = server.gui.add_markdown(ctl.status())
+        self.gui_status = server.gui.add_markdown(status_text(ctl.status()))
         self.gui_face = server.gui.add_markdown(f"_Face: {self.face_note}_")
         self.gui_dots = server.gui.add_checkbox("Markers on the face", initial_value=False)
         self.gui_dots.on_update(lambda _e: self.draw_face(self.ctl.selected_frame))
@@ -207,7 +242,7 @@ class NavigatorView:
             self.draw_route()
             self.draw_face(self.ctl.selected_frame)
             self.draw_cross(self.pad[self.ctl.selected_frame])
-            self.gui_status.content = self.ctl.status()
+            self.gui_status.content = status_text(self.ctl.status())
             for hook in getattr(self, "after_refresh", ()):
                 hook()
 
@@ -375,7 +410,7 @@ def serve_navigator(
         if pb is not None:
             view.draw_face(ctl.selected_frame)
             view.draw_cross(view.pf.to_pad(pb.xy[ctl.play_index]))
-            view.gui_status.content = ctl.status()
+            view.gui_status.content = status_text(ctl.status())
 
     view.refresh(full=True)
     attach_stop(server, Player(tick, lambda: ctl.playing, o.fps))

@@ -7,7 +7,7 @@ import dataclasses
 import functools
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -32,6 +32,7 @@ __all__ = [
     "read_run_config",
     "run_until_interrupted",
     "serialized",
+    "status_markdown",
 ]
 
 
@@ -392,6 +393,17 @@ def read_run_config(target: str | Path, experiment: str | None = None) -> tuple[
             f"{cfg}: experiment must be {experiment!r} for this app, got {raw.get('experiment')!r}"
         )
     return cfg, raw
+
+
+def status_markdown(title: str, lines: Sequence[str], message: str = "", *,
+                    after_title: str = "") -> str:  # fmt: skip
+    """The status panel of every app, drawn from what its controller's ``status()``
+    returned: ``title`` in bold (then ``after_title``), one line per entry of ``lines``
+    (empty ones dropped), then ``message`` in italics."""
+    out = [f"**{title}**{after_title}", *(ln for ln in lines if ln)]
+    if message:
+        out.append(f"_{message}_")
+    return "  \n".join(out)
 
 
 def serialized(server: Any) -> Callable[[Callable], Callable]:

@@ -17,6 +17,7 @@ from fxspace.studio import (
     load_editor_data,
     save_editor_data,
 )
+from fxspace.studio._editor import status_text, timeline
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +67,11 @@ def test_edit_is_saved_and_replayed_after_a_restart(run_dir, scene_data):
         ctl.sequence("edited")[13, vb] - ctl.sequence("control points")[13, vb], [0, 1, 0],
         atol=1e-4,
     )  # fmt: skip
-    assert "13" in ctl.status() and "◆" in ctl.timeline()
+    st = ctl.status()
+    assert st["frame"] == 13 and 13 in st["key_frames"] and st["keys"] == 2
+    line = timeline(st)
+    assert line[min(len(line) - 1, 13 * len(line) // st["n_frames"])] == "▲" and "◆" in line
+    assert "Frame 13" in status_text(st)
     saved = ctl.sequence("edited").copy()
     # restart: a new controller on the run folder replays the same frames
     again = EditorController(load_editor_data(run_dir))
@@ -103,7 +108,7 @@ def test_play_modes_export_and_refit(run_dir, tmp_path):
     assert ctl.frame == ctl.n_frames - 1 and not ctl.playing
     for mode in ("original", "linear", "control points", "edited"):
         ctl.set_mode(mode)
-        assert f"Showing: {mode}" in ctl.status()
+        assert ctl.status()["mode"] == mode and f"Showing: {mode}" in status_text(ctl.status())
     with pytest.raises(fx.FxspaceError, match="mode"):
         ctl.set_mode("wireframe")
     ctl.set_frame(20)

@@ -74,7 +74,10 @@ def test_controller_floor_and_normal_constraints(mesh):
     size = float(np.ptp(mesh.vertices, axis=0).max())
     ctl.floor_height = float(ctl.marker_points()[0, 1]) - 0.05 * size
     ctl.add_constraint(0, "floor")
-    assert "Constraints: 0: floor" in ctl.status()
+    from fxspace.studio._ik import status_text
+
+    assert ctl.status()["constraints"] == {0: "floor"}
+    assert "Constraints: 0: floor" in status_text(ctl.status())
     y0 = float(ctl.marker_points()[0, 1])
     assert abs(y0 - ctl.floor_height) < 1e-3 * size
     n_before = ctl._current_normals()[1]

@@ -9,6 +9,7 @@ from helpers import face_like as _face_like
 
 import fxspace as fx
 from fxspace.studio import NavData, NavigatorController
+from fxspace.studio._navigator import status_text
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,8 @@ def test_controller_pick_refine_play(data):
     assert ctl.pick(a) and ctl.pick(b)
     assert ctl.route is not None and ctl.route.centres == (a, b)
     assert not ctl.pick(c) and "not linked" in ctl.message
-    assert f"Key centres: {a} → {b}" in ctl.status()
+    st = ctl.status()
+    assert st["keys"] == [a, b] and f"Key centres: {a} → {b}" in status_text(st)
     ctl.refine()
     assert ctl.level == 1 and ctl.route.level == 1
     f0 = ctl.selected_frame
@@ -62,7 +64,8 @@ def test_preview_does_not_commit_and_edits_keep_the_route_valid(data):
     a, b, c = _linked_and_unlinked(lv)
     ctl.preview_at(h.embedding[lv.center_frames[c]] + 1e-9)
     assert ctl.preview == c and ctl.picks == [] and ctl.route is None
-    assert ctl.selected_frame == lv.center_frames[c] and "Preview: centre" in ctl.status()
+    assert ctl.selected_frame == lv.center_frames[c] and ctl.status()["preview"] == c
+    assert f"Preview: centre {c}" in status_text(ctl.status())
     assert ctl.commit(a) and ctl.commit(b) and ctl.picks == [a, b]
     assert ctl.commit(c)  # not linked to b: bridged
     assert _all_linked(lv, ctl.picks) and ctl.picks[-1] == c and ctl.picks[:2] == [a, b]
@@ -129,7 +132,9 @@ def test_level_change_keeps_the_route_and_holds_picks_to_candidates(data):
     cand = ctl.candidates()
     assert len(cand) > 0
     np.testing.assert_array_equal(cand, fx.path_candidates(data.hierarchy, 2, r0.frames))
-    assert "Candidates here (near the level-0 route)" in ctl.status()
+    st = ctl.status()
+    assert st["guide_level"] == 0 and st["candidates"] == cand.tolist()
+    assert "Candidates here (near the level-0 route)" in status_text(st)
     other = next(k for k in range(data.hierarchy.levels[2].n_clusters) if k not in cand)
     assert not ctl.pick(other) and "not near the route" in ctl.message
     # a click far from the route snaps to the nearest candidate while restricted
@@ -218,7 +223,8 @@ def test_many_frames_are_drawn_by_density():
     xy = d.hierarchy.embedding
     assert len(xy) > DENSITY_ABOVE
     ctl = NavigatorController(d, density_bins=64)
-    assert ctl.pad_mode == "density" and "shown by density  " in ctl.status()
+    assert ctl.pad_mode == "density" and ctl.status()["density"]
+    assert "shown by density  " in status_text(ctl.status())
     assert not ctl.centres_by_density
     g = ctl.frame_density()
     assert g.counts.shape == (64, 64) and g.counts.sum() == len(xy)
@@ -240,7 +246,8 @@ def test_many_frames_are_drawn_by_density():
     assert ok and k == int(np.argmin(np.linalg.norm(pos - q, axis=1)))
     # at the finest level (every frame a centre) the centres are shown by density too
     ctl.set_level(1)
-    assert ctl.centres_by_density and "(centres too)" in ctl.status()
+    assert ctl.centres_by_density and ctl.status()["centres_by_density"]
+    assert "(centres too)" in status_text(ctl.status())
     assert ctl.nearest_centre(q) == int(np.argmin(np.linalg.norm(xy - q, axis=1)))
     # below the threshold (or with a higher one) the frames are points
     assert NavigatorController(d, density_above=len(xy)).pad_mode == "points"

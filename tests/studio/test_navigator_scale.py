@@ -70,7 +70,9 @@ def test_pick_bridge_refine_to_frames_play_and_export(data, tmp_path):
     ctl.refine()
     assert "already at the finest level" in ctl.message
     # candidates near the level-2 route, and the status names them without a dense matrix
-    assert len(ctl.candidates()) > 0 and "Candidates here" in ctl.status()
+    from fxspace.studio._navigator import status_text
+
+    assert len(ctl.candidates()) > 0 and "Candidates here" in status_text(ctl.status())
     shown = {ctl.step() for _ in range(30)}
     assert shown <= set(fr.tolist())
     out = ctl.export(tmp_path / "exp", animation="none")
