@@ -56,8 +56,9 @@ eps = 1.05 * float(fx.connecting_threshold(fx.expression_space(X, 1e9, paths=Fal
 med("expression_space", lambda: fx.expression_space(X, eps).mds.embedding)
 sp = fx.expression_space(X, eps)
 key = jax.random.PRNGKey(0)
+# rho_scale=0.5: the ρ both revisions know (the later default runs the ρ experiment too)
 med("build_hierarchy", lambda: fx.navigation.build_hierarchy(
-    sp.mds.embedding, sp.geodesics, key=key).levels[-1].centers)
+    sp.mds.embedding, sp.geodesics, key=key, rho_scale=0.5).levels[-1].centers)
 pts = np.random.default_rng(0).normal(size=(2400, 2)).astype(np.float32)
 med("fuzzy_cmeans", lambda: fx.fuzzy_cmeans(jnp.asarray(pts), 40, key=key).centers)
 
@@ -89,7 +90,7 @@ print(json.dumps(out))
 
 CASES = {
     "expression_space": "fx.expression_space: 600 synthetic frames, geodesics + MDS",
-    "build_hierarchy": "fx.navigation.build_hierarchy: FCM levels + links on that space",
+    "build_hierarchy": "fx.navigation.build_hierarchy: FCM levels + links (ρ scale 0.5)",
     "fuzzy_cmeans": "fx.fuzzy_cmeans: 2 400 points, c = 40",
     "solve_ik_per_frame": "fx.solve_ik per frame (CesiumMan, 120 markers, float32, warm)",
     "track_ik": "fx.track_ik: the same 60 frames",

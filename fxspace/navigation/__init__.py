@@ -13,6 +13,7 @@ from fxspace.navigation._front import make_route as make_route
 from fxspace.navigation._front import navigate as navigate
 from fxspace.navigation._front import path_candidates as path_candidates
 from fxspace.navigation._front import refine_route as refine_route
+from fxspace.navigation._front import relink as relink
 from fxspace.navigation._hierarchy import Hierarchy as Hierarchy
 from fxspace.navigation._hierarchy import Level as Level
 from fxspace.navigation._hierarchy import cold_levels as cold_levels
@@ -20,9 +21,13 @@ from fxspace.navigation._hierarchy import level_sizes as level_sizes
 from fxspace.navigation._hierarchy import nearest_frames as nearest_frames
 from fxspace.navigation._hierarchy import split_centers as split_centers
 from fxspace.navigation._index import GridIndex as GridIndex
+from fxspace.navigation._links import LINK_SCALES as LINK_SCALES
+from fxspace.navigation._links import LinkRadiusSweep as LinkRadiusSweep
+from fxspace.navigation._links import choose_link_scale as choose_link_scale
 from fxspace.navigation._links import default_link_radius as default_link_radius
 from fxspace.navigation._links import link_graph_connected as link_graph_connected
 from fxspace.navigation._links import link_pairs as link_pairs
+from fxspace.navigation._links import link_radius_sweep as link_radius_sweep
 from fxspace.navigation._playback import Playback as Playback
 from fxspace.navigation._playback import playback as playback
 from fxspace.navigation._playback import rigid_align as rigid_align
@@ -40,6 +45,11 @@ from fxspace.navigation._space import resolve_threshold as resolve_threshold
 from fxspace.navigation._space import threshold_from_run as threshold_from_run
 
 __all__ = [
+    "LINK_SCALES",
+    "LinkRadiusSweep",
+    "choose_link_scale",
+    "link_radius_sweep",
+    "relink",
     "NavigationSpace",
     "SWEEP_THRESHOLDS",
     "THRESHOLD_CRITERIA",

@@ -91,9 +91,11 @@ def build_hierarchy(
     restarts: int | None = None,
     split: bool | None = None,
     first_level_seeds: int | None = None,
-    rho_scale: float | None = None,
+    rho_scale: float | Literal["experiment"] | None = None,
     max_link_centres: int | None = None,
+    link_sweep_max_centres: int | None = None,
     criterion: Literal["max", "fro"] | None = None,
+    bridges: bool | None = None,
     levels: int | None = None,
     nearest: int | None = None,
     links: bool | None = None,
@@ -108,8 +110,10 @@ def build_hierarchy(
     - `geodesics`: the frame graph's ``Geodesics`` (or None: no links) → a **dense**
       hierarchy: every level to c = T, full memberships, ``(c, c)`` links. Options
       `m`, `tol`, `max_steps`, `criterion` (FCM), `warm_start`, `restarts`, `split`,
-      `first_level_seeds` (how each level starts), `rho_scale`, `max_link_centres`
-      (links); see the dense builder's defaults in the guide.
+      `first_level_seeds` (how each level starts), `rho_scale`, `max_link_centres`,
+      `link_sweep_max_centres`, `bridges` (links: by default the paper's rule with ρ
+      chosen by its experiment, bridges only where a level is left in pieces; False:
+      none); see the dense builder's defaults.
       A `fxspace.expression.NeighbourGraph` → a **sparse** hierarchy: `levels` FCM levels
       (default 4) with `nearest` memberships per frame (default 8), `links` (default True)
       and, with `finest`, the level where every frame is a centre.
@@ -130,7 +134,8 @@ def build_hierarchy(
     dense_opts = dict(m=m, tol=tol, max_steps=max_steps, warm_start=warm_start,
                       restarts=restarts, split=split, first_level_seeds=first_level_seeds,
                       rho_scale=rho_scale, max_link_centres=max_link_centres,
-                      criterion=criterion)  # fmt: skip
+                      link_sweep_max_centres=link_sweep_max_centres, criterion=criterion,
+                      bridges=bridges)  # fmt: skip
     sparse_opts = dict(levels=levels, nearest=nearest, links=links, finest=finest)
     if isinstance(geodesics, NeighbourGraph):
         given = sorted(k for k, v in dense_opts.items() if v is not None)
@@ -150,6 +155,20 @@ def build_hierarchy(
         )
     kw = {k: v for k, v in dense_opts.items() if v is not None}
     return _dense_h.build_hierarchy(embedding, geodesics, c0=c0, key=key, **kw)
+
+
+def relink(hierarchy: Hierarchy, paths, rho_scale: float = 0.5, *, bridges: bool = True,
+           max_link_centres: int | None = None) -> Hierarchy:  # fmt: skip
+    """A dense hierarchy's levels with their links made again at ρ = ``rho_scale`` × each
+    level's centre spacing (``bridges`` as in `build_hierarchy`): how a ρ chosen by
+    `link_radius_sweep` / `choose_link_scale` is applied without clustering again."""
+    if _is_sparse(hierarchy) or isinstance(paths, NeighbourGraph):
+        raise FxspaceError(
+            "relink applies to a dense hierarchy with its Geodesics; a sparse hierarchy "
+            "takes its links from build_hierarchy(..., links=True)"
+        )
+    return _dense_h.relink(hierarchy, paths, rho_scale, bridges=bridges,
+                           max_link_centres=max_link_centres)  # fmt: skip
 
 
 def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
@@ -180,14 +199,12 @@ def hierarchy_from_arrays(a) -> Hierarchy:
             f"{type(a).__name__}"
         )
     if "sparse" in a:
-        return Hierarchy(
-            tuple(_sparse_h.sparse_levels_from_arrays(a)), np.asarray(a["embedding"])
-        )
+        return Hierarchy(tuple(_sparse_h.sparse_levels_from_arrays(a)), np.asarray(a["embedding"]))
     return _dense_h.hierarchy_from_arrays(a)
 
 
 def center_links(
-    embedding, paths, center_frames, rho: float | None = None, *, bridge: bool = True
+    embedding, paths, center_frames, rho: float | None = None, *, bridge: bool | None = None
 ) -> tuple[Any, Any]:
     """Links between centres (Kim & Jung §3.5: the path between two centres passes no
     other centre's ρ-disc) and the bridges that keep the level connected.
@@ -195,18 +212,19 @@ def center_links(
     **Arguments:** `embedding` ``(T, 2)``; `paths` the frame graph's ``Geodesics`` (dense:
     ``(c, c)`` bool matrices) or a `NeighbourGraph` (sparse: ``csr_array``\\ s); the
     `center_frames`; `rho` (dense: required; sparse: default the level's spacing rule);
-    `bridge` (dense) adds the bridges.
+    `bridge` adds the bridges (dense: default False, the paper's rule alone; sparse
+    links always carry theirs).
 
     **Returns:** ``(links, bridges)``.
     """
     if isinstance(paths, NeighbourGraph):
-        if not bridge:
+        if bridge is False:
             raise FxspaceError("bridge=False applies to dense links (geodesics)")
         lk, br = _sparse_h.sparse_links(paths, embedding, np.asarray(center_frames), rho)
         return lk, br
     if rho is None:
         raise FxspaceError("rho is required for dense links (the link radius, in 2-D units)")
-    return _dense_links.center_links(embedding, paths, center_frames, rho, bridge=bridge)
+    return _dense_links.center_links(embedding, paths, center_frames, rho, bridge=bool(bridge))
 
 
 def frame_path(paths, key_frames: Sequence[int]) -> np.ndarray:

@@ -36,9 +36,12 @@ from fxspace.cluster import (
 )
 from fxspace.errors import FxspaceError
 from fxspace.navigation._links import (
+    LinkRadiusSweep,
     center_links,
+    choose_link_scale,
     default_link_radius,
     link_graph_connected,
+    link_radius_sweep,
 )
 from fxspace.results import RESULTS, member_code, result_from_code
 
@@ -128,6 +131,8 @@ class Hierarchy(NamedTuple):
 
     levels: tuple[Level, ...]
     embedding: np.ndarray
+    link_sweep: Any = None
+    """The `LinkRadiusSweep` that chose ρ (``rho_scale="experiment"``), else None."""
 
     @property
     def sizes(self) -> tuple[int, ...]:
@@ -254,15 +259,15 @@ def _level_starts(x, c, prev, k_cold, k_ext, *, warm_start, restarts, split,
 
 
 def _level(x, c: int, T: int, res, runs, best: int, prev, geodesics, max_link_centres,
-           rho_scale: float, warm_start: bool, split: bool) -> Level:  # fmt: skip
+           rho_scale: float, warm_start: bool, split: bool, bridges: bool) -> Level:  # fmt: skip
     """One `Level` of `build_hierarchy` from its winning FCM run: the centres' frames, the
     links (with ``geodesics``), how it was started."""
     frames = nearest_frames(x, res.centers)
-    links = bridges = None
+    links = added = None
     rho = float("nan")
     if geodesics is not None and (max_link_centres is None or c <= max_link_centres):
         rho = default_link_radius(np.asarray(x)[frames], rho_scale)
-        links, bridges = center_links(x, geodesics, frames, rho)
+        links, added = center_links(x, geodesics, frames, rho, bridge=bridges)
     if c == T:
         init_name = "frames"
     elif prev is None or not warm_start:
@@ -281,7 +286,7 @@ def _level(x, c: int, T: int, res, runs, best: int, prev, geodesics, max_link_ce
         num_steps=int(res.num_steps),
         result=res.result,
         links=links,
-        bridges=bridges,
+        bridges=added,
         radius=rho,
         stats={"init": init_name, "num_steps_split": split_steps,
                "total_steps": int(sum(int(r.num_steps) for r in runs))},
@@ -302,9 +307,11 @@ def build_hierarchy(
     restarts: int = 1,
     split: bool = True,
     first_level_seeds: int = 8,
-    rho_scale: float = 0.5,
+    rho_scale: float | Literal["experiment"] = "experiment",
     max_link_centres: int | None = None,
     criterion: Literal["max", "fro"] = "max",
+    bridges: bool = True,
+    link_sweep_max_centres: int = 320,
 ) -> Hierarchy:
     """Fuzzy c-means levels c0·2^l (seed §4) over the expression-space ``embedding``.
 
@@ -325,8 +332,19 @@ def build_hierarchy(
       which need ``restarts`` ≥ 1).
     - `first_level_seeds`: k-means++ seeds at the first level (cheap there, and it decides
       the coarse structure every finer level inherits).
-    - `rho_scale`: ρ = rho_scale × median nearest-centre spacing of the level.
+    - `rho_scale`: ρ = rho_scale × median nearest-centre spacing of the level; with
+      ``"experiment"`` (default) the paper's experiment chooses it: `link_radius_sweep`
+      over `LINK_SCALES` on the levels of at most `link_sweep_max_centres` centres, and
+      `choose_link_scale` (the largest scale that keeps them all connected); the sweep
+      is kept as ``Hierarchy.link_sweep``.
     - `max_link_centres`: skip links for levels with more centres (None: all levels).
+    - `bridges`: True (default): where a level's links by the ρ rule leave it in pieces,
+      the geodesically cheapest link between two pieces is added (``Level.bridges``,
+      counted and drawn apart). With ρ from the experiment the swept levels need none
+      when some scale joins them; the finer levels can, as the link test checks the 16
+      centres nearest each path segment and counts a segment it cannot clear as
+      blocked. False: the paper's rule alone; a level may then fall apart into groups
+      that no route joins.
 
     **Returns:** a `Hierarchy`. At the finest level c = T: k-means++ seeding draws
     every frame, the global optimum (J = 0), so its start is the frames themselves.
@@ -343,6 +361,9 @@ def build_hierarchy(
         raise FxspaceError(f"restarts must be >= 0, got {restarts}")
     if not split and int(restarts) < 1:
         raise FxspaceError("split=False needs restarts >= 1 (the k-means++-extend starts)")
+    experiment = isinstance(rho_scale, str)
+    if experiment and rho_scale != "experiment":
+        raise FxspaceError(f"rho_scale must be a number >= 0 or 'experiment', got {rho_scale!r}")
     T = x.shape[0]
     if key is None:
         key = jax.random.PRNGKey(0)
@@ -363,11 +384,43 @@ def build_hierarchy(
         best = int(np.argmin(np.where(np.isnan(objs), np.inf, objs)))
         res = runs[best]
         levels.append(_level(
-            x, c, T, res, runs, best, prev, geodesics, max_link_centres, rho_scale,
-            warm_start, split,
+            x, c, T, res, runs, best, prev, None if experiment else geodesics,
+            max_link_centres, 0.0 if experiment else rho_scale, warm_start, split, bridges,
         ))  # fmt: skip
         prev = res
-    return Hierarchy(tuple(levels), np.asarray(x))
+    h = Hierarchy(tuple(levels), np.asarray(x))
+    if experiment and geodesics is not None:
+        sweep = link_radius_sweep(h, geodesics, max_centres=link_sweep_max_centres)
+        h = relink(h, geodesics, choose_link_scale(sweep), bridges=bridges,
+                   max_link_centres=max_link_centres)._replace(link_sweep=sweep)  # fmt: skip
+    return h
+
+
+@checked
+def relink(
+    hierarchy: Hierarchy,
+    geodesics,
+    rho_scale: float = 0.5,
+    *,
+    bridges: bool = True,
+    max_link_centres: int | None = None,
+) -> Hierarchy:
+    """The same levels with their links made again at ρ = ``rho_scale`` × each level's
+    centre spacing (`center_links`; ``bridges`` as in `build_hierarchy`); the centres
+    and memberships are untouched. What a ρ chosen by `link_radius_sweep` is applied with,
+    without clustering again."""
+    if rho_scale < 0:
+        raise FxspaceError(f"rho_scale must be >= 0, got {rho_scale}")
+    x = np.asarray(hierarchy.embedding)
+    out = []
+    for lv in hierarchy.levels:
+        links = added = None
+        rho = float("nan")
+        if max_link_centres is None or lv.n_clusters <= max_link_centres:
+            rho = default_link_radius(x[lv.center_frames], rho_scale)
+            links, added = center_links(x, geodesics, lv.center_frames, rho, bridge=bridges)
+        out.append(lv._replace(links=links, bridges=added, radius=rho))
+    return Hierarchy(tuple(out), hierarchy.embedding, hierarchy.link_sweep)
 
 
 @checked
@@ -429,6 +482,9 @@ def hierarchy_to_arrays(h: Hierarchy) -> dict[str, np.ndarray]:
             out[p + f] = np.asarray(getattr(lv, f))
         for f in _LEVEL_STATS:
             out[p + f] = np.asarray(lv.stats.get(f, -1))
+    if h.link_sweep is not None:
+        for f, v in h.link_sweep._asdict().items():
+            out["link_sweep_" + f] = np.asarray(v)
     return out
 
 
@@ -457,6 +513,10 @@ def hierarchy_from_arrays(a: dict[str, np.ndarray]) -> Hierarchy:
                        **{f: int(a[p + f].item()) for f in _LEVEL_STATS}},
                 **sc,
             ))  # fmt: skip
-        return Hierarchy(tuple(levels), np.asarray(a["embedding"]))
+        sweep = None
+        if "link_sweep_scales" in a:
+            sweep = LinkRadiusSweep(*(np.asarray(a["link_sweep_" + f])
+                                      for f in LinkRadiusSweep._fields))  # fmt: skip
+        return Hierarchy(tuple(levels), np.asarray(a["embedding"]), sweep)
     except KeyError as e:
         raise FxspaceError(f"not a stored hierarchy: {e} missing") from None

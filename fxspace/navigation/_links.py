@@ -11,7 +11,7 @@ reachable.
 from __future__ import annotations
 
 from functools import partial
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -23,9 +23,21 @@ from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
 
 if TYPE_CHECKING:
-    from fxspace.navigation._hierarchy import Level
+    from fxspace.navigation._hierarchy import Hierarchy, Level
 
-__all__ = ["center_links", "default_link_radius", "link_graph_connected", "link_pairs"]
+__all__ = [
+    "LINK_SCALES",
+    "LinkRadiusSweep",
+    "center_links",
+    "choose_link_scale",
+    "default_link_radius",
+    "link_graph_connected",
+    "link_pairs",
+    "link_radius_sweep",
+]
+
+LINK_SCALES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
+"""The ρ scales `link_radius_sweep` tries by default (× each level's centre spacing)."""
 
 
 @checked
@@ -129,7 +141,7 @@ def center_links(
     center_frames: Int[Array, " c"],
     rho: float,
     *,
-    bridge: bool = True,
+    bridge: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Links between centres (seed §4): i—j when the geodesic path between their frames,
     drawn in 2-D as the polyline through its frames, passes no other centre within ρ.
@@ -214,3 +226,80 @@ def link_pairs(links) -> tuple[np.ndarray, np.ndarray]:
         )
     i, j = np.nonzero(np.triu(L, 1))
     return i.astype(np.int64), j.astype(np.int64)
+
+
+class LinkRadiusSweep(NamedTuple):
+    """The link radius experiment of Kim & Jung §4.2 (`link_radius_sweep`).
+
+    **Fields:** `scales` ``(S,)`` (ρ = scale × the level's median centre spacing);
+    `levels` ``(L,)`` the swept level indices and `centres` their sizes; per level and
+    scale ``(L, S)``: `radii` (ρ), `links` (pairs linked), `components` (groups of
+    centres the links join) and `coverage` (the fraction of centre pairs a route can
+    join through links: 1 when the level is connected).
+    """
+
+    scales: np.ndarray
+    levels: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    links: np.ndarray
+    components: np.ndarray
+    coverage: np.ndarray
+
+
+def _coverage(labels: np.ndarray) -> float:
+    c = len(labels)
+    if c < 2:
+        return 1.0
+    sizes = np.unique(labels, return_counts=True)[1].astype(np.float64)
+    return float(np.sum(sizes * (sizes - 1)) / (c * (c - 1)))
+
+
+@checked
+def link_radius_sweep(
+    hierarchy: Hierarchy,
+    geodesics,
+    scales=LINK_SCALES,
+    *,
+    max_centres: int | None = 320,
+) -> LinkRadiusSweep:
+    """Links by the paper's rule (no bridges) at each ρ of ``scales`` on every level with
+    at most ``max_centres`` centres: how many links, how many groups they leave, and the
+    fraction of centre pairs a route can still join (Kim & Jung §4.2: "the circle's
+    radius is set by experiment"). `choose_link_scale` reads the answer off it.
+
+    **Example:** ``sw = fx.navigation.link_radius_sweep(h, space.geodesics)``
+    """
+    sc = np.asarray(scales, np.float64).reshape(-1)
+    if not len(sc) or not np.all(np.isfinite(sc)) or np.any(sc < 0):
+        raise FxspaceError(f"scales must be finite numbers >= 0, got {scales!r}")
+    x = np.asarray(hierarchy.embedding)
+    idx = [i for i, lv in enumerate(hierarchy.levels)
+           if max_centres is None or lv.n_clusters <= max_centres]  # fmt: skip
+    if not idx:
+        raise FxspaceError(f"no level has at most max_centres={max_centres} centres")
+    shape = (len(idx), len(sc))
+    radii, coverage = np.zeros(shape), np.zeros(shape)
+    links, comps = np.zeros(shape, np.int64), np.zeros(shape, np.int64)
+    for a, li in enumerate(idx):
+        frames = hierarchy.levels[li].center_frames
+        for b, s in enumerate(sc):
+            radii[a, b] = default_link_radius(x[frames], float(s))
+            lk, _ = center_links(x, geodesics, frames, radii[a, b], bridge=False)
+            labels = _components(lk)
+            links[a, b] = int(lk.sum() // 2)
+            comps[a, b] = len(np.unique(labels))
+            coverage[a, b] = _coverage(labels)
+    sizes = np.asarray([hierarchy.levels[i].n_clusters for i in idx])
+    return LinkRadiusSweep(sc, np.asarray(idx), sizes, radii, links, comps, coverage)
+
+
+@checked
+def choose_link_scale(sweep: LinkRadiusSweep) -> float:
+    """The largest ρ scale of ``sweep`` at which every swept level stays in one piece
+    (coverage 1): the widest circles, so the fewest links that pass by another centre,
+    that still let every centre reach every other. When no scale joins every level, the
+    largest scale with the best worst-level coverage (the levels left in pieces then
+    need bridges, ``build_hierarchy(bridges=True)``, to route across them)."""
+    worst = np.round(np.min(np.asarray(sweep.coverage), axis=0), 9)
+    return float(sweep.scales[np.flatnonzero(worst == worst.max())[-1]])

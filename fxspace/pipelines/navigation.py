@@ -119,15 +119,22 @@ class HierarchyConfig:
     tol: float = 1e-4
     max_steps: int = 300
     restarts: int = 1
-    rho_scale: float = 0.5
+    rho_scale: float | str = "experiment"  # or a number: ρ = rho_scale × centre spacing
+    bridges: bool = True  # join a level the ρ rule leaves in pieces (false: never)
+    link_sweep_max_centres: int = 320  # levels the ρ experiment looks at
     compare_cold: bool = True
     max_link_centres: int = 0  # 0: links at every level
 
     def validate(self) -> None:
         if self.c0 < 1 or self.max_steps < 1 or not self.m > 1 or not self.tol > 0:
             raise ConfigError("hierarchy: need c0 >= 1, max_steps >= 1, m > 1, tol > 0")
-        if not self.rho_scale > 0:
-            raise ConfigError("hierarchy.rho_scale must be > 0")
+        if isinstance(self.rho_scale, str):
+            if self.rho_scale != "experiment":
+                raise ConfigError("hierarchy.rho_scale must be a number > 0 or 'experiment'")
+        elif not self.rho_scale > 0:
+            raise ConfigError("hierarchy.rho_scale must be > 0 (or 'experiment')")
+        if self.link_sweep_max_centres < self.c0:
+            raise ConfigError("hierarchy.link_sweep_max_centres must be >= c0")
         if self.restarts < 0:
             raise ConfigError("hierarchy.restarts must be >= 0")
         if self.max_link_centres < 0:
@@ -240,7 +247,8 @@ def build_levels(cfg: Config, Y, geo, seed: int, restarts: int):
     return build_hierarchy(
         Y, geo, c0=hc.c0, m=hc.m, key=jax.random.PRNGKey(seed), tol=hc.tol,
         max_steps=hc.max_steps, warm_start=True, restarts=restarts,
-        rho_scale=hc.rho_scale,
+        rho_scale=hc.rho_scale, bridges=hc.bridges,
+        link_sweep_max_centres=hc.link_sweep_max_centres,
         max_link_centres=hc.max_link_centres or None,
     )  # fmt: skip
 
@@ -347,7 +355,12 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
 def _write_outputs(
     cfg: Config, run_dir: Path, face, h, routes, play, keys, eps_note: str = ""
 ) -> str | None:
-    from fxspace.plot import plot_level, plot_levels_grid, write_navigation_animation
+    from fxspace.plot import (
+        plot_level,
+        plot_levels_grid,
+        plot_link_radius_sweep,
+        write_navigation_animation,
+    )
 
     nc = cfg.navigation
     stage("figures" + (" and animation" if nc.animation != "none" else ""))
@@ -357,6 +370,9 @@ def _write_outputs(
             save_figure_atomic(plot_level(h, li, rt), run_dir / f"level_{li:02d}.png")
     title = f"ε = {eps_note}" if eps_note else None
     save_figure_atomic(plot_levels_grid(h, routes, title=title), run_dir / "levels_grid.png")
+    if h.link_sweep is not None:
+        save_figure_atomic(plot_link_radius_sweep(h.link_sweep, _chosen_scale(h)),
+                           run_dir / "link_radius.png")  # fmt: skip
     anim = None
     if nc.animation != "none":
         anim = write_navigation_animation(
@@ -402,6 +418,30 @@ def _level_metrics(lv, cold: dict | None = None) -> dict:
     }
 
 
+def _chosen_scale(h) -> float | None:
+    """The ρ scale the experiment chose: each level's ρ over its centre spacing."""
+    from fxspace.navigation import choose_link_scale
+
+    return None if h.link_sweep is None else choose_link_scale(h.link_sweep)
+
+
+def _rho_experiment(h) -> dict | None:
+    """The ρ experiment's table for metrics.json (None when ρ was a fixed number)."""
+    sw = h.link_sweep
+    if sw is None:
+        return None
+    return {
+        "scales": sw.scales.tolist(),
+        "chosen_scale": _chosen_scale(h),
+        "levels": [
+            {"level": int(li), "centres": int(c), "links": sw.links[k].tolist(),
+             "components": sw.components[k].tolist(),
+             "coverage": [round(float(v), 6) for v in sw.coverage[k]]}
+            for k, (li, c) in enumerate(zip(sw.levels, sw.centres, strict=True))
+        ],
+    }  # fmt: skip
+
+
 def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timings,
              cold: list | None = None) -> dict:  # fmt: skip
     h = ns.hierarchy
@@ -438,6 +478,7 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
         "levels": levels,
         # links the paper's ρ rule forbids, added so that every route connects (bridges)
         "links_bridged": sum(lv["bridges"] or 0 for lv in levels),
+        "rho_experiment": _rho_experiment(h),
         "iterations_split_start_total": warm,
         "iterations_cold_total": cold,
         "iterations_saved_by_warm_start": (cold - warm) if cold is not None else None,

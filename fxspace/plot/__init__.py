@@ -34,6 +34,7 @@ from fxspace.plot._navigation import face_frame as face_frame
 from fxspace.plot._navigation import face_wireframe as face_wireframe
 from fxspace.plot._navigation import plot_level as plot_level
 from fxspace.plot._navigation import plot_levels_grid as plot_levels_grid
+from fxspace.plot._navigation import plot_link_radius_sweep as plot_link_radius_sweep
 from fxspace.plot._navigation import write_navigation_animation as write_navigation_animation
 
 __all__ = [
@@ -58,5 +59,6 @@ __all__ = [
     "face_wireframe",
     "plot_level",
     "plot_levels_grid",
+    "plot_link_radius_sweep",
     "write_navigation_animation",
 ]

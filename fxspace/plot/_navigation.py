@@ -24,6 +24,7 @@ from matplotlib.figure import Figure
 __all__ = [
     "plot_level",
     "plot_levels_grid",
+    "plot_link_radius_sweep",
     "face_frame",
     "face_wireframe",
     "write_navigation_animation",
@@ -54,7 +55,15 @@ def _draw_level(
     if show_frames:
         ax.scatter(xy[:, 0], xy[:, 1], s=3, c="0.8", lw=0, zorder=1)
     if show_links and lv.links is not None and lv.n_clusters <= 400:
-        segs = _links_segments(c, lv.links)
+        bridges = getattr(lv, "bridges", None)
+        plain = lv.links
+        if bridges is not None and not hasattr(bridges, "tocsr") and np.any(bridges):
+            plain = np.asarray(lv.links, bool) & ~np.asarray(bridges, bool)
+            ax.add_collection(LineCollection(
+                _links_segments(c, bridges), colors="tab:orange", linewidths=1.0,
+                alpha=0.9, zorder=2,
+            ))  # fmt: skip
+        segs = _links_segments(c, plain)
         if len(segs):
             ax.add_collection(
                 LineCollection(
@@ -130,6 +139,33 @@ def plot_levels_grid(
     return fig
 
 
+def plot_link_radius_sweep(sweep, chosen: float | None = None) -> Figure:
+    """The ρ experiment (`fxspace.navigation.link_radius_sweep`): per level, the links and
+    the fraction of centre pairs a route can join (coverage) against the ρ scale; the
+    chosen scale (`choose_link_scale`) marked."""
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+    cmap = plt.get_cmap("viridis")
+    L = len(sweep.levels)
+    for k in range(L):
+        col = cmap(k / max(L - 1, 1))
+        lab = f"level {int(sweep.levels[k])} ({int(sweep.centres[k])} centres)"
+        a1.plot(sweep.scales, sweep.links[k], "o-", color=col, ms=3, label=lab)
+        a2.plot(sweep.scales, sweep.coverage[k], "o-", color=col, ms=3, label=lab)
+    a1.set_yscale("log")
+    a1.set_ylabel("links (pairs of centres)")
+    a2.set_ylabel("coverage: centre pairs joined through links")
+    a2.set_ylim(-0.03, 1.03)
+    for ax in (a1, a2):
+        ax.set_xlabel("ρ scale (× the level's median centre spacing)")
+        if chosen is not None:
+            ax.axvline(chosen, color="tab:red", ls="--", lw=1, label=f"chosen: {chosen:g}")
+    a2.legend(fontsize=7, loc="lower left")
+    fig.suptitle("Link radius ρ by experiment (Kim & Jung §4.2): the largest scale that "
+                 "keeps every level connected", fontsize=10)  # fmt: skip
+    fig.tight_layout()
+    return fig
+
+
 def _levels_legend(with_route: bool) -> list:
     """Legend handles of `plot_levels_grid` (what each mark in a level means)."""
     from matplotlib.lines import Line2D
@@ -138,6 +174,7 @@ def _levels_legend(with_route: bool) -> list:
         Line2D([], [], ls="", marker="o", ms=3, color="0.8", label="frame"),
         Line2D([], [], ls="", marker="o", ms=6, mfc="tab:blue", mec="k", label="cluster centre"),
         Line2D([], [], ls="--", color="tab:blue", lw=0.8, label="link between centres"),
+        Line2D([], [], color="tab:orange", lw=1.0, label="bridge (not a link by the ρ rule)"),
     ]
     if with_route:
         h += [

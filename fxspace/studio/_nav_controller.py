@@ -598,7 +598,8 @@ class NavigatorController:
 
     def status(self) -> dict:
         """What the status panel shows, as data (`NavigatorView` renders it): the shown
-        ``level`` of ``n_levels`` with ``n_clusters`` centres, the ``keys``, the
+        ``level`` of ``n_levels`` with ``n_clusters`` centres and ``bridges`` (links the
+        paper's ρ rule does not allow, added to join the level's pieces), the ``keys``, the
         ``preview`` centre and ``selected_key`` (or ``None``), the route's ``route_frames``
         and ``route_level``, ``density`` (frames drawn as one image) with ``n_frames`` and
         ``centres_by_density``, ``guide_level`` (the kept route's level or ``None``) with
@@ -610,6 +611,7 @@ class NavigatorController:
             "level": self.level,
             "n_levels": self.n_levels,
             "n_clusters": int(self.data.hierarchy.levels[self.level].n_clusters),
+            "bridges": _bridge_count(self.data.hierarchy.levels[self.level]),
             "keys": [int(k) for k in self.picks],
             "preview": None if self.preview is None else int(self.preview),
             "selected_key": int(self.selected_key) if self.picks else None,
@@ -631,3 +633,11 @@ class NavigatorController:
 def _short(a, n: int = 30) -> str:
     a = np.asarray(a)
     return ", ".join(map(str, a[:n].tolist())) + (" …" if len(a) > n else "")
+
+
+def _bridge_count(lv) -> int:
+    """Bridges of a level (dense bool matrix or sparse CSR; none when not computed)."""
+    br = getattr(lv, "bridges", None)
+    if br is None:
+        return 0
+    return int((br.count_nonzero() if hasattr(br, "count_nonzero") else np.sum(br)) // 2)

@@ -5,7 +5,8 @@ sweep over its frames, the space and the hierarchy are cached stages, built with
 the first time and read afterwards) and serves a viser page with:
 
 - the 2-D expression pad: every frame (grey points; past ``density_above`` frames, their
-  density as one grey image), the shown level's centres (blue) and links (thin blue), the
+  density as one grey image), the shown level's centres (blue) and links (thin blue;
+  bridges, which the paper's ρ rule does not allow, orange), the
   route (red), the route kept from another level (orange) with its candidate centres
   (green), the previewed centre (yellow) and a moving cross;
 - *look, then choose*: a click anywhere on the pad previews the nearest centre of the
@@ -85,6 +86,9 @@ def status_text(st: dict) -> str:
             f"{' (centres too)' if st['centres_by_density'] else ''}"
             if st["density"]
             else "",
+            f"Bridges: {st['bridges']} (orange; not links by the paper's ρ rule)"
+            if st["bridges"]
+            else "",
             f"Key centres: {shown}",
             f"Preview: centre {st['preview']}" if st["preview"] is not None else "",
             f"Selected key: #{st['selected_key']}" if st["selected_key"] is not None else "",
@@ -100,6 +104,22 @@ def status_text(st: dict) -> str:
         st["message"],
         after_title=f" of {st['n_levels'] - 1}: {st['n_clusters']} centres",
     )
+
+
+LINK_RGB, BRIDGE_RGB = (80, 120, 220), (240, 140, 20)
+"""The pad's colours of a link (the paper's ρ rule) and of a bridge (added to join a
+level's pieces, `fxspace.build_hierarchy(bridges=...)`)."""
+
+
+def _link_colours(lv, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """``(n, 2, 3)`` uint8 colours of the links ``(i, j)``: bridges orange, links blue."""
+    out = np.empty((len(i), 2, 3), np.uint8)
+    out[:] = LINK_RGB
+    br = getattr(lv, "bridges", None)
+    if br is not None:
+        b = np.asarray(br[i, j]).reshape(-1).astype(bool)
+        out[b] = BRIDGE_RGB
+    return out
 
 
 def _segments(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -197,7 +217,7 @@ class NavigatorView:
             i, j = link_pairs(lv.links)
             if len(i):
                 scene.add_line_segments(
-                    "/pad/links", _segments(cp, i, j), colors=(80, 120, 220),
+                    "/pad/links", _segments(cp, i, j), colors=_link_colours(lv, i, j),
                     thickness=0.003 if lv.n_clusters <= 400 else 0.0015,
                 )  # fmt: skip
         size = 0.035 if lv.n_clusters <= 40 else (0.025 if lv.n_clusters <= 400 else 0.014)

@@ -135,7 +135,7 @@ def test_bridges_connect_a_disconnected_link_graph(space):
     X, _, geo, h = space
     lv = h.levels[1]
     huge = 100.0 * lv.radius  # every path is blocked → only bridges remain
-    links, bridges = fx.center_links(X, geo, lv.center_frames, huge)
+    links, bridges = fx.center_links(X, geo, lv.center_frames, huge, bridge=True)
     np.testing.assert_array_equal(links, bridges)
     assert len(np.unique(_components(links))) == 1
     assert bridges.sum() // 2 == lv.n_clusters - 1  # a spanning tree
@@ -172,3 +172,86 @@ def test_cold_levels_are_the_cold_runs_apart_from_the_hierarchy(space):
         ref = fx.fuzzy_cmeans(jnp.asarray(X), lv.n_clusters, key=k_cold)
         assert c["num_steps_cold"] == int(ref.num_steps) > 0
         assert c["objective_cold"] == pytest.approx(float(ref.objective), rel=1e-9)
+
+
+def _reach_coverage(links: np.ndarray) -> float:
+    """Fraction of ordered centre pairs joined through links: boolean transitive closure
+    by repeated squaring (independent of the scipy components the library uses)."""
+    c = len(links)
+    R = np.asarray(links, bool) | np.eye(c, dtype=bool)
+    for _ in range(int(np.ceil(np.log2(max(c, 2)))) + 1):
+        R = (R.astype(np.int64) @ R.astype(np.int64)) > 0
+    return float((R.sum() - c) / (c * (c - 1)))
+
+
+def test_link_radius_sweep_against_its_definition(space):
+    """Kim & Jung §4.2's experiment: at each ρ, the paper's links (no bridges), their
+    count and the centre pairs they join, recomputed from `center_links` directly."""
+    X, _, geo, h = space
+    scales = (0.05, 0.3, 1.0, 3.0)
+    sw = fx.navigation.link_radius_sweep(h, geo, scales, max_centres=64)
+    assert sw.levels.tolist() == [0, 1, 2, 3] and sw.centres.tolist() == [8, 16, 32, 64]
+    for a, li in enumerate(sw.levels):
+        cf = h.levels[li].center_frames
+        for b, sc in enumerate(scales):
+            rho = fx.default_link_radius(X[cf], sc)
+            assert sw.radii[a, b] == pytest.approx(rho)
+            L, B = fx.center_links(X, geo, cf, rho, bridge=False)
+            assert not B.any() and sw.links[a, b] == L.sum() // 2
+            assert sw.coverage[a, b] == pytest.approx(_reach_coverage(L))
+            assert sw.components[a, b] == len(np.unique(_components(L)))
+    # wider circles block more paths: fewer links
+    assert np.all(np.diff(sw.links, axis=1) <= 0)
+    with pytest.raises(fx.FxspaceError, match="scales"):
+        fx.navigation.link_radius_sweep(h, geo, (0.1, -1.0))
+    with pytest.raises(fx.FxspaceError, match="max_centres"):
+        fx.navigation.link_radius_sweep(h, geo, max_centres=4)
+
+
+def test_choose_link_scale_known_answers():
+    def sweep(cov):
+        cov = np.asarray(cov, float)
+        z = np.zeros_like(cov)
+        return fx.navigation.LinkRadiusSweep(
+            np.array([0.1, 0.2, 0.4]), np.arange(len(cov)), np.arange(len(cov)) + 8,
+            z, z.astype(int), z.astype(int), cov,
+        )  # fmt: skip
+
+    # the largest scale joining every level
+    assert fx.navigation.choose_link_scale(sweep([[1, 1, 0.5], [1, 1, 1]])) == 0.2
+    assert fx.navigation.choose_link_scale(sweep([[1, 1, 1], [1, 1, 1]])) == 0.4
+    # none joins every level: the largest with the best worst-level coverage
+    assert fx.navigation.choose_link_scale(sweep([[0.9, 0.9, 0.5], [1, 1, 1]])) == 0.2
+
+
+def test_hierarchy_rho_by_experiment_and_bridges_option(space):
+    """The default: ρ from the experiment on every level (the sweep kept), links by the
+    rule, bridges only where a level is left in pieces; ``bridges=False``: none."""
+    X, _, geo, h = space
+    sw = h.link_sweep
+    assert sw is not None and sw.levels.tolist() == [0, 1, 2, 3, 4]
+    chosen = fx.navigation.choose_link_scale(sw)
+    assert np.all(sw.coverage[:, list(sw.scales).index(chosen)] == 1.0)
+    for lv in h.levels:
+        rho = fx.default_link_radius(X[lv.center_frames], chosen)
+        assert lv.radius == pytest.approx(rho)
+        L, B = fx.center_links(X, geo, lv.center_frames, rho, bridge=True)
+        np.testing.assert_array_equal(lv.links, L)
+        assert not lv.bridges.any()  # every swept level joined by the rule alone
+    pure = fx.build_hierarchy(X, geo, c0=8, key=jax.random.PRNGKey(0), bridges=False)
+    assert all(not lv.bridges.any() for lv in pure.levels)
+    # relink: the same centres, links at another ρ; bridges join what falls apart
+    wide = fx.navigation.relink(h, geo, 3.0)
+    for a, b in zip(h.levels, wide.levels, strict=True):
+        np.testing.assert_array_equal(a.center_frames, b.center_frames)
+        assert b.radius == pytest.approx(fx.default_link_radius(X[b.center_frames], 3.0))
+        L, _ = fx.center_links(X, geo, b.center_frames, b.radius, bridge=False)
+        np.testing.assert_array_equal(b.links & ~b.bridges, L)
+        assert fx.link_graph_connected(b)
+    assert sum(int(lv.bridges.sum()) for lv in wide.levels) > 0
+    # the sweep travels with the stored hierarchy
+    back = fx.navigation.hierarchy_from_arrays(fx.navigation.hierarchy_to_arrays(h))
+    for f in sw._fields:
+        np.testing.assert_array_equal(getattr(back.link_sweep, f), getattr(sw, f))
+    with pytest.raises(fx.FxspaceError, match="rho_scale"):
+        fx.build_hierarchy(X, geo, c0=8, rho_scale="paper")

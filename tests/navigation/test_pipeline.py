@@ -53,6 +53,16 @@ def test_threshold_from_its_own_sweep_by_the_papers_rule(tmp_path):
     assert m["path_is_graph_walk"] is True
     # the links the paper's rule forbids, added to connect the routes, are counted
     assert m["links_bridged"] == sum(lv["bridges"] or 0 for lv in m["levels"])
+    # ρ by the paper's experiment: the table of links and coverage against ρ, the
+    # scale chosen (the largest joining every swept level) and its figure
+    rx = m["rho_experiment"]
+    cov = np.asarray([lv["coverage"] for lv in rx["levels"]])
+    joined = np.flatnonzero(cov.min(axis=0) >= 1.0)
+    if len(joined):
+        assert rx["chosen_scale"] == rx["scales"][joined[-1]]
+        swept = {lv["centres"] for lv in rx["levels"]}
+        assert all(lv["bridges"] == 0 for lv in m["levels"] if lv["centres"] in swept)
+    assert (d / "link_radius.png").is_file()
 
 
 def test_interrupted_after_the_sweep_resumes(tmp_path, monkeypatch):

@@ -37,6 +37,7 @@ def test_controller_pick_refine_play(data):
     assert not ctl.pick(c) and "not linked" in ctl.message
     st = ctl.status()
     assert st["keys"] == [a, b] and f"Key centres: {a} → {b}" in status_text(st)
+    assert st["bridges"] == int(data.hierarchy.levels[0].bridges.sum() // 2)
     ctl.refine()
     assert ctl.level == 1 and ctl.route.level == 1
     f0 = ctl.selected_frame
@@ -532,3 +533,31 @@ def test_browser_studio_navigation_toml_from_a_clean_checkout(
     server, ctl2 = serve(again, port=0, block=False, environment_map=False)
     server.stop()
     assert time.perf_counter() - t0 < 120 and ctl2.data.hierarchy.sizes == ctl.data.hierarchy.sizes
+
+
+def test_bridges_drawn_apart_from_links():
+    """The pad colours a bridge (not a link by the paper's ρ rule) orange, a link blue;
+    the status counts the level's bridges."""
+    from fxspace.studio._navigator import BRIDGE_RGB, LINK_RGB, _link_colours
+
+    links = np.zeros((4, 4), bool)
+    links[0, 1] = links[1, 2] = links[2, 3] = True
+    links |= links.T
+    bridges = np.zeros_like(links)
+    bridges[1, 2] = bridges[2, 1] = True
+
+    class Lv:
+        pass
+
+    lv = Lv()
+    lv.links, lv.bridges = links, bridges
+    i, j = fx.navigation.link_pairs(links)
+    cols = _link_colours(lv, i, j)
+    assert [tuple(c[0]) for c in cols] == [LINK_RGB, BRIDGE_RGB, LINK_RGB]
+    st = {"level": 0, "n_levels": 2, "n_clusters": 4, "bridges": 1, "keys": [],
+          "preview": None, "selected_key": None, "route_frames": 0, "route_level": None,
+          "density": False, "n_frames": 9, "centres_by_density": False, "guide_level": None,
+          "candidates": [], "restricted": False, "next_candidates": [], "frame": 0,
+          "playing": False, "message": ""}  # fmt: skip
+    assert "Bridges: 1 (orange" in status_text(st)
+    assert "Bridges" not in status_text({**st, "bridges": 0})
