@@ -100,6 +100,7 @@ class SetupSpace:
     splice: str = "heck"  # "heck": spatial alignment + posture transfer; "heading"
     replace: str = "rotation"  # §3.2: "rotation" about the root (as printed) or "rigid"
     min_slope: float = 0.05
+    max_clock_rate: float = 1.0  # eqs. 2–3 never rush a clock past this × its own rate
 
 
 class Setup(NamedTuple):
@@ -322,6 +323,7 @@ def prepare_setup(
         concentration=space.concentration,
         max_active=space.max_active,
         min_slope=space.min_slope,
+        max_clock_rate=space.max_clock_rate,
     )
     jax.block_until_ready(sp.upper_params)
     sampling_s = time.perf_counter() - t0

@@ -55,7 +55,10 @@ class SynthesisSpaces:
     where each parameter is measured), ``posture_transfer``. Static: ``parents``, ``mask``
     (upper-body joints), ``spine`` (splice joint), ``lower_joint``/``lower_dims``,
     ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
-    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``splice`` (``"heck"``:
+    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``max_clock_rate`` (after
+    eqs. 2–3 neither clock advances more than this × its own eq.-(1) advance: the clocks
+    align by slowing the one ahead, not by rushing the one behind, which would play a
+    body faster than any example; ``inf``: eqs. 2–3 as printed), ``splice`` (``"heck"``:
     `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
     ``torso`` (`torso_joints`, used by ``"heck"``), ``replace`` (§3.2's re-placement:
     ``"rotation"``, one rotation about the root as printed; ``"rigid"``, rotation and
@@ -86,6 +89,7 @@ class SynthesisSpaces:
     splice: str = "heck"
     torso: tuple[int, ...] = ()
     replace: str = "rotation"
+    max_clock_rate: float = 1.0
 
 
 jax.tree_util.register_dataclass(
@@ -96,7 +100,7 @@ jax.tree_util.register_dataclass(
     ],
     meta_fields=[
         "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
-        "knn_k", "min_slope", "splice", "torso", "replace",
+        "knn_k", "min_slope", "splice", "torso", "replace", "max_clock_rate",
     ],
 )  # fmt: skip
 
@@ -240,17 +244,38 @@ def _advance(sp: SynthesisSpaces, state: SynthState, wL, wU, alpha, dt, wrap: bo
     so the cycle repeats. Returns ``(t_lower, t_upper, wrapped)``."""
     ms = sp.min_slope
     end = sp.lam.shape[0] - 1.0
-    tl = state.t_lower + advance_clock(state.t_lower, sp.lower.warps, wL, dt, ms)  # eq. 1
-    tu = state.t_upper + advance_clock(state.t_upper, sp.upper.warps, wU, dt, ms)
+    dl = advance_clock(state.t_lower, sp.lower.warps, wL, dt, ms)  # eq. 1
+    du = advance_clock(state.t_upper, sp.upper.warps, wU, dt, ms)
+    tl, tu = state.t_lower + dl, state.t_upper + du
+    # the rate cap: neither clock may run faster than max_clock_rate × its own eq.-(1)
+    # advance; eqs. 2–3 then align the clocks by slowing the one ahead, never by rushing
+    # the one behind (rushing plays a body faster than any example: a pop)
+    cap = None
+    if sp.max_clock_rate != float("inf"):
+        cap = (state.t_lower + sp.max_clock_rate * dl, state.t_upper + sp.max_clock_rate * du)
     if wrap:
-        return _align_periodic(sp.lam, tl, tu, alpha)
+        return _align_periodic(sp.lam, tl, tu, alpha, cap)
     wrapped = jnp.zeros((), bool)
     tl = jnp.minimum(tl, end)
     tl, tu = align_clocks(tl, tu, sp.lam, alpha)  # eqs. 2–3
+    if cap is not None:
+        tl, tu = _capped(tl, tu, cap, lambda t: interp_curve(sp.lam, t),
+                         lambda y: invert_curve(sp.lam, y))  # fmt: skip
     return tl, tu, wrapped
 
 
-def _align_periodic(lam, tl, tu, alpha):
+def _capped(tl, tu, cap, lam, inv):
+    """The aligned clocks ``(tl, tu)`` (``tl = λ⁻¹(tu)``) held to their caps: ``tu`` at
+    most ``cap[1]`` (``tl`` follows by eq. 3), then ``tl`` at most ``cap[0]`` (``tu``
+    follows by ``λ``), so the pair stays aligned."""
+    over_u = tu > cap[1]
+    tu = jnp.where(over_u, cap[1], tu)
+    tl = jnp.where(over_u, inv(tu), tl)
+    over_l = tl > cap[0]
+    return jnp.where(over_l, cap[0], tl), jnp.where(over_l, lam(cap[0]), tu)
+
+
+def _align_periodic(lam, tl, tu, alpha, cap=None):
     """Eqs. (2)–(3) on the periodic extension of ``λ`` (``λ(T + P) = λ(T) + S`` with
     ``P = N − 1`` and ``S = λ(N−1) − λ(0)``), then both clocks wrapped by the same number of
     cycles: a clock past its cycle's end keeps its phase relation to the other."""
@@ -267,6 +292,8 @@ def _align_periodic(lam, tl, tu, alpha):
 
     tu = alpha * lam_ext(tl) + (1.0 - alpha) * tu  # eq. (2)
     tl = inv_ext(tu)  # eq. (3)
+    if cap is not None:  # the rate cap (see `_advance`)
+        tl, tu = _capped(tl, tu, cap, lam_ext, inv_ext)
     k = jnp.maximum(jnp.floor(tl / P), 0.0)
     return tl - k * P, tu - k * S, k > 0
 
@@ -383,6 +410,7 @@ def build_spaces(
     max_active: int = 3,
     min_slope: float = 0.05,
     replace: str = "rotation",
+    max_clock_rate: float = 1.0,
 ) -> SynthesisSpaces:
     """Sample both parameter spaces (Kovar & Gleicher 2004: ``n_samples`` random sparse
     blends, the examples first) and evaluate their parameters in one vmapped call each: the
@@ -400,6 +428,9 @@ def build_spaces(
         raise ValueError(
             f"replace must be 'rotation' (§3.2 as printed) or 'rigid', got {replace!r}"
         )
+    if not float(max_clock_rate) > 0:
+        raise ValueError(f"max_clock_rate must be > 0 (inf: eqs. 2–3 uncapped), got "
+                         f"{max_clock_rate!r}")  # fmt: skip
     if upper_joint >= 0 and not 3 <= k_replace <= WU.shape[0]:
         raise ValueError(f"k_replace must lie in [3, {WU.shape[0]}], got {k_replace}")
     dtype = jnp.result_type(float)
@@ -426,6 +457,7 @@ def build_spaces(
         k_replace=int(k_replace),
         knn_k=int(knn_k),
         min_slope=float(min_slope),
+        max_clock_rate=float(max_clock_rate),
         splice=splice,
         torso=torso_joints(tuple(int(p) for p in parents), mask, int(spine)),
         replace=replace,

@@ -96,6 +96,8 @@ class Config:
             raise ConfigError("synth.n_queries must be at least 2")
         if not self.synth.session_s >= 0 or not self.synth.session_every_s > 0:
             raise ConfigError("synth.session_s must be >= 0 and synth.session_every_s > 0")
+        if not self.space.max_clock_rate > 0:
+            raise ConfigError("space.max_clock_rate must be > 0 (inf: eqs. 2–3 uncapped)")
         if self.space.n_samples < 1 or self.data.cycles < 1 or self.data.max_reps < 1:
             raise ConfigError("space.n_samples, data.cycles and data.max_reps must be >= 1")
 
@@ -261,6 +263,7 @@ _SP_META = (
     "k_replace",
     "knn_k",
     "min_slope",
+    "max_clock_rate",
     "splice",
     "torso",
     "replace",

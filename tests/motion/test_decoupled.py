@@ -145,3 +145,48 @@ def test_direct_weights_upper_space(sp):
     np.testing.assert_allclose(p1.rotations[7], s.upper.rotations[0, 0, 7], atol=1e-6)
     np.testing.assert_allclose(p2.rotations[7], s.upper.rotations[4, 0, 7], atol=1e-6)
     np.testing.assert_allclose(p1.rotations[~mask], p2.rotations[~mask], atol=1e-7)
+
+
+@pytest.mark.parametrize("wrap", [False, True])
+def test_clock_alignment_slows_the_leader_never_rushes(sp, wrap):
+    """Eqs. 2–3 pull the two clocks together; with the rate cap (``max_clock_rate = 1``,
+    the default) neither advances more than its own eq.-(1) step, so no body half plays
+    faster than its examples (the pop of issue 31.8), and the pair stays aligned
+    (``T_L = λ⁻¹(T_U)``). ``inf`` gives eqs. 2–3 as printed (`align_clocks`)."""
+    from fxspace.motion._synthesis import SynthState, _advance
+
+    wL = sp.lower_w0
+    wU = jnp.zeros(sp.upper.warps.shape[0]).at[0].set(1.0)
+    lam = np.asarray(sp.lam)
+    for tl0, tu0 in ((8.0, 1.0), (2.0, 12.0), (6.0, float(np.interp(6.0, np.arange(20), lam)))):
+        st = SynthState(jnp.asarray(tl0), jnp.asarray(tu0), sp.lower_params[0],
+                        sp.upper_params, wL)  # fmt: skip
+        dl = float(fx.motion.advance_clock(st.t_lower, sp.lower.warps, wL, 1.0, sp.min_slope))
+        du = float(fx.motion.advance_clock(st.t_upper, sp.upper.warps, wU, 1.0, sp.min_slope))
+        tl, tu, _ = _advance(sp, st, wL, wU, 0.5, 1.0, wrap)
+        tl, tu = float(tl), float(tu)
+        assert tl - tl0 <= dl + 1e-5 and tu - tu0 <= du + 1e-5
+        assert tl == pytest.approx(float(fx.motion.invert_curve(sp.lam, tu)), abs=1e-4)
+        free = dataclasses.replace(sp, max_clock_rate=float("inf"))
+        tl_p, tu_p, _ = _advance(free, st, wL, wU, 0.5, 1.0, wrap)
+        if not wrap:
+            ref = fx.motion.align_clocks(jnp.asarray(tl0 + dl), jnp.asarray(tu0 + du), sp.lam, 0.5)
+            np.testing.assert_allclose([tl_p, tu_p], ref, atol=1e-5)
+        if tl0 == 8.0:  # the upper clock far behind: as printed, eq. 2 rushes it forward
+            assert float(tu_p) - tu0 > du + 0.5  # (the cap holds it to du, above)
+    with pytest.raises(ValueError, match="max_clock_rate"):
+        _spaces_with(max_clock_rate=0.0)
+
+
+def _spaces_with(**kw):
+    rng = np.random.default_rng(1)
+    qL, rL = _clips(rng, 2, 20, 0.4)
+    qU, rU = _clips(rng, 2, 16, 0.6)
+    exL = fx.motion.stack_examples(list(qL), list(rL), np.stack([np.arange(20.0)] * 2))
+    exU = fx.motion.stack_examples(list(qU), list(rU), np.stack([np.arange(16.0)] * 2))
+    return build_spaces(
+        exL, exU, np.linspace(0, 15, 20), PARENTS, OFFSETS,
+        mask=upper_body_mask(PARENTS, NAMES), spine=4, lower_joint=3, lower_dims=(0, 2),
+        lower_time=19.0, upper_joint=7, upper_time=8.0, key=jax.random.PRNGKey(0),
+        n_samples=20, knn_k=2, k_replace=6, **kw,
+    )  # fmt: skip

@@ -1,8 +1,9 @@
-"""Issue 22's done-when on real captures (Bandai Namco walks): a 60-second scripted session
-of the mood-walk config, every control (turning included) changed every 2 s, walks on with
-no root jump, no joint step beyond the examples' largest, and foot sliding in contact
-within 1.5x the captured clips'. Plus the pipeline's resume (issue 19): interrupted after
-its first costly stage, a rerun gives identical metrics without rebuilding the spaces."""
+"""Issue 22's done-when on real captures (Bandai Namco walks): 60-second scripted sessions
+of the mood-walk and block-walk configs, every control (α and turning included) changed
+every 2 s, walk on with no root jump, no joint step beyond the examples' largest, and
+foot sliding in contact within 1.5x the captured clips'. Plus the pipeline's resume
+(issue 19): interrupted after its first costly stage, a rerun gives identical metrics
+without rebuilding the spaces."""
 
 import dataclasses
 import json
@@ -37,27 +38,28 @@ def test_sixty_second_steered_session_never_jumps(data_dir, config):
     assert "turn" in params and "alpha" in params
     lo, hi = params["turn"]
     assert lo < -10 and hi > 10  # the walk-turn clips: both ways, tens of degrees per second
-    # block_walk: the upper clips are standing hand raises and λ maps a gait cycle onto a
-    # whole raise, so with α < 1 (eqs. 2–3: the lower clock follows the upper one) the walk
-    # takes on the hand-raise tempo and the toes swing up to ~1.4x faster than in any
-    # captured walk. There α = 1 (the walk keeps its tempo, the hand follows λ); every
-    # other control, turning included, changes every 2 s. The mood walk draws α too.
-    fixed = {"alpha": 1.0} if config == "block_walk.toml" else {}
-    drawn = {n: r for n, r in params.items() if n not in fixed}
-    rng = np.random.default_rng(7)
-    schedule = [(2.0 * k, {**{n: float(rng.uniform(a, b)) for n, (a, b) in drawn.items()},
-                           **fixed}) for k in range(30)]  # fmt: skip
-    X, fps, names = fx_pipelines.scripted_session(cfg, schedule, 60.0)
-    assert X.shape == (int(round(60 * fps)), len(names), 3) and np.isfinite(X).all()
-    root_step = np.linalg.norm(np.diff(X[:, 0], axis=0), axis=1)
-    assert root_step.max() <= 2.0 * np.median(root_step)
+    # every control, α and turning included, changes every 2 s. block_walk's upper clips
+    # are standing hand raises and λ maps a gait cycle onto a whole raise: eqs. 2–3 as
+    # printed (max_clock_rate = inf) then rush the walk to the hand-raise tempo with
+    # α < 1, and the toes swung 1.5–1.7x faster than in any captured walk (issue 31.8);
+    # the rate cap (the default) aligns the clocks by slowing the one ahead instead
     st = ps.load_setup(cfg)
     Xe = _example_positions(st)
     ex_step = max(float(np.linalg.norm(np.diff(x, axis=0), axis=-1).max()) for x in Xe)
-    assert np.linalg.norm(np.diff(X, axis=0), axis=-1).max() <= ex_step
     n_lower = st.spaces.lower.warps.shape[0]
-    floor = np.nanmean([M.foot_sliding(x, st.feet, fps) for x in Xe[:n_lower]])
-    assert M.foot_sliding(X, st.feet, fps) <= 1.5 * floor
+    for seed in (7, 1, 3):  # seed 1 drew the mood walk's pop before the rate cap
+        rng = np.random.default_rng(seed)
+        schedule = [(2.0 * k, {n: float(rng.uniform(a, b)) for n, (a, b) in params.items()})
+                    for k in range(30)]  # fmt: skip
+        X, fps, names = fx_pipelines.scripted_session(cfg, schedule, 60.0)
+        assert X.shape == (int(round(60 * fps)), len(names), 3) and np.isfinite(X).all()
+        root_step = np.linalg.norm(np.diff(X[:, 0], axis=0), axis=1)
+        assert root_step.max() <= 2.0 * np.median(root_step)
+        # no joint faster than the fastest joint of any example (measured: 0.87 of it for
+        # the mood walk, 0.96 for the block walk; 1.02 and 1.54–1.68 uncapped)
+        assert np.linalg.norm(np.diff(X, axis=0), axis=-1).max() <= ex_step, seed
+        floor = np.nanmean([M.foot_sliding(x, st.feet, fps) for x in Xe[:n_lower]])
+        assert M.foot_sliding(X, st.feet, fps) <= 1.5 * floor
     # it went somewhere, and turned: a walker, not a treadmill
     assert np.linalg.norm(X[-1, 0, [0, 2]] - X[0, 0, [0, 2]]) > 5.0
 
