@@ -608,9 +608,14 @@ def sparse_hierarchy(
     Y = jax.numpy.asarray(embedding)
     Yn = np.asarray(Y, np.float64)
     key = jax.random.key(0) if key is None else key
+    # every level's FCM is dispatched first (JAX runs it asynchronously), so the host's
+    # link searches (scipy's Dijkstra) of one level overlap the FCM of the next
+    sizes = sparse_levels(c0, levels, Y.shape[0])
+    fits = [fuzzy_cmeans(Y, c, nearest=nearest, key=jax.random.fold_in(key, lv))
+            for lv, c in enumerate(sizes)]  # fmt: skip
+    last = finest_level(Yn, graph, links=links) if finest else None
     out = []
-    for lv, c in enumerate(sparse_levels(c0, levels, Y.shape[0])):
-        res = fuzzy_cmeans(Y, c, nearest=nearest, key=jax.random.fold_in(key, lv))
+    for c, res in zip(sizes, fits, strict=True):
         centers = np.asarray(res.centers)
         cf = _nearest_frames(Yn, centers)
         rho = _default_rho(cKDTree(Yn[cf]), Yn[cf])
@@ -619,9 +624,7 @@ def sparse_hierarchy(
         else:
             lk, br, ln = _level_csrs({}, set(), c)
         out.append(SparseLevel(c, centers, cf, lk, br, res, rho, ln))
-    if finest:
-        out.append(finest_level(Yn, graph, links=links))
-    return out
+    return out if last is None else [*out, last]
 
 
 @checked

@@ -63,6 +63,7 @@ __all__ = [
     "NavConfig",
     "ScaleSpace",
     "STAGES",
+    "prepare_app",
     "run",
     "load_scale_space",
     "auto_scale_keys",
@@ -211,6 +212,16 @@ def auto_scale_keys(levels, embedding, n: int, level: int = 0) -> list[int]:
             break
         seq.append(max(nb, key=lambda k: D[k, seq].min()))
     return seq
+
+
+def prepare_app(cfg: Config, run_dir: Path, seed: int) -> None:
+    """What the navigator shows, and only that (``fxspace studio CONFIG``): the run's own
+    stages ``space`` → ``hierarchy`` (`load_scale_space`), not its route and figure
+    (``fxspace run`` adds them, reusing the stages)."""
+    cfg.validate()
+    with jax.enable_x64(cfg.graph.dtype == "float64"):
+        face = load_face(cfg.data, seed)
+        load_scale_space(cfg, face.positions, Path(run_dir), seed)
 
 
 def run(cfg: Config, run_dir: Path, seed: int) -> dict:

@@ -68,3 +68,31 @@ def test_one_name_full_or_truncated_memberships_and_options_refused_by_name():
         fuzzy_cmeans(x, 4, nearest=2, n_init=3, key=jax.random.key(0))
     with pytest.raises(fx.FxspaceError, match="chunk.*nearest"):
         fuzzy_cmeans(x, 4, chunk=64, key=jax.random.key(0))
+
+
+def _truncated_fcm_reference(x, v, p, steps):
+    """Bezdek's truncated steps with every centre looked at on every step (numpy)."""
+    x, v = np.asarray(x, np.float64), np.asarray(v, np.float64).copy()
+    for _ in range(steps):
+        d2 = ((x[:, None, :] - v[None]) ** 2).sum(-1)
+        idx = np.argsort(d2, axis=1, kind="stable")[:, :p]
+        w = 1.0 / np.maximum(np.take_along_axis(d2, idx, 1), 1e-300)
+        um = (w / w.sum(1, keepdims=True)) ** 2
+        mass = np.bincount(idx.ravel(), um.ravel(), minlength=len(v))
+        num = np.stack([np.bincount(idx.ravel(), (um * x[:, k, None]).ravel(), minlength=len(v))
+                        for k in range(x.shape[1])], 1)  # fmt: skip
+        v = np.where(mass[:, None] > 0, num / np.where(mass > 0, mass, 1.0)[:, None], v)
+    return v
+
+
+@pytest.mark.parametrize("c, p", [(60, 4), (40, 8), (12, 3)])
+def test_candidate_lists_give_the_full_search_steps(rng, c, p):
+    """Between full passes each point ranks only its 16 listed centres; the steps must be
+    those of the search over every centre (the list is re-made whenever it could miss)."""
+    x = rng.normal(size=(3000, 2)) * np.array([3.0, 1.0])
+    v0 = x[rng.choice(len(x), c, replace=False)]
+    res = fuzzy_cmeans(jnp.asarray(x), c, nearest=p, init_centers=jnp.asarray(v0),
+                       tol=0.0, max_steps=40)  # fmt: skip
+    assert int(res.num_steps) == 40
+    ref = _truncated_fcm_reference(x, v0, p, 40)
+    np.testing.assert_allclose(np.asarray(res.centers), ref, rtol=1e-9, atol=1e-9)
