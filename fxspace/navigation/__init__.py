@@ -21,10 +21,13 @@ from fxspace.navigation._hierarchy import level_sizes as level_sizes
 from fxspace.navigation._hierarchy import nearest_frames as nearest_frames
 from fxspace.navigation._hierarchy import split_centers as split_centers
 from fxspace.navigation._index import GridIndex as GridIndex
+from fxspace.navigation._links import EXACT_CENTRES as EXACT_CENTRES
 from fxspace.navigation._links import LINK_SCALES as LINK_SCALES
 from fxspace.navigation._links import LinkRadiusSweep as LinkRadiusSweep
 from fxspace.navigation._links import choose_link_scale as choose_link_scale
 from fxspace.navigation._links import default_link_radius as default_link_radius
+from fxspace.navigation._links import link_clearance as link_clearance
+from fxspace.navigation._links import link_components as link_components
 from fxspace.navigation._links import link_graph_connected as link_graph_connected
 from fxspace.navigation._links import link_pairs as link_pairs
 from fxspace.navigation._links import link_radius_sweep as link_radius_sweep
@@ -45,9 +48,12 @@ from fxspace.navigation._space import resolve_threshold as resolve_threshold
 from fxspace.navigation._space import threshold_from_run as threshold_from_run
 
 __all__ = [
+    "EXACT_CENTRES",
     "LINK_SCALES",
     "LinkRadiusSweep",
     "choose_link_scale",
+    "link_clearance",
+    "link_components",
     "link_radius_sweep",
     "relink",
     "NavigationSpace",

@@ -112,8 +112,8 @@ def build_hierarchy(
       `m`, `tol`, `max_steps`, `criterion` (FCM), `warm_start`, `restarts`, `split`,
       `first_level_seeds` (how each level starts), `rho_scale`, `max_link_centres`,
       `link_sweep_max_centres`, `bridges` (links: by default the paper's rule with ρ
-      chosen by its experiment, bridges only where a level is left in pieces; False:
-      none); see the dense builder's defaults.
+      chosen by its experiment and no bridges; True: bridges join the pieces a level
+      is left in); see the dense builder's defaults.
       A `fxspace.expression.NeighbourGraph` → a **sparse** hierarchy: `levels` FCM levels
       (default 4) with `nearest` memberships per frame (default 8), `links` (default True)
       and, with `finest`, the level where every frame is a centre.
@@ -157,7 +157,7 @@ def build_hierarchy(
     return _dense_h.build_hierarchy(embedding, geodesics, c0=c0, key=key, **kw)
 
 
-def relink(hierarchy: Hierarchy, paths, rho_scale: float = 0.5, *, bridges: bool = True,
+def relink(hierarchy: Hierarchy, paths, rho_scale: float = 0.5, *, bridges: bool = False,
            max_link_centres: int | None = None) -> Hierarchy:  # fmt: skip
     """A dense hierarchy's levels with their links made again at ρ = ``rho_scale`` × each
     level's centre spacing (``bridges`` as in `build_hierarchy`): how a ρ chosen by
@@ -204,8 +204,9 @@ def hierarchy_from_arrays(a) -> Hierarchy:
 
 
 def center_links(
-    embedding, paths, center_frames, rho: float | None = None, *, bridge: bool | None = None
-) -> tuple[Any, Any]:
+    embedding, paths, center_frames, rho: float | None = None, *, bridge: bool | None = None,
+    exact: bool | None = None,
+) -> tuple[Any, Any]:  # fmt: skip
     """Links between centres (Kim & Jung §3.5: the path between two centres passes no
     other centre's ρ-disc) and the bridges that keep the level connected.
 
@@ -213,7 +214,8 @@ def center_links(
     ``(c, c)`` bool matrices) or a `NeighbourGraph` (sparse: ``csr_array``\\ s); the
     `center_frames`; `rho` (dense: required; sparse: default the level's spacing rule);
     `bridge` adds the bridges (dense: default False, the paper's rule alone; sparse
-    links always carry theirs).
+    links always carry theirs); `exact` (dense) every segment against every centre
+    (default: up to `EXACT_CENTRES` centres; above, a conservative near-list test).
 
     **Returns:** ``(links, bridges)``.
     """
@@ -224,7 +226,9 @@ def center_links(
         return lk, br
     if rho is None:
         raise FxspaceError("rho is required for dense links (the link radius, in 2-D units)")
-    return _dense_links.center_links(embedding, paths, center_frames, rho, bridge=bool(bridge))
+    return _dense_links.center_links(
+        embedding, paths, center_frames, rho, bridge=bool(bridge), exact=exact
+    )
 
 
 def frame_path(paths, key_frames: Sequence[int]) -> np.ndarray:

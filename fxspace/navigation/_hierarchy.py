@@ -8,12 +8,11 @@ centres that contribute most to the objective are replaced by two children at
 v ± 0.8 σ r, r the principal axis of the cluster's fuzzy covariance and σ² its
 variance along r (for a Gaussian cluster the halves' centroids lie at ±0.8 σ).
 
-Two centres are *linked* when the geodesic (frame-graph) path between their frames
-passes no frame within 2-D distance ρ of any other centre; ρ defaults to half the
-median nearest-neighbour spacing of the level's centres. Should the unblocked links
-leave the level disconnected while the frame graph is connected, the cheapest
-(geodesic) link between components is added (a *bridge*) so that every centre stays
-reachable.
+Two centres are *linked* when the geodesic (frame-graph) path between their frames,
+drawn in 2-D, passes within ρ of no other centre; ρ is a scale × the level's median
+nearest-centre spacing, the scale chosen by the paper's experiment. With
+``bridges=True`` a level the rule leaves in pieces is joined by the cheapest (geodesic)
+links between them (*bridges*, outside the rule).
 """
 
 from __future__ import annotations
@@ -36,12 +35,14 @@ from fxspace.cluster import (
 )
 from fxspace.errors import FxspaceError
 from fxspace.navigation._links import (
+    LINK_SCALES,
     LinkRadiusSweep,
+    _sweep,
+    add_bridges,
     center_links,
     choose_link_scale,
     default_link_radius,
     link_graph_connected,
-    link_radius_sweep,
 )
 from fxspace.results import RESULTS, member_code, result_from_code
 
@@ -310,7 +311,7 @@ def build_hierarchy(
     rho_scale: float | Literal["experiment"] = "experiment",
     max_link_centres: int | None = None,
     criterion: Literal["max", "fro"] = "max",
-    bridges: bool = True,
+    bridges: bool = False,
     link_sweep_max_centres: int = 320,
 ) -> Hierarchy:
     """Fuzzy c-means levels c0·2^l (seed §4) over the expression-space ``embedding``.
@@ -338,13 +339,11 @@ def build_hierarchy(
       `choose_link_scale` (the largest scale that keeps them all connected); the sweep
       is kept as ``Hierarchy.link_sweep``.
     - `max_link_centres`: skip links for levels with more centres (None: all levels).
-    - `bridges`: True (default): where a level's links by the ρ rule leave it in pieces,
-      the geodesically cheapest link between two pieces is added (``Level.bridges``,
-      counted and drawn apart). With ρ from the experiment the swept levels need none
-      when some scale joins them; the finer levels can, as the link test checks the 16
-      centres nearest each path segment and counts a segment it cannot clear as
-      blocked. False: the paper's rule alone; a level may then fall apart into groups
-      that no route joins.
+    - `bridges`: False (default): the paper's rule alone; a level may then fall apart
+      into pieces that no route joins (at AnimFace's finer levels, centres closer than
+      ρ to another, whose every path passes that one). True: where a level's links
+      leave it in pieces, the geodesically cheapest link between two pieces is added
+      (``Level.bridges``, outside the rule, counted and drawn apart).
 
     **Returns:** a `Hierarchy`. At the finest level c = T: k-means++ seeding draws
     every frame, the global optimum (J = 0), so its start is the frames themselves.
@@ -390,9 +389,9 @@ def build_hierarchy(
         prev = res
     h = Hierarchy(tuple(levels), np.asarray(x))
     if experiment and geodesics is not None:
-        sweep = link_radius_sweep(h, geodesics, max_centres=link_sweep_max_centres)
-        h = relink(h, geodesics, choose_link_scale(sweep), bridges=bridges,
-                   max_link_centres=max_link_centres)._replace(link_sweep=sweep)  # fmt: skip
+        sweep, clears = _sweep(h, geodesics, LINK_SCALES, link_sweep_max_centres)
+        h = _relink(h, geodesics, choose_link_scale(sweep), bridges, max_link_centres, clears)
+        h = h._replace(link_sweep=sweep)
     return h
 
 
@@ -402,7 +401,7 @@ def relink(
     geodesics,
     rho_scale: float = 0.5,
     *,
-    bridges: bool = True,
+    bridges: bool = False,
     max_link_centres: int | None = None,
 ) -> Hierarchy:
     """The same levels with their links made again at ρ = ``rho_scale`` × each level's
@@ -411,14 +410,25 @@ def relink(
     without clustering again."""
     if rho_scale < 0:
         raise FxspaceError(f"rho_scale must be >= 0, got {rho_scale}")
+    return _relink(hierarchy, geodesics, rho_scale, bridges, max_link_centres, {})
+
+
+def _relink(hierarchy, geodesics, rho_scale, bridges, max_link_centres, clears) -> Hierarchy:
+    """`relink`, reading a level's links off its clearances when ``clears`` has them."""
     x = np.asarray(hierarchy.embedding)
     out = []
-    for lv in hierarchy.levels:
+    for i, lv in enumerate(hierarchy.levels):
         links = added = None
         rho = float("nan")
         if max_link_centres is None or lv.n_clusters <= max_link_centres:
             rho = default_link_radius(x[lv.center_frames], rho_scale)
-            links, added = center_links(x, geodesics, lv.center_frames, rho, bridge=bridges)
+            if i in clears:  # exact clearances from the ρ experiment
+                links = clears[i] >= rho
+                np.fill_diagonal(links, False)
+                added = (add_bridges(links, geodesics, lv.center_frames) if bridges
+                         else np.zeros_like(links))  # fmt: skip
+            else:
+                links, added = center_links(x, geodesics, lv.center_frames, rho, bridge=bridges)
         out.append(lv._replace(links=links, bridges=added, radius=rho))
     return Hierarchy(tuple(out), hierarchy.embedding, hierarchy.link_sweep)
 

@@ -21,6 +21,7 @@ from fxspace._validate import as_float_array, check_indices, check_scalar, check
 from fxspace.errors import FxspaceError
 from fxspace.expression import shortest_path
 from fxspace.navigation._hierarchy import Hierarchy, Level
+from fxspace.navigation._links import _components
 
 if TYPE_CHECKING:
     pass
@@ -172,7 +173,11 @@ def _link_path(lv: Level, geodesics, a: int, b: int) -> list[int]:
                 prev[v] = u
                 heapq.heappush(heap, (nd, v))
     if b not in dist:
-        raise NavigationError(f"centre {b} cannot be reached from centre {a} through links")
+        raise NavigationError(
+            f"centre {b} cannot be reached from centre {a} through links: the ρ rule leaves "
+            "them in different pieces of this level (fx.navigation.link_components); pick "
+            "a centre in the same piece, or build the hierarchy with bridges=True"
+        )
     chain = [b]
     while chain[-1] != a:
         chain.append(prev[chain[-1]])
@@ -251,15 +256,24 @@ def refine_route(
     frames = np.asarray(route.frames)
     pxy = xy[frames]
     anchor_frames = route.anchors or tuple(int(f) for f in route.key_frames)
+    # the route stays in one piece of the level's links (the paper's rule can leave
+    # centres no route reaches): the piece holding most of the anchors' nearest centres
+    piece = _components(lv.links)
+    near = [int(np.argmin(np.sum((cpos - xy[int(kf)]) ** 2, axis=1))) for kf in anchor_frames]
+    sizes = np.bincount(piece)
+    main = max(set(piece[near].tolist()), key=lambda p: (int(np.sum(piece[near] == p)), sizes[p]))
+    inside = piece == main
     anchors = []
     last = 0
     for kf in anchor_frames:
-        k = int(np.argmin(np.sum((cpos - xy[int(kf)]) ** 2, axis=1)))
+        d2k = np.where(inside, np.sum((cpos - xy[int(kf)]) ** 2, axis=1), np.inf)
+        k = int(np.argmin(d2k))
         # position along the path: the nearest path frame at or after the previous anchor's
         d = np.sum((pxy[last:] - xy[int(kf)]) ** 2, axis=1)
         last = last + int(np.argmin(d))
         anchors.append((last, 0.0, k))
     cands = path_candidates(h, nxt, frames, radius)
+    cands = cands[inside[cands]]
     d2 = np.sum((cpos[cands][:, None, :] - xy[frames][None, :, :]) ** 2, axis=-1)
     lo, hi = anchors[0][0], anchors[-1][0]
     # candidates between the first and the last anchor: the route spans anchor to anchor

@@ -80,9 +80,15 @@ PAPERS: dict[str, Paper] = {
                 0,
                 "navigation",
                 "links_bridged",
-                "with ρ from the experiment the levels up to 320 centres need none; the "
-                "finer levels do, where the link test (16 nearest centres per path "
-                "segment) counts a segment it cannot clear as blocked; the paper adds none",
+                "the rule alone by default (hierarchy.bridges = false); the paper adds none",
+            ),
+            Row(
+                "pieces the links leave the finest level in",
+                None,
+                "navigation",
+                "link_pieces_finest",
+                "centres closer than ρ to another can only link to that one; the paper "
+                "shows links only at its ~10-centre level",
             ),
             Row("route is a walk in the frame graph", "yes", "navigation", "path_is_graph_walk"),
         ),

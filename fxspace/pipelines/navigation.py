@@ -48,6 +48,7 @@ from fxspace.navigation import (
     hierarchy_from_arrays,
     hierarchy_to_arrays,
     is_graph_walk,
+    link_components,
     link_graph_connected,
     navigate,
     playback,
@@ -120,7 +121,7 @@ class HierarchyConfig:
     max_steps: int = 300
     restarts: int = 1
     rho_scale: float | str = "experiment"  # or a number: ρ = rho_scale × centre spacing
-    bridges: bool = True  # join a level the ρ rule leaves in pieces (false: never)
+    bridges: bool = False  # true: join the pieces a level is left in (links outside the ρ rule)
     link_sweep_max_centres: int = 320  # levels the ρ experiment looks at
     compare_cold: bool = True
     max_link_centres: int = 0  # 0: links at every level
@@ -414,6 +415,8 @@ def _level_metrics(lv, cold: dict | None = None) -> dict:
         "links": int(lv.links.sum() // 2) if lv.links is not None else None,
         "bridges": int(lv.bridges.sum() // 2) if lv.bridges is not None else None,
         "link_graph_connected": link_graph_connected(lv) if lv.links is not None else None,
+        # groups of centres the links join (the rule alone can leave centres apart)
+        "link_pieces": len(np.unique(link_components(lv))) if lv.links is not None else None,
         "radius": lv.radius,
     }
 
@@ -478,6 +481,9 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
         "levels": levels,
         # links the paper's ρ rule forbids, added so that every route connects (bridges)
         "links_bridged": sum(lv["bridges"] or 0 for lv in levels),
+        "link_pieces_finest": next(
+            (lv["link_pieces"] for lv in reversed(levels) if lv["link_pieces"] is not None), None
+        ),
         "rho_experiment": _rho_experiment(h),
         "iterations_split_start_total": warm,
         "iterations_cold_total": cold,

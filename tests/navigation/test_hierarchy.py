@@ -224,9 +224,50 @@ def test_choose_link_scale_known_answers():
     assert fx.navigation.choose_link_scale(sweep([[0.9, 0.9, 0.5], [1, 1, 1]])) == 0.2
 
 
+def _rule_links_reference(X, geo, cf, rho):
+    """The paper's rule, pair by pair with numpy: i—j unless the polyline of the geodesic
+    path between their frames passes within rho of a centre other than the two."""
+    c, pos = len(cf), X[cf]
+    nh = np.asarray(geo.next_hop)
+    out = np.zeros((c, c), bool)
+    for i in range(c):
+        for j in range(i + 1, c):
+            path = [int(cf[i])]
+            while path[-1] != cf[j] and nh[path[-1], cf[j]] >= 0:
+                path.append(int(nh[path[-1], cf[j]]))
+            if path[-1] != cf[j] or cf[i] == cf[j]:
+                continue
+            keep = (np.arange(c) != i) & (np.arange(c) != j) & (cf != cf[i]) & (cf != cf[j])
+            q = pos[keep]
+            a, b = X[path[:-1]], X[path[1:]]
+            if len(a) == 0:
+                continue
+            ab = b - a
+            L2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+            t = np.clip(np.einsum("skd,sd->sk", q[None] - a[:, None], ab) / L2[:, None], 0, 1)
+            d = np.linalg.norm(q[None] - (a[:, None] + t[..., None] * ab[:, None]), axis=-1)
+            out[i, j] = out[j, i] = not np.any(d < rho)
+    return out
+
+
+def test_default_links_are_the_rule_exactly(space):
+    """Kim & Jung §4.2 by default: no bridges, every link (and no other pair) passes the
+    ρ rule, checked pair by pair against a direct numpy walk of the geodesic paths; the
+    conservative near-list test (levels above EXACT_CENTRES) keeps only pairs that pass."""
+    X, _, geo, h = space
+    for lv in h.levels:
+        assert not lv.bridges.any()
+        if lv.n_clusters <= 64:
+            ref = _rule_links_reference(X, geo, lv.center_frames, lv.radius)
+            np.testing.assert_array_equal(lv.links, ref)
+    lv = h.levels[3]
+    near, _ = fx.center_links(X, geo, lv.center_frames, lv.radius, exact=False)
+    assert not (near & ~lv.links).any()  # a subset of the rule's links
+
+
 def test_hierarchy_rho_by_experiment_and_bridges_option(space):
     """The default: ρ from the experiment on every level (the sweep kept), links by the
-    rule, bridges only where a level is left in pieces; ``bridges=False``: none."""
+    rule; ``bridges=True`` joins the pieces a level is left in, with links outside it."""
     X, _, geo, h = space
     sw = h.link_sweep
     assert sw is not None and sw.levels.tolist() == [0, 1, 2, 3, 4]
@@ -235,13 +276,11 @@ def test_hierarchy_rho_by_experiment_and_bridges_option(space):
     for lv in h.levels:
         rho = fx.default_link_radius(X[lv.center_frames], chosen)
         assert lv.radius == pytest.approx(rho)
-        L, B = fx.center_links(X, geo, lv.center_frames, rho, bridge=True)
+        L, B = fx.center_links(X, geo, lv.center_frames, rho)
         np.testing.assert_array_equal(lv.links, L)
-        assert not lv.bridges.any()  # every swept level joined by the rule alone
-    pure = fx.build_hierarchy(X, geo, c0=8, key=jax.random.PRNGKey(0), bridges=False)
-    assert all(not lv.bridges.any() for lv in pure.levels)
+        assert not lv.bridges.any() and not B.any()
     # relink: the same centres, links at another ρ; bridges join what falls apart
-    wide = fx.navigation.relink(h, geo, 3.0)
+    wide = fx.navigation.relink(h, geo, 3.0, bridges=True)
     for a, b in zip(h.levels, wide.levels, strict=True):
         np.testing.assert_array_equal(a.center_frames, b.center_frames)
         assert b.radius == pytest.approx(fx.default_link_radius(X[b.center_frames], 3.0))
@@ -249,6 +288,9 @@ def test_hierarchy_rho_by_experiment_and_bridges_option(space):
         np.testing.assert_array_equal(b.links & ~b.bridges, L)
         assert fx.link_graph_connected(b)
     assert sum(int(lv.bridges.sum()) for lv in wide.levels) > 0
+    rule = fx.navigation.relink(h, geo, 3.0)
+    assert not any(lv.bridges.any() for lv in rule.levels)
+    assert not all(fx.link_graph_connected(lv) for lv in rule.levels)
     # the sweep travels with the stored hierarchy
     back = fx.navigation.hierarchy_from_arrays(fx.navigation.hierarchy_to_arrays(h))
     for f in sw._fields:

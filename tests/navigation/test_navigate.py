@@ -179,7 +179,12 @@ def test_real_animface_subsample(data_dir):
     Y = fx.classical_mds(geo.distances, 2).embedding
     h = fx.build_hierarchy(Y, geo, c0=10, key=jax.random.PRNGKey(0), restarts=0)
     assert h.sizes == (10, 20, 40, 80, 150)
-    assert all(fx.link_graph_connected(lv) for lv in h.levels)
+    # the paper's rule alone: a level is in one piece exactly where the experiment says
+    sw = h.link_sweep
+    k = list(sw.scales).index(fx.navigation.choose_link_scale(sw))
+    for a, li in enumerate(sw.levels):
+        assert fx.link_graph_connected(h.levels[li]) == (sw.coverage[a, k] == 1.0)
+    assert not any(lv.bridges.any() for lv in h.levels)
     lv = h.levels[0]
     keys = _linked_walk(lv, 4)
     routes = fx.navigate(h, geo, keys)
@@ -215,3 +220,29 @@ def test_pipeline_on_synthetic_face(tmp_path, capsys, monkeypatch):
     assert m["path_is_graph_walk"] is True
     assert (d / "navigation.gif").stat().st_size > 0
     assert (d / "levels_grid.png").stat().st_size > 0
+
+
+def test_refinement_stays_in_one_piece_of_the_links(nav):
+    """The paper's rule can leave a fine level in pieces (no bridges): automatic
+    refinement keeps the route in the piece that holds the key frames' centres, every
+    step along a link, and still ends in a walk of the frame graph; a hand-picked key
+    in another piece is refused with the reason and the fix."""
+    _, _, W, geo, h = nav
+    rule = fx.navigation.relink(h, geo, 0.5)  # levels 3 and 4 fall apart at this ρ
+    pieces = [len(np.unique(fx.navigation.link_components(lv))) for lv in rule.levels]
+    assert pieces[0] == 1 and max(pieces) > 1
+    assert not any(lv.bridges.any() for lv in rule.levels)
+    routes = fx.navigate(rule, geo, _linked_walk(rule.levels[0], 4))
+    assert [r.level for r in routes] == list(range(len(rule.levels)))
+    for r in routes:
+        lv = rule.levels[r.level]
+        lab = fx.navigation.link_components(lv)
+        assert len(set(lab[list(r.centres)].tolist())) == 1
+        assert all(lv.links[a, b] for a, b in zip(r.centres[:-1], r.centres[1:], strict=True))
+    assert fx.is_graph_walk(routes[-1].frames, W)
+    last = len(rule.levels) - 1
+    lab = fx.navigation.link_components(rule.levels[last])
+    a = routes[-1].centres[0]
+    b = int(np.flatnonzero(lab != lab[a])[0])
+    with pytest.raises(fx.navigation.NavigationError, match="different pieces.*bridges=True"):
+        fx.navigation.bridge_keys(rule, geo, last, [a, b])

@@ -51,8 +51,10 @@ def test_threshold_from_its_own_sweep_by_the_papers_rule(tmp_path):
         cached = (d / "cache" / f"{name}.npz").is_file()
         assert cached == (name != "cold_levels"), name
     assert m["path_is_graph_walk"] is True
-    # the links the paper's rule forbids, added to connect the routes, are counted
-    assert m["links_bridged"] == sum(lv["bridges"] or 0 for lv in m["levels"])
+    # the paper's rule alone by default: no bridges; the pieces each level is left in
+    assert m["links_bridged"] == 0 == sum(lv["bridges"] or 0 for lv in m["levels"])
+    assert all(lv["link_pieces"] >= 1 for lv in m["levels"] if lv["links"] is not None)
+    assert m["link_pieces_finest"] == m["levels"][-1]["link_pieces"]
     # ρ by the paper's experiment: the table of links and coverage against ρ, the
     # scale chosen (the largest joining every swept level) and its figure
     rx = m["rho_experiment"]
@@ -63,6 +65,17 @@ def test_threshold_from_its_own_sweep_by_the_papers_rule(tmp_path):
         swept = {lv["centres"] for lv in rx["levels"]}
         assert all(lv["bridges"] == 0 for lv in m["levels"] if lv["centres"] in swept)
     assert (d / "link_radius.png").is_file()
+
+
+def test_bridges_option_counted(tmp_path):
+    """``hierarchy.bridges = true`` with wide circles (ρ = 3 spacings, levels in pieces):
+    every level joined, the links outside the rule counted as links_bridged."""
+    raw = {**SMALL, "hierarchy": {**SMALL["hierarchy"], "rho_scale": 3.0, "bridges": True}}
+    (d,) = run_dict(raw, tmp_path / "run")
+    m = _metrics(d)
+    assert m["links_bridged"] == sum(lv["bridges"] for lv in m["levels"]) > 0
+    assert all(lv["link_graph_connected"] and lv["link_pieces"] == 1 for lv in m["levels"])
+    assert m["path_is_graph_walk"] is True
 
 
 def test_interrupted_after_the_sweep_resumes(tmp_path, monkeypatch):
