@@ -140,17 +140,33 @@ def sweep_stage(
     th_all = np.asarray(thresholds, np.float64)
     bs = int(batch_size)
 
+    def chunk(k: int, th: np.ndarray) -> dict:
+        name = f"sweep_{k:03d}_{zlib.crc32(th.tobytes()):08x}"
+
+        def one() -> dict:
+            sw = threshold_sweep(P, th, dim=dim, batch_size=None if bs == 1 else bs)
+            return {f: v for f, v in sw._asdict().items() if f != "num_frames"}
+
+        # a worker thread does not inherit the caller's jax.enable_x64 context
+        with jax.enable_x64(bool(P.dtype == np.float64)):
+            return _stage(run_dir, name, one)
+
     def compute() -> dict:
+        from concurrent.futures import ThreadPoolExecutor
+
         chunks = [th_all[i : i + bs] for i in range(0, len(th_all), bs)]
-        parts = []
-        for k, th in enumerate(progress(chunks, desc="threshold sweep")):
-            name = f"sweep_{k:03d}_{zlib.crc32(th.tobytes()):08x}"
 
-            def one(th=th) -> dict:
-                sw = threshold_sweep(P, th, dim=dim, batch_size=None if bs == 1 else bs)
-                return {f: v for f, v in sw._asdict().items() if f != "num_frames"}
+        def all_chunks():
+            yield chunk(0, chunks[0])  # alone: it compiles what the others reuse
+            # then two at a time: one ε's Floyd + MDS leaves a CPU core idle part of
+            # the time (1.2x on 2 cores, same numbers); each is cached as it finishes
+            ex = ThreadPoolExecutor(max_workers=2, thread_name_prefix="fxspace-sweep")
+            try:
+                yield from ex.map(chunk, range(1, len(chunks)), chunks[1:])
+            finally:  # on Ctrl-C: the chunks not started are dropped, the finished kept
+                ex.shutdown(wait=True, cancel_futures=True)
 
-            parts.append(_stage(run_dir, name, one))
+        parts = list(progress(all_chunks(), desc="threshold sweep", total=len(chunks)))
         return {f: np.concatenate([p[f] for p in parts]) for f in parts[0]}
 
     a = _stage(run_dir, "sweep", compute)

@@ -149,3 +149,55 @@ def test_real_animface_subsample(tmp_path, data_dir):
     assert rs and all(0.5 < r <= 1.0 for r in rs)
     assert m["sweep"][0]["connected"]  # the grid starts at the connecting threshold
     assert m["thresholds_reach_largest_distance"] and m["criterion"] == "max_r"
+
+
+def test_sweep_stage_threads_keep_float64_and_order(tmp_path):
+    """The stage runs two ε at a time in worker threads: in float64 when the run is (a
+    thread does not inherit jax.enable_x64), in the grid's order, each chunk cached."""
+    import jax
+
+    from fxspace.expression import threshold_grid, threshold_sweep
+    from fxspace.pipelines.threshold_sweep import state_distances, sweep_stage
+
+    X = np.random.default_rng(3).normal(size=(40, 6, 3)).cumsum(axis=0)
+    with jax.enable_x64(True):
+        P = state_distances(X, "float64")
+        th = np.asarray(threshold_grid(P, 5), np.float64)
+        sw = sweep_stage(tmp_path, P, th)
+        ref = threshold_sweep(P, th)
+    np.testing.assert_array_equal(np.asarray(sw.thresholds), th)
+    np.testing.assert_allclose(np.asarray(sw.scores), np.asarray(ref.scores), rtol=1e-12)
+    assert len(list((tmp_path / "cache").glob("sweep_0*.npz"))) == 5
+
+
+def test_sweep_interrupted_mid_way_keeps_what_finished(tmp_path, monkeypatch):
+    """Ctrl-C in the middle of the threaded sweep: it stops (the ε not started are
+    dropped, not run), the finished ε stay cached and a rerun computes only the rest."""
+    import threading
+
+    import fxspace.pipelines.threshold_sweep as ts
+    from fxspace.expression import threshold_grid
+
+    X = np.random.default_rng(4).normal(size=(30, 5, 3)).cumsum(axis=0)
+    P = ts.state_distances(X)
+    th = np.asarray(threshold_grid(P, 8), np.float64)
+    real, calls, lock = ts.threshold_sweep, [], threading.Lock()
+
+    def flaky(*a, **k):
+        with lock:
+            calls.append(1)
+            n = len(calls)
+        if n == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(ts, "threshold_sweep", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        ts.sweep_stage(tmp_path, P, th)
+    assert len(calls) <= 4  # the ε queued behind the interrupt never ran
+    kept = len(list((tmp_path / "cache").glob("sweep_0*.npz")))
+    assert 2 <= kept <= 3 and not (tmp_path / "cache" / "sweep.npz").exists()
+    calls.clear()
+    monkeypatch.setattr(ts, "threshold_sweep", lambda *a, **k: calls.append(1) or real(*a, **k))
+    sw = ts.sweep_stage(tmp_path, P, th)
+    assert len(calls) == len(th) - kept and len(np.asarray(sw.scores)) == len(th)
