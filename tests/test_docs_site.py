@@ -22,6 +22,15 @@ PAGES = [
     "concepts/architecture/index.html",
     "api/cluster/index.html",
     "reproductions/experiments/index.html",
+    *(
+        f"reproductions/{k}/index.html"
+        for k in ("kim-jung", "hirose-higuchi", "ha-han", "park-kang-kwon")
+    ),
+    *(
+        f"guides/paper-{k}/index.html"
+        for k in ("kim-jung", "hirose-higuchi", "ha-han", "park-kang-kwon")
+    ),
+    "benchmarks/measured/index.html",
 ]
 
 
@@ -87,9 +96,33 @@ def test_site_offline_maths_images_diagram(site, browser):
             n_img += len(sizes)
             if rel.startswith("concepts/architecture"):
                 assert page.locator(".fx-diagram svg rect").count() >= 10
+            if rel.startswith("reproductions/") and "experiments" not in rel:
+                _numbers_as_generated(page, rel.split("/")[1])
         assert n_math > 0, "no rendered maths found"
         assert n_img >= 3, f"expected the apps' screenshots, found {n_img} images"
         remote = [u for u in requested if u.startswith(("http://", "https://"))]
         assert not remote, f"the site asked the network for {remote[:5]}"
     finally:
         ctx.close()
+
+
+def _numbers_as_generated(page, key: str) -> None:
+    """Each row of a reproduction page's table, as the reader sees it, shows the paper's
+    number and ours from the page's snapshot (`tests/test_docs_repro.py` checks the
+    snapshot against the runs' ``metrics.json`` where ``runs/`` exists)."""
+    import json
+
+    from fxspace.pipelines._docs import PAPERS, fmt
+
+    snap = json.loads((ROOT / "docs" / "reproductions" / "data" / f"{key}.json").read_text())
+    rows = page.eval_on_selector_all(
+        "table tr", "trs => trs.map(tr => [...tr.cells].map(c => c.innerText.trim()))"
+    )
+    shown = {r[0]: r[1:3] for r in rows if len(r) >= 3}
+    for r in PAPERS[key].rows:
+        label = page.evaluate("s => { const d = document.createElement('div'); "
+                              "d.innerHTML = s; return d.innerText.trim(); }", r.label)  # fmt: skip
+        assert label in shown, f"{key}: row {r.label!r} missing from the rendered page"
+        want = [fmt(r.paper), fmt(snap["values"][f"{r.config}:{r.path}"])]
+        got = [c.replace("`", "") for c in shown[label]]
+        assert got == [w.replace("`", "") for w in want], f"{key}: {r.label}: {got} != {want}"
