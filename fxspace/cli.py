@@ -61,17 +61,18 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_docs(args: argparse.Namespace) -> int:
     from fxspace.pipelines import write_bench_page, write_docs
 
-    for p in write_docs(args.runs, args.out, run=args.run):
+    for p in write_docs(args.runs, args.out, run=args.run, force=args.force):
         print(f"fxspace docs: wrote {p}")
     if (Path(args.runs) / "bench").is_dir():
-        print(f"fxspace docs: wrote {write_bench_page(args.runs, args.bench_out)}")
+        page = write_bench_page(args.runs, args.bench_out, force=args.force)
+        print(f"fxspace docs: wrote {page}")
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from fxspace.runs import write_report
 
-    rows, folder = write_report(args.dir)
+    rows, folder = write_report(args.dir, out=args.out, force=args.force)
     print(f"fxspace report: {len(rows)} runs; table and figures in {folder}")
     return 0
 
@@ -209,10 +210,18 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--bench-out", default="docs/benchmarks",
                     help="where the benchmark page goes (from RUNS/bench/*.json)")  # fmt: skip
     dc.add_argument("--run", action="store_true", help="run the missing configs first")
+    dc.add_argument("--force", action="store_true",
+                    help="replace files in --out that fxspace did not write, and pages whose "
+                         "runs are missing")  # fmt: skip
     dc.set_defaults(func=_cmd_docs)
 
     rp = sub.add_parser("report", help="compare the runs under a folder (table + figures)")
     rp.add_argument("dir", help="a folder of runs (e.g. a sweep's --out)")
+    rp.add_argument("--out", default=None, help="the report folder (default DIR/report)")
+    rp.add_argument(
+        "--force", action="store_true",
+        help="replace files in the report folder that fxspace did not write",
+    )  # fmt: skip
     rp.set_defaults(func=_cmd_report)
 
     for name in ("studio", "view"):

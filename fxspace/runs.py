@@ -15,7 +15,14 @@ cleared when the key changes, so a changed config, data file or code never reuse
 in the folder's manifest ``.fxspace-manifest`` (one relative path a line, see `record`).
 Clearing a cache (`reset_cache`) or an old run (`clean_run`) deletes only the files
 listed there, and then only the folders that became empty; a file fxspace did not
-write (say ``DIR/cache/notes.txt``) is never touched.
+write (say ``DIR/cache/notes.txt``) is never touched. Each manifest line keeps the
+file's inode: a file is deleted only when it is still the very file fxspace wrote (a
+regular file, its inode unchanged, reached without passing a symbolic link), so a
+collaborator's symlink, a hand-edited manifest or a file replaced since never makes a
+clean delete anything outside the run or anything a user wrote. fxspace never writes
+through a symbolic link inside a run folder, and reads its bookkeeping files
+(``status.json``, ``metrics.json``, the lock) only when they are regular files: a FIFO
+of that name is refused with a message, never waited on.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ import hashlib
 import json
 import os
 import platform
+import re
+import stat
 import subprocess
 import sys
 import tempfile
@@ -37,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from fxspace.errors import FxspaceError
+from fxspace.errors import CorruptFileError, FxspaceError
 
 __all__ = [
     "write_bytes_atomic",
@@ -65,6 +74,11 @@ __all__ = [
     "active_run",
     "unrecorded",
     "RunLockedError",
+    "OverwriteRefusedError",
+    "UnsafePathError",
+    "check_writable",
+    "read_regular",
+    "read_json",
     "run_lock",
     "LOCK",
     "collect",
@@ -72,6 +86,7 @@ __all__ = [
     "machine",
     "BENCH_FIELDS",
     "write_bench",
+    "bench_name_ok",
 ]
 
 #: Name of the manifest file: the files fxspace wrote into a run folder.
@@ -82,9 +97,13 @@ LOCK = ".fxspace-lock"
 # user-saved state: never deleted by a clean even where an older manifest lists it
 _USER_STATE = frozenset({"edits.json"})
 # the run folder being written by `run_dict` (files written under it are recorded)
-_ACTIVE: ContextVar[Path | None] = ContextVar("fxspace_active_run", default=None)
-# manifest path -> the relative paths already listed (so each path is appended once)
-_LISTED: dict[Path, set[str]] = {}
+_ACTIVE: ContextVar[_Active | None] = ContextVar("fxspace_active_run", default=None)
+# manifest path -> {relative path: inode} already listed (a path is appended again only
+# when fxspace has replaced the file, so the last line holds its current inode)
+_LISTED: dict[Path, dict[str, int | None]] = {}
+# run folders whose cache folder cannot be used (a link, a file, unwritable): their
+# stages are computed without a cache (said once, when found)
+_NO_CACHE: set[Path] = set()
 
 _PACKAGES = (
     "fxspace",
@@ -99,12 +118,105 @@ _PACKAGES = (
 )
 
 
+class OverwriteRefusedError(FxspaceError, FileExistsError):
+    """A file exists where fxspace would write and fxspace did not write it (it is not
+    in the folder's manifest): never overwritten without ``--force``."""
+
+
+class UnsafePathError(FxspaceError):
+    """A symbolic link, FIFO or other non-regular file where fxspace reads or writes its
+    own files: refused (never followed out of the folder, never waited on)."""
+
+
+class _Active:
+    """The folder being written (`active_run`): its real and its lexical absolute path,
+    whether ``--force`` allows replacing files fxspace did not write, and an optional
+    ``recognise(path)`` that knows fxspace's own output from before manifests."""
+
+    def __init__(self, root: Path, force: bool, recognise: Callable[[Path], bool] | None):
+        self.root = Path(os.path.realpath(root))
+        self.lexical = Path(os.path.abspath(root))
+        self.force = force
+        self.recognise = recognise
+
+    def rel(self, p: Path) -> str | None:
+        return _rel_inside(self.root, p, self.lexical)
+
+
+def _rel_inside(root: Path, p: str | Path, lexical: Path | None = None) -> str | None:
+    """``p`` relative to the folder ``root`` (real path) as written — never by
+    following a link below ``root`` — or ``None`` when ``p`` lies outside it."""
+    ap = Path(os.path.abspath(p))
+    for base in (lexical, root):
+        if base is None:
+            continue
+        try:
+            rel = ap.relative_to(base).as_posix()
+        except ValueError:
+            continue
+        return rel if rel != "." else None
+    try:  # reached through another name of the folder (a link above it)
+        parent = Path(os.path.realpath(ap.parent)).relative_to(root)
+    except ValueError:
+        return None
+    return (parent / ap.name).as_posix()
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a regular file"
+
+
+def _unsafe_below(root: Path, rel: str, final: bool = True) -> str | None:
+    """Why ``root/rel`` may not be written or deleted by fxspace (``None``: it may): a
+    folder on the way that is a symbolic link or not a folder, or (``final``) the file
+    itself being a link, FIFO or folder. Checked with ``lstat``, never following links."""
+    d = root
+    parts = Path(rel).parts
+    for i, part in enumerate(parts):
+        d = d / part
+        try:
+            st = os.lstat(d)
+        except FileNotFoundError:
+            return None  # the rest does not exist yet: fxspace makes it
+        except OSError as e:
+            return f"{d} cannot be examined ({e.strerror or e})"
+        last = i == len(parts) - 1
+        if last:
+            if final and not stat.S_ISREG(st.st_mode):
+                what = _kind(st.st_mode)
+                if stat.S_ISLNK(st.st_mode):
+                    what += f" (to {os.readlink(d)})"
+                return f"{d} is {what}, not a file fxspace wrote"
+        elif not stat.S_ISDIR(st.st_mode):
+            what = _kind(st.st_mode)
+            if stat.S_ISLNK(st.st_mode):
+                what += f" (to {os.readlink(d)})"
+            return f"{d} is {what}, not a folder fxspace made"
+    return None
+
+
 def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file in the same folder + rename)."""
+    """Write ``data`` to ``path`` atomically (temp file in the same folder + rename).
+
+    Inside a run (`active_run`), a path under the run folder is written only when no
+    folder on the way is a symbolic link (`UnsafePathError`: fxspace never writes out of
+    its folder through a link) and, when the file exists, when fxspace wrote it (its
+    manifest lists it; else `OverwriteRefusedError` naming the fix)."""
     p = Path(path)
     active = _ACTIVE.get()
-    if active is not None and (p.exists() or p.is_symlink()):
-        _check_ours(active, p)
+    rel = active.rel(p) if active is not None else None
+    if active is not None and rel is not None:
+        _check_ours(active, p, rel)
     p.parent.mkdir(parents=True, exist_ok=True)
     # a short unique temp name beside the target: never NAME.tmp (a user's file of that
     # name survives) and short enough for any legal (255-character) target name
@@ -120,25 +232,118 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    if active is not None:
-        record(active, p)
+    if active is not None and rel is not None:
+        record(active.root, p)
     return p
 
 
-def _check_ours(root: Path, p: Path) -> None:
-    """Inside a run, an existing file under the run folder may be replaced only when the
-    folder's manifest lists it (fxspace wrote it); a user's file is never overwritten."""
+def _check_ours(active: _Active, p: Path, rel: str) -> None:
+    """Inside a run, a path under the run folder is written only through real folders,
+    and an existing file there is replaced only when the folder's manifest lists it
+    (fxspace wrote it), it is recognisably fxspace's own output, or ``--force``."""
+    why = _unsafe_below(active.root, rel, final=False)
+    if why is not None:
+        raise UnsafePathError(
+            f"{why}: fxspace never writes through a link inside {active.lexical}; "
+            "remove the link (fxspace makes its own folder there) or choose another --out"
+        )
     try:
-        rel = p.resolve().relative_to(root).as_posix()
-    except ValueError:
-        return  # outside the run folder: not the run's business
-    if rel in set(manifest_files(root)):
+        st = os.lstat(p)
+    except FileNotFoundError:
         return
-    raise FileExistsError(
-        f"{p} exists and this run did not write it (it is not in {root / MANIFEST}); "
-        "fxspace never overwrites a file it did not write: move or rename that file, "
-        "or choose another --out"
+    if not stat.S_ISREG(st.st_mode):
+        raise UnsafePathError(
+            f"{p} is {_kind(st.st_mode)}; fxspace writes only regular files of its own "
+            "there: move it away, or choose another --out"
+        )
+    if active.force or rel in _manifest_entries(active.root):
+        return
+    if active.recognise is not None and active.recognise(p):
+        return
+    raise OverwriteRefusedError(
+        f"{p} exists and this run did not write it (it is not in "
+        f"{active.lexical / MANIFEST}); fxspace never overwrites a file it did not write: "
+        "move or rename that file, choose another --out, or pass --force to replace it"
     )
+
+
+def check_writable(
+    folder: str | Path,
+    paths: list[str | Path],
+    force: bool = False,
+    recognise: Callable[[Path], bool] | None = None,
+) -> None:
+    """Refuse, before anything is written, to replace any of ``paths`` (under
+    ``folder``) that fxspace did not write: `OverwriteRefusedError` naming them and the
+    fix, or `UnsafePathError` for a link on the way. ``force``: replace them (links and
+    FIFOs are still refused). ``recognise(path)``: fxspace's own output from before
+    manifests (e.g. a page carrying the generated-page line)."""
+    act = _Active(Path(folder), force, recognise)
+    theirs = []
+    for p in map(Path, paths):
+        rel = act.rel(p)
+        if rel is None:
+            continue
+        try:
+            _check_ours(act, p, rel)
+        except OverwriteRefusedError:
+            theirs.append(p)
+    if theirs:
+        names = ", ".join(str(p) for p in theirs[:5]) + (" …" if len(theirs) > 5 else "")
+        raise OverwriteRefusedError(
+            f"{names} exist{'s' if len(theirs) == 1 else ''} and fxspace did not write "
+            f"{'it' if len(theirs) == 1 else 'them'} (not in {act.lexical / MANIFEST}); "
+            "nothing was written: move them away, choose another --out, or pass --force "
+            "to replace them"
+        )
+
+
+def read_regular(path: str | Path) -> bytes | None:
+    """The bytes of ``path`` — ``None`` when it does not exist — refusing anything but a
+    regular file (`UnsafePathError`): a FIFO is opened without blocking and refused, never
+    waited on; a folder or device named like a file is refused."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        return None
+    except IsADirectoryError:
+        raise UnsafePathError(f"{path} is a folder, not a file; move it away") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise UnsafePathError(
+                f"{path} is {_kind(st.st_mode)}, not a regular file: fxspace never reads "
+                "one (it could wait forever); remove it, fxspace writes its own"
+            )
+        chunks = []
+        while block := os.read(fd, 1 << 20):
+            chunks.append(block)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def read_json(path: str | Path, kind: type = dict) -> Any:
+    """``path`` parsed as JSON (``None`` when absent), refusing a non-regular file
+    (`UnsafePathError`) and, with a `CorruptFileError` naming the file, bytes that are
+    not UTF-8 JSON or a value that is not a ``kind`` (a ``dict`` by default)."""
+    data = read_regular(path)
+    if data is None:
+        return None
+    try:
+        value = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise CorruptFileError(f"{path} is not UTF-8 text (not JSON)") from None
+    except json.JSONDecodeError as e:
+        raise CorruptFileError(
+            f"{path} is not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
+        ) from None
+    if not isinstance(value, kind):
+        raise CorruptFileError(
+            f"{path} holds a JSON {type(value).__name__}, not a {kind.__name__}"
+        )
+    return value
 
 
 @contextmanager
@@ -169,13 +374,41 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _lock_holder(text: bytes) -> dict[str, Any] | None:
+    """The holder a lock file names (``pid``, ``host``, ``at``), or ``None`` for garbage."""
+    try:
+        held = json.loads(text.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if (
+        isinstance(held, dict)
+        and isinstance(held.get("pid"), int)
+        and not isinstance(held.get("pid"), bool)
+        and isinstance(held.get("host"), str)
+    ):
+        return held
+    return None
+
+
+def _unlink_if_same(p: Path, ino: int) -> None:
+    """Delete ``p`` only if it is still the file (inode) that was looked at."""
+    try:
+        if os.lstat(p).st_ino == ino:
+            p.unlink()
+    except FileNotFoundError:
+        pass
+
+
 @contextmanager
 def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -> Iterator[Path]:
     """Hold ``run_dir/.fxspace-lock`` (pid, host, time) while one process writes the run.
 
-    A second process waits up to ``wait`` seconds (``None``: forever) and then raises
-    `RunLockedError` naming the holder and the fix. A lock whose holder died (same host,
-    pid gone) is taken over, with a message.
+    A second process waits up to ``wait`` seconds (``None``: until it is free, saying
+    whom it waits for) and then raises `RunLockedError` naming the holder and the fix. A
+    lock whose holder died (same host, pid gone) is taken over, with a message, and so is
+    a lock that names no holder (garbage such as ``garbage`` or ``{}``, or empty for more
+    than 2 s). A lock that is not a regular file (a FIFO, a link, a folder) is refused
+    with `UnsafePathError`, never read.
     """
     import socket
     import time
@@ -187,36 +420,52 @@ def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -
     me = {"pid": os.getpid(), "host": host,
           "at": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}  # fmt: skip
     t0 = time.monotonic()
+    said = False
+    nofollow = getattr(os, "O_NOFOLLOW", 0)
     while True:
         try:
-            fd = os.open(lp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            fd = os.open(lp, os.O_CREAT | os.O_EXCL | os.O_WRONLY | nofollow, 0o644)
         except FileExistsError:
             try:
-                held = json.loads(lp.read_text())
-            except (OSError, json.JSONDecodeError):
-                held = {}
-            if (
-                held.get("host") == host
-                and isinstance(held.get("pid"), int)
-                and (not _pid_alive(held["pid"]))
-            ):
-                print(f"[fxspace] {lp}: its holder (pid {held['pid']}) died; taking it over")
-                try:
-                    lp.unlink()
-                except FileNotFoundError:
-                    pass
-                continue
-            if not held and lp.exists():
-                time.sleep(poll)  # being written right now
-                if not lp.exists() or lp.read_text().strip():
+                st = os.lstat(lp)
+            except FileNotFoundError:
+                continue  # released meanwhile
+            if not stat.S_ISREG(st.st_mode):
+                raise UnsafePathError(
+                    f"{lp} is {_kind(st.st_mode)}, not fxspace's lock file; remove it "
+                    "(fxspace makes its own) and rerun"
+                ) from None
+            try:
+                text = read_regular(lp) or b""
+            except (OSError, UnsafePathError):
+                continue  # replaced meanwhile: look again
+            held = _lock_holder(text)
+            if held is None:
+                if not text.strip() and time.time() - st.st_mtime < 2.0:
+                    time.sleep(poll)  # being written right now
                     continue
+                what = "is empty" if not text.strip() else "names no holder (not a lock)"
+                print(f"[fxspace] {lp} {what}; treating it as stale and taking it over")
+                _unlink_if_same(lp, st.st_ino)
+                continue
+            if held["host"] == host and not _pid_alive(held["pid"]):
+                print(f"[fxspace] {lp}: its holder (pid {held['pid']}) died; taking it over")
+                _unlink_if_same(lp, st.st_ino)
+                continue
+            who = (
+                f"pid {held['pid']} on {held['host']} since {held.get('at')}, lock {lp}"
+            )
             if wait is not None and time.monotonic() - t0 >= wait:
                 raise RunLockedError(
-                    f"{root} is being written by another process (pid {held.get('pid')} on "
-                    f"{held.get('host')} since {held.get('at')}, lock {lp}); wait for it to "
+                    f"{root} is being written by another process ({who}); wait for it to "
                     "finish, or choose another --out; if that process is gone, delete the "
                     "lock file"
                 ) from None
+            if not said:
+                limit = "until it is free" if wait is None else f"up to {wait:g} s"
+                print(f"[fxspace] {root} is being written by another process ({who}); "
+                      f"waiting {limit} (Ctrl-C stops)", flush=True)  # fmt: skip
+                said = True
             time.sleep(poll)
             continue
         with os.fdopen(fd, "w") as f:
@@ -226,9 +475,11 @@ def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -
         yield lp
     finally:
         try:
-            if json.loads(lp.read_text()).get("pid") == os.getpid():
-                lp.unlink()
-        except (OSError, json.JSONDecodeError):
+            st = os.lstat(lp)
+            held = _lock_holder(read_regular(lp) or b"") if stat.S_ISREG(st.st_mode) else None
+            if held is not None and held["pid"] == os.getpid() and held["host"] == host:
+                _unlink_if_same(lp, st.st_ino)
+        except (OSError, UnsafePathError):
             pass
 
 
@@ -236,15 +487,27 @@ def _manifest_path(run_dir: str | Path) -> Path:
     return Path(run_dir).resolve() / MANIFEST
 
 
+def _manifest_entries(run_dir: str | Path) -> dict[str, int | None]:
+    """``{relative path: inode}`` of the manifest (the last line of a path wins; ``None``
+    for a line without an inode, from before inodes were kept)."""
+    m = _manifest_path(run_dir)
+    try:
+        data = read_regular(m)
+        lines = data.decode("utf-8").splitlines() if data is not None else []
+    except (OSError, UnicodeDecodeError, UnsafePathError):
+        return {}
+    out: dict[str, int | None] = {}
+    for ln in lines:
+        rel, _, ino = ln.partition("\t")
+        if _safe_rel(rel):
+            out[rel] = int(ino) if ino.isdigit() else None
+    return out
+
+
 def manifest_files(run_dir: str | Path) -> list[str]:
     """The files fxspace wrote into ``run_dir`` (paths relative to it, sorted), read from
     its manifest; ``[]`` when there is none (nothing is then known to be fxspace's)."""
-    m = _manifest_path(run_dir)
-    try:
-        lines = m.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        return []
-    return sorted({ln for ln in lines if _safe_rel(ln)})
+    return sorted(_manifest_entries(run_dir))
 
 
 def _safe_rel(rel: str) -> bool:
@@ -256,38 +519,57 @@ def _safe_rel(rel: str) -> bool:
 
 
 def record(run_dir: str | Path, path: str | Path) -> None:
-    """List ``path`` (a file fxspace wrote, inside ``run_dir``) in the folder's manifest.
+    """List ``path`` (a file fxspace wrote, inside ``run_dir``) in the folder's manifest,
+    with its inode (so a clean deletes it only while it is still that file).
 
-    Paths outside ``run_dir`` are ignored. The manifest is append-only, one relative
-    path a line, so an interrupted run loses at most the line being written.
+    Paths outside ``run_dir``, or reached through a link below it, are ignored. The
+    manifest is append-only, one ``relative path<TAB>inode`` a line, so an interrupted
+    run loses at most the line being written.
     """
-    root = Path(run_dir).resolve()
+    root = Path(os.path.realpath(run_dir))
+    rel = _rel_inside(root, path, Path(os.path.abspath(run_dir)))
+    if rel is None or not _safe_rel(rel) or _unsafe_below(root, rel) is not None:
+        return
     try:
-        rel = Path(path).resolve().relative_to(root).as_posix()
-    except ValueError:
-        return
-    if not _safe_rel(rel):
-        return
+        ino: int | None = os.lstat(root / rel).st_ino
+    except OSError:
+        ino = None
     m = root / MANIFEST
     listed = _LISTED.get(m)
     if listed is None or not m.is_file():
-        listed = _LISTED[m] = set(manifest_files(root))
-    if rel in listed:
+        listed = _LISTED[m] = _manifest_entries(root)
+    if rel in listed and (ino is None or listed[rel] == ino):
         return
     root.mkdir(parents=True, exist_ok=True)
-    with m.open("a", encoding="utf-8") as f:
-        f.write(rel + "\n")
-    listed.add(rel)
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(m, flags | getattr(os, "O_NONBLOCK", 0), 0o666)
+    except OSError as e:  # a link (ELOOP) or a FIFO nobody reads (ENXIO) named like it
+        raise UnsafePathError(
+            f"{m} cannot be used as fxspace's manifest ({e.strerror or e}); it must be a "
+            "regular file fxspace made: remove it and rerun"
+        ) from None
+    with os.fdopen(fd, "a", encoding="utf-8") as f:
+        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+            raise UnsafePathError(f"{m} is not a regular file; remove it and rerun")
+        f.write(rel + ("" if ino is None else f"\t{ino}") + "\n")
+    listed[rel] = ino
 
 
 @contextmanager
-def active_run(run_dir: str | Path) -> Iterator[Path]:
+def active_run(
+    run_dir: str | Path,
+    force: bool = False,
+    recognise: Callable[[Path], bool] | None = None,
+) -> Iterator[Path]:
     """Within this block, every file written through this module under ``run_dir`` is
-    recorded in its manifest (figures, arrays, metrics of a pipeline's ``run``)."""
-    root = Path(run_dir).resolve()
-    token = _ACTIVE.set(root)
+    recorded in its manifest (figures, arrays, metrics of a pipeline's ``run``), and an
+    existing file there that fxspace did not write is refused (`OverwriteRefusedError`)
+    unless ``force`` or ``recognise(path)`` (fxspace's own output from before manifests)."""
+    act = _Active(Path(run_dir), force, recognise)
+    token = _ACTIVE.set(act)
     try:
-        yield root
+        yield act.root
     finally:
         _ACTIVE.reset(token)
 
@@ -302,29 +584,60 @@ def _in_nested_run(root: Path, rel: str) -> bool:
     return False
 
 
+def _deletion_order(rel: str) -> tuple[int, str]:
+    # the files that say "finished" go first: a clean stopped part-way never leaves a
+    # folder that a plain rerun calls complete
+    return ({"metrics.json": 0, "status.json": 1}.get(rel, 2), rel)
+
+
 def _remove_listed(root: Path, keep: Callable[[str], bool]) -> list[str]:
     """Delete the manifest's files for which ``keep(rel)`` is false, then the folders
     left empty by that (never a folder that still holds anything, never a file inside
-    a nested run folder)."""
-    listed = manifest_files(root)
-    removed, kept = [], []
-    for rel in listed:
+    a nested run folder). A file is deleted only while it is the very file fxspace wrote:
+    reached without passing a link, a regular file, its inode the one the manifest keeps;
+    anything else is left, named in one message."""
+    entries = _manifest_entries(root)
+    removed, kept, left = [], [], []
+    for rel in sorted(entries, key=_deletion_order):
         if _in_nested_run(root, rel) or Path(rel).name in _USER_STATE:
             continue  # another run's file, or the user's saved edits: never ours to delete
         if keep(rel):
             kept.append(rel)
             continue
         f = root / rel
-        if f.is_file() or f.is_symlink():
-            f.unlink()
+        why = _unsafe_below(root, rel)
+        if why is None:
+            try:
+                ino = os.lstat(f).st_ino
+            except FileNotFoundError:
+                removed.append(rel)  # already gone
+                continue
+            if entries[rel] is not None and ino != entries[rel]:
+                why = f"{f} was replaced since fxspace wrote it"
+        if why is not None:
+            left.append(why)
+            continue
+        f.unlink()
         removed.append(rel)
         parent = f.parent
-        while parent != root and parent.is_dir() and not any(parent.iterdir()):
-            parent.rmdir()
+        while parent != root and _unsafe_below(root, parent.relative_to(root).as_posix(),
+                                                final=False) is None:  # fmt: skip
+            try:
+                if any(parent.iterdir()):
+                    break
+                parent.rmdir()
+            except OSError:
+                break
             parent = parent.parent
+    if left:
+        print(f"[fxspace] left {len(left)} listed file(s) that are not fxspace's to delete: "
+              + "; ".join(left[:5]) + (" …" if len(left) > 5 else ""))  # fmt: skip
     m = root / MANIFEST
     if kept:
-        write_text_atomic(m, "".join(r + "\n" for r in kept))
+        with unrecorded():
+            write_text_atomic(
+                m, "".join(r + ("" if entries[r] is None else f"\t{entries[r]}") + "\n"
+                           for r in kept))  # fmt: skip
     elif m.exists():
         m.unlink()
     _LISTED.pop(m, None)
@@ -334,7 +647,9 @@ def _remove_listed(root: Path, keep: Callable[[str], bool]) -> list[str]:
 def clean_run(run_dir: str | Path, keep: Callable[[str], bool] | None = None) -> list[str]:
     """Delete every file fxspace wrote into ``run_dir`` (its manifest), e.g. an old
     experiment's figures and arrays before another config runs there; files fxspace did not
-    write, and folders that still hold them, stay. Returns the removed relative paths."""
+    write, files replaced since, anything behind a symbolic link, and folders that still
+    hold such files, stay. ``metrics.json`` goes first, so a clean stopped part-way never
+    looks finished. Returns the removed relative paths."""
     root = Path(run_dir).resolve()
     if not root.is_dir():
         return []
@@ -447,9 +762,9 @@ def update_meta(run_dir: str | Path, extra: dict[str, Any]) -> Path:
     """Merge ``extra`` into ``meta.json`` (e.g. the run's ``"timing"``: compile vs compute)."""
     p = Path(run_dir) / "meta.json"
     try:
-        meta = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        meta = {}
+        meta = read_json(p) or {}
+    except (OSError, CorruptFileError):
+        meta = {}  # fxspace's own bookkeeping, damaged: written again whole
     return write_json_atomic(p, {**meta, **extra})
 
 
@@ -489,11 +804,60 @@ def write_status(run_dir: str | Path, status: str, **extra: Any) -> Path:
 
 
 def read_status(run_dir: str | Path) -> dict[str, Any]:
-    """``status.json`` of a run folder (``{}`` when absent or unreadable)."""
+    """``status.json`` of a run folder (``{}`` when absent, or when it is not a JSON
+    object: an unknown status, never "complete"). A FIFO or other non-regular file of
+    that name is refused (`UnsafePathError`), never waited on."""
     try:
-        return json.loads((Path(run_dir) / "status.json").read_text())
-    except (OSError, json.JSONDecodeError):
+        return read_json(Path(run_dir) / "status.json") or {}
+    except CorruptFileError:
         return {}
+    except UnsafePathError:
+        raise
+    except OSError:
+        return {}
+
+
+def _read_key(kp: Path) -> str | None:
+    try:
+        data = read_regular(kp)
+    except (OSError, UnsafePathError):
+        return None
+    if data is None:
+        return None
+    try:
+        return data.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        return "damaged"
+
+
+def _cache_unusable(root: Path) -> str | None:
+    """Why ``root/cache`` cannot hold this run's cache (``None``: it can)."""
+    d = root / "cache"
+    try:
+        st = os.lstat(d)
+    except FileNotFoundError:
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            return f"{root} cannot be written ({e.strerror or e})"
+        return None if os.access(root, os.W_OK | os.X_OK) else f"{root} is not writable"
+    except OSError as e:
+        return f"{d} cannot be examined ({e.strerror or e})"
+    if stat.S_ISLNK(st.st_mode):
+        return (f"{d} is a symbolic link (to {os.readlink(d)}); fxspace keeps its cache "
+                "in a real folder of the run, never behind a link")
+    if not stat.S_ISDIR(st.st_mode):
+        return f"{d} is {_kind(st.st_mode)}, not a folder"
+    if not os.access(d, os.W_OK | os.X_OK):
+        return f"{d} is not writable"
+    return None
+
+
+def _no_cache(root: Path, why: str) -> None:
+    if root not in _NO_CACHE:
+        print(f"[fxspace] {why}: this run computes every stage without a cache "
+              "(nothing is resumed; remove or fix it to cache again)", flush=True)  # fmt: skip
+    _NO_CACHE.add(root)
 
 
 def reset_cache(run_dir: str | Path, key: str, force: bool = False) -> bool:
@@ -501,11 +865,19 @@ def reset_cache(run_dir: str | Path, key: str, force: bool = False) -> bool:
     ``force``). Returns whether an existing cache was cleared.
 
     Clearing deletes only the cache files fxspace wrote (listed in the run folder's
-    manifest, see `record`): a user's file under ``cache/`` survives."""
+    manifest, see `record`): a user's file under ``cache/`` survives. A cache folder
+    that cannot be used — a symbolic link, a file of that name, read-only — is never
+    written through nor cleared: the run goes on without a cache, saying why."""
     root = Path(run_dir)
+    real = root.resolve()
     d = root / "cache"
     kp = d / "KEY"
-    old = kp.read_text().strip() if kp.is_file() else None
+    why = _cache_unusable(root)
+    if why is not None:
+        _no_cache(real, why)
+        return False
+    _NO_CACHE.discard(real)
+    old = _read_key(kp)
     cleared = False
     if d.exists() and (force or old != key):
         listed = [r for r in manifest_files(root) if r.startswith("cache/")]
@@ -516,28 +888,73 @@ def reset_cache(run_dir: str | Path, key: str, force: bool = False) -> bool:
             d.rename(aside)
             print(f"[fxspace] {d} predates run manifests; moved to {aside.name} (delete it freely)")
         else:
-            _remove_listed(root.resolve(), lambda rel: not rel.startswith("cache/"))
+            _remove_listed(real, lambda rel: not rel.startswith("cache/"))
         cleared = True
-    write_text_atomic(kp, key + "\n")
-    record(root, kp)
+    try:
+        with unrecorded():
+            write_text_atomic(kp, key + "\n")
+        record(root, kp)
+    except (OSError, FxspaceError) as e:
+        _no_cache(real, f"{kp} cannot be written ({getattr(e, 'strerror', None) or e})")
     return cleared
+
+
+def _cache_entry(run_dir: str | Path, p: Path) -> bytes | None:
+    """The bytes of the cache entry ``p`` when it may be served: the run's cache is in
+    use and ``p`` is a regular file fxspace wrote (listed, inode unchanged); else None."""
+    root = Path(run_dir).resolve()
+    if root in _NO_CACHE:
+        return None
+    rel = _rel_inside(root, p, Path(os.path.abspath(run_dir)))
+    if rel is None or _unsafe_below(root, rel) is not None:
+        return None
+    entries = _manifest_entries(root)
+    if rel not in entries:
+        return None  # not fxspace's: never served (and never overwritten)
+    try:
+        if entries[rel] is not None and os.lstat(p).st_ino != entries[rel]:
+            return None
+        return read_regular(p)
+    except (OSError, UnsafePathError):
+        return None
+
+
+def _store(run_dir: str | Path, p: Path, data: bytes) -> None:
+    """Store a cache entry; a cache that cannot be written is said once, not fatal."""
+    root = Path(run_dir).resolve()
+    if root in _NO_CACHE:
+        return
+    act = _Active(Path(run_dir), False, None)
+    rel = act.rel(p)
+    try:
+        if rel is not None:
+            _check_ours(act, p, rel)
+        with unrecorded():
+            write_bytes_atomic(p, data)
+        record(run_dir, p)
+    except OverwriteRefusedError:
+        print(f"[fxspace] {p} exists and fxspace did not write it: this stage is not "
+              "cached (move that file to cache it)")  # fmt: skip
+    except (OSError, FxspaceError) as e:
+        _no_cache(root, f"{p} cannot be written ({getattr(e, 'strerror', None) or e})")
 
 
 def cached(run_dir: str | Path, key: str, compute: Callable[[], Any]) -> Any:
     """Return the JSON result stored under ``key`` in ``run_dir/cache``, computing it once.
 
     Used by sweeps: each finished point is stored atomically, so re-running an
-    interrupted sweep only computes the missing points.
+    interrupted sweep only computes the missing points. A damaged entry is recomputed;
+    a cache folder that cannot be written is skipped with a message.
     """
     p = Path(run_dir) / "cache" / f"{key}.json"
-    if p.is_file():
+    data = _cache_entry(run_dir, p)
+    if data is not None:
         try:
-            return json.loads(p.read_text())
-        except json.JSONDecodeError:
-            pass  # a damaged cache entry is recomputed
+            return json.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            print(f"[fxspace] {p} is damaged; recomputing it")
     value = to_jsonable(compute())
-    write_json_atomic(p, value)
-    record(run_dir, p)
+    _store(run_dir, p, (json.dumps(value, indent=2) + "\n").encode("utf-8"))
     return value
 
 
@@ -550,7 +967,9 @@ def cached_arrays(
     (as NumPy arrays) on this and every later call in the same run folder, so a run
     interrupted after this stage resumes without recomputing it. The cache folder is
     bound to the run's content key (config + data + code, see `reset_cache`), so a
-    stage is never served to another config. A damaged file is recomputed.
+    stage is never served to another config. A damaged file (truncated, not a zip,
+    a member that does not decompress) is recomputed, with a message; a cache folder
+    that cannot be written is skipped with a message.
 
     **Example:**
 
@@ -558,18 +977,22 @@ def cached_arrays(
     geo = cached_arrays(run_dir, "geodesics", lambda: {"D": D, "next_hop": nh})
     ```
     """
+    import io
+
     if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
         raise ValueError(f"stage name must be a plain file name, got {name!r}")
     p = Path(run_dir) / "cache" / f"{name}.npz"
-    if p.is_file():
+    data = _cache_entry(run_dir, p)
+    if data is not None:
         try:
-            with np.load(p, allow_pickle=False) as z:
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError):
-            pass  # a damaged stage is recomputed
+        except Exception as e:  # noqa: BLE001 - BadZipFile, zlib.error, EOFError, ...
+            print(f"[fxspace] {p} is damaged ({type(e).__name__}); recomputing it")
     value = {k: np.asarray(v) for k, v in compute().items()}
-    save_npz_atomic(p, **value)
-    record(run_dir, p)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **value)
+    _store(run_dir, p, buf.getvalue())
     return value
 
 
@@ -628,19 +1051,33 @@ def _collect(run_dir: str | Path) -> tuple[list[dict[str, Any]], list[str], list
         raise FileNotFoundError(f"run_dir {root} is not a folder; pass a sweep's --out folder")
     runs = []
     for d in _run_folders(root):
+        problems: list[str] = []
+
+        def load(name: str, d: Path = d, problems: list[str] = problems) -> dict[str, Any]:
+            try:
+                v = read_json(d / name)
+            except (CorruptFileError, UnsafePathError) as e:
+                problems.append(str(e))
+                return {}
+            except OSError as e:
+                problems.append(f"{d / name}: {e.strerror or e}")
+                return {}
+            return v or {}
+
         try:
-            cfg = _flatten(tomllib.loads((d / "config.toml").read_text()))
-        except (OSError, tomllib.TOMLDecodeError):
+            cfg_text = (read_regular(d / "config.toml") or b"").decode("utf-8")
+            cfg = _flatten(tomllib.loads(cfg_text))
+        except (OSError, UnsafePathError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            problems.append(f"{d / 'config.toml'} is unreadable ({e})")
             cfg = {}
-        try:
-            metrics = json.loads((d / "metrics.json").read_text())
-        except (OSError, json.JSONDecodeError):
-            metrics = {}
-        try:
-            timing = json.loads((d / "meta.json").read_text()).get("timing") or {}
-        except (OSError, json.JSONDecodeError):
+        metrics = load("metrics.json")
+        timing = load("meta.json").get("timing")
+        if not isinstance(timing, dict):
             timing = {}
-        st = read_status(d)
+        st = load("status.json")
+        if problems:
+            st = {"status": "corrupt", "error": "; ".join(problems)
+                  + " (rerun that run with --force, or move the file away)"}  # fmt: skip
         runs.append((d, cfg, metrics, timing, st))
     keys = sorted({k for _, c, *_ in runs for k in c})
     swept = [
@@ -656,11 +1093,12 @@ def _collect(run_dir: str | Path) -> tuple[list[dict[str, Any]], list[str], list
         for k, v in _flatten(metrics).items():
             if _scalar(v) and k not in row:
                 row[k] = v
-        row["wall_s"] = timing.get("wall_s", metrics.get("wall_time_s"))
-        row["compile_s"] = timing.get("compile_s")
+        row["wall_s"] = _num(timing.get("wall_s", metrics.get("wall_time_s")))
+        row["compile_s"] = _num(timing.get("compile_s"))
         status = st.get("status") or ("complete" if metrics else "unknown")
-        row["status"] = status
-        row["error"] = st.get("error")
+        row["status"] = status if isinstance(status, str) else json.dumps(status)
+        err = st.get("error")
+        row["error"] = err if err is None or isinstance(err, str) else json.dumps(err)
         rows.append(row)
     cols: list[str] = []
     for r in rows:
@@ -676,6 +1114,10 @@ def _collect(run_dir: str | Path) -> tuple[list[dict[str, Any]], list[str], list
     return rows, swept, metric_cols
 
 
+def _num(v: Any) -> float | int | None:
+    return v if isinstance(v, int | float) and not isinstance(v, bool) else None
+
+
 def _fmt_cell(v: Any) -> str:
     if v is None:
         return ""
@@ -684,22 +1126,43 @@ def _fmt_cell(v: Any) -> str:
     return str(v).replace("|", "\\|").replace("\n", " ")
 
 
-def write_report(run_dir: str | Path) -> tuple[list[dict[str, Any]], Path]:
+def write_report(
+    run_dir: str | Path, out: str | Path | None = None, force: bool = False
+) -> tuple[list[dict[str, Any]], Path]:
     """``fxspace report DIR``: `collect` the runs under ``run_dir`` and write
     ``DIR/report/runs.csv``, ``runs.md`` and one figure per (metric, swept key) — the
     metric against that key, one line per combination of the other swept keys, the best
     run marked (the highest ``r`` / score / accuracy, else the lowest value; constant
-    metrics and timings get no figure) — then print the table. Returns (rows, report folder)."""
-    import csv
-    import io
+    metrics and timings get no figure) — then print the table. Returns (rows, report folder).
 
+    ``out``: the report folder (default ``DIR/report``). The report folder is the
+    report's own: its files are listed in its manifest and replaced (an older report's
+    figures removed) on the next report; a file there that fxspace did not write (the
+    user's own ``runs.md``) is refused (`OverwriteRefusedError`) unless ``force``. A run
+    whose ``metrics.json`` / ``status.json`` / ``meta.json`` is damaged is a row with
+    status ``corrupt`` and the reason, said on stderr too."""
     rows, swept, metrics = _collect(run_dir)
-    out = Path(run_dir) / "report"
+    out = Path(run_dir) / "report" if out is None else Path(out)
     if not rows:
         raise FileNotFoundError(
             f"no runs under {run_dir} (no folder holds status.json or metrics.json); "
             "pass the --out folder of a run or sweep"
         )
+    for r in rows:
+        if r["status"] == "corrupt":
+            print(f"fxspace report: {r['run']}: {r['error']}", file=sys.stderr)
+    check_writable(out, [out / "runs.csv", out / "runs.md"], force=force)
+    clean_run(out)  # the previous report's files (only those fxspace wrote)
+    with active_run(out, force=force):
+        return _write_report(rows, swept, metrics, out)
+
+
+def _write_report(
+    rows: list[dict[str, Any]], swept: list[str], metrics: list[str], out: Path
+) -> tuple[list[dict[str, Any]], Path]:
+    import csv
+    import io
+
     cols = list(rows[0])
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
@@ -798,6 +1261,7 @@ def write_bench(
     title: str,
     command: str,
     root: str | Path | None = None,
+    force: bool = False,
 ) -> Path:
     """Write a benchmark's comparisons to ``root/bench/NAME.json`` (``root``: ``$FXSPACE_RUNS``
     or ``runs``) with the machine it ran on, for the docs' benchmark page (`fxspace docs`).
@@ -805,7 +1269,16 @@ def write_bench(
     Each row is one comparison, `BENCH_FIELDS`: ``case`` (a label), ``size`` (a number to
     plot against, or ``None``), ``ours`` / ``peer`` (what was timed), ``ours_s`` /
     ``peer_s`` (median seconds) and ``ratio`` (``peer_s / ours_s``, filled in when left out).
+
+    ``name`` must be a plain file name (`bench_name_ok`). An existing ``NAME.json`` that
+    fxspace did not write (not in ``bench/``'s manifest, not a benchmark record of that
+    name) is refused (`OverwriteRefusedError`) unless ``force``.
     """
+    if not bench_name_ok(name):
+        raise FxspaceError(
+            f"write_bench: name must be a plain file name (letters, digits, _ . -, no "
+            f"folder, no '..'), got {name!r}"
+        )
     if not rows:
         raise FxspaceError(f"write_bench({name!r}): rows is empty; pass one dict per comparison")
     out = []
@@ -822,6 +1295,39 @@ def write_bench(
             r["ratio"] = r["peer_s"] / r["ours_s"] if r["ours_s"] > 0 else None
         out.append(r)
     root = Path(root if root is not None else os.environ.get("FXSPACE_RUNS", "runs"))
-    record = {"name": name, "title": title, "command": command.strip(), "machine": machine(),
-              "rows": out}  # fmt: skip
-    return write_json_atomic(root / "bench" / f"{name}.json", to_jsonable(record))
+    rec = {"name": name, "title": title, "command": command.strip(), "machine": machine(),
+           "rows": out}  # fmt: skip
+    folder = root / "bench"
+    with active_run(folder, force=force, recognise=_is_bench_record):
+        try:
+            return write_json_atomic(folder / f"{name}.json", to_jsonable(rec))
+        except OverwriteRefusedError:
+            raise OverwriteRefusedError(
+                f"{folder / (name + '.json')} exists and is not a benchmark record fxspace "
+                "wrote; nothing was written: move that file away, or set FXSPACE_RUNS to "
+                "another folder (write_bench(..., force=True) replaces it)"
+            ) from None
+
+
+def bench_name_ok(name: Any) -> bool:
+    """Whether ``name`` may name a benchmark record (``runs/bench/NAME.json``) and its
+    figure: a plain file name, never a path, an absolute name or ``..``."""
+    return (
+        isinstance(name, str)
+        and re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}", name) is not None
+        and ".." not in name
+    )
+
+
+def _is_bench_record(p: Path) -> bool:
+    """A benchmark record fxspace wrote before records were listed in a manifest: a JSON
+    object with the record's keys whose ``name`` is the file's stem."""
+    try:
+        rec = read_json(p)
+    except (OSError, FxspaceError):
+        return False
+    return (
+        isinstance(rec, dict)
+        and {"name", "title", "command", "machine", "rows"} <= set(rec)
+        and rec.get("name") == p.stem
+    )

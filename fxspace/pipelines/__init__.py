@@ -15,7 +15,9 @@ content key (resolved config + data digests + code digest), so an interrupted sw
 resumes; ``status.json`` marks a run ``running``, ``complete``, ``failed`` or
 ``interrupted``. Every file a run writes is listed in the run folder's manifest
 (`fxspace.runs.record`): a rerun of another config deletes only those files, never a
-user's.
+user's, and never anything behind a symbolic link. A finished run is kept across
+versions: rerunning it after fxspace's code or the data changed is refused, naming the
+fix (``--force`` replaces it, another ``--out`` runs beside it), never silently redone.
 """
 
 from __future__ import annotations
@@ -23,13 +25,14 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import inspect
-import json
+import os
 import re
 import time
 from pathlib import Path
 from types import ModuleType
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
+from fxspace import runs as _runs
 from fxspace._compile_cache import compile_timer
 from fxspace.config import (
     ConfigError,
@@ -48,6 +51,8 @@ from fxspace.runs import (
     MANIFEST,
     active_run,
     clean_run,
+    read_json,
+    read_regular,
     read_status,
     reset_cache,
     run_key,
@@ -190,17 +195,26 @@ def load_pipeline(name: str) -> Any:
 
 
 def _resolve_paths(cfg_raw: dict[str, Any], base_dir: Path | None) -> dict[str, Any]:
-    """``data.paths`` entries relative to the config file's folder become absolute."""
+    """``data.paths`` entries (and ``data.clips``' ``path`` / ``asf``) relative to the
+    config file's folder become absolute."""
     data = cfg_raw.get("data")
-    if base_dir is None or not isinstance(data, dict) or not isinstance(data.get("paths"), list):
+    if base_dir is None or not isinstance(data, dict):
         return cfg_raw
-    paths = [
-        str(Path(p).expanduser() if Path(p).expanduser().is_absolute() else base_dir / p)
-        if isinstance(p, str)
-        else p
-        for p in data["paths"]
-    ]
-    return {**cfg_raw, "data": {**data, "paths": paths}}
+
+    def absolute(p: Any) -> Any:
+        if not isinstance(p, str) or not p:
+            return p
+        return str(Path(p).expanduser() if Path(p).expanduser().is_absolute() else base_dir / p)
+
+    if isinstance(data.get("paths"), list):
+        data = {**data, "paths": [absolute(p) for p in data["paths"]]}
+    if isinstance(data.get("clips"), list):
+        data = {**data, "clips": [
+            {**c, **{k: absolute(c[k]) for k in ("path", "asf") if k in c}}
+            if isinstance(c, dict) else c
+            for c in data["clips"]
+        ]}  # fmt: skip
+    return {**cfg_raw, "data": data}
 
 
 def _data_files(mod: Any, cfg: Any) -> list[Path]:
@@ -354,7 +368,7 @@ def _refuse_overwrite(plan: list[tuple], out: Path, force: bool) -> None:
                 )
             continue
         if (run_dir / "metrics.json").is_file() and cfg_p.is_file():
-            old = cfg_p.read_text()
+            old = (read_regular(cfg_p) or b"").decode("utf-8", "replace")
             if old != text:
                 raise ConfigError(
                     f"{run_dir} holds a finished run of a different config (changed: "
@@ -394,27 +408,56 @@ def _run_one(
         return _run_locked(mod, run_dir, cfg, seed, text, experiment, force)
 
 
+def _what_changed(run_dir: Path, st: dict[str, Any]) -> str:
+    """What differs from the finished run in ``run_dir``: fxspace's code (with the
+    versions, where ``meta.json`` says) or the data."""
+    old_code = st.get("code")
+    if not isinstance(old_code, str):
+        return "other code or data (a run from before fxspace recorded which)"
+    if old_code == _runs.code_digest()[:16]:
+        return "other data (a data file's content changed)"
+    try:
+        meta = read_json(run_dir / "meta.json") or {}
+    except (OSError, ValueError):
+        meta = {}
+    old_v = meta.get("versions", {}).get("fxspace") if isinstance(meta, dict) else None
+    new_v = _runs.versions().get("fxspace")
+    sha = meta.get("git_sha") if isinstance(meta, dict) else None
+    tail = f", fxspace {old_v} → {new_v}" if old_v and old_v != new_v else ""
+    tail += f", git {str(sha)[:12]}" if sha else ""
+    return f"other fxspace code (its source changed since{tail})"
+
+
 def _run_locked(
     mod: Any, run_dir: Path, cfg: Any, seed: int, text: str, experiment: str, force: bool
 ) -> Path:
     metrics_p = run_dir / "metrics.json"
     key = run_key(text, _data_files(mod, cfg))
     st = read_status(run_dir)
-    if not force and metrics_p.is_file() and st.get("status") == "complete":
-        if st.get("key") == key:
+    if not force and os.path.lexists(metrics_p):
+        same = st.get("key") == key
+        if same and st.get("status") == "complete" and (run_dir / "config.toml").is_file():
             print(f"[fxspace] {run_dir}: already complete (metrics.json present); --force reruns")
             return run_dir
-        print(f"[fxspace] {run_dir}: data or code changed since the finished run; rerunning")
+        if not same:
+            # results are kept across versions: never silently replaced
+            raise ConfigError(
+                f"{run_dir} holds a finished run made with {_what_changed(run_dir, st)}; its "
+                "results are kept: pass --force to replace them, or choose another --out to "
+                "run beside them"
+            )
+        print(f"[fxspace] {run_dir}: the finished run's folder is incomplete; rerunning")
     kp = run_dir / "cache" / "KEY"
-    old_key = st.get("key") or (kp.read_text().strip() if kp.is_file() else None)
+    old_key = st.get("key") or _runs._read_key(kp)
     if old_key is not None and old_key != key:
         clean_run(run_dir)  # another config's (or code's) files: stale beside the new ones
     run_dir.mkdir(parents=True, exist_ok=True)
-    if metrics_p.exists():
-        metrics_p.unlink()
-    with active_run(run_dir):
+    if os.path.lexists(metrics_p):
+        metrics_p.unlink()  # marked unfinished first: a stop part-way is never "complete"
+    code = _runs.code_digest()[:16]
+    with active_run(run_dir, force=force):
         reset_cache(run_dir, key, force=force)
-        write_status(run_dir, "running", key=key)
+        write_status(run_dir, "running", key=key, code=code)
         write_text_atomic(run_dir / "config.toml", text)
         write_meta(run_dir, seed, {"experiment": experiment, "run_key": key})
         t0 = time.perf_counter()
@@ -423,16 +466,17 @@ def _run_locked(
             with timer:
                 metrics = dict(mod.run(cfg, run_dir, seed))
         except KeyboardInterrupt:
-            write_status(run_dir, "interrupted", key=key, note="rerun the same command to resume")
+            write_status(run_dir, "interrupted", key=key, code=code,
+                         note="rerun the same command to resume")  # fmt: skip
             raise
         except BaseException as e:
-            write_status(run_dir, "failed", key=key, error=f"{type(e).__name__}: {e}")
+            write_status(run_dir, "failed", key=key, code=code, error=f"{type(e).__name__}: {e}")
             raise
         finally:
             update_meta(run_dir, {"timing": timer.summary()})
         metrics.setdefault("wall_time_s", time.perf_counter() - t0)
         write_json_atomic(metrics_p, metrics)
-        write_status(run_dir, "complete", key=key)
+        write_status(run_dir, "complete", key=key, code=code)
     print(f"[fxspace] wrote {run_dir}")
     return run_dir
 
@@ -502,8 +546,14 @@ def prepare_config(path: str | Path, out: str | Path | None = None) -> Path:
         st = read_status(run_dir)
         if (run_dir / "metrics.json").is_file() and st.get("key") == key:
             return run_dir  # a finished run: the app reads it
+        if os.path.lexists(run_dir / "metrics.json"):
+            # kept across versions: shown as it is, never cleared for the app's stages
+            print(f"[fxspace] {run_dir} holds a finished run made with "
+                  f"{_what_changed(run_dir, st)}; the app shows it as it is (fxspace run "
+                  f"{path} --force redoes it, or pass another --out)")  # fmt: skip
+            return run_dir
         kp = run_dir / "cache" / "KEY"
-        old_key = st.get("key") or (kp.read_text().strip() if kp.is_file() else None)
+        old_key = st.get("key") or _runs._read_key(kp)
         if old_key is not None and old_key != key:
             clean_run(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -519,7 +569,12 @@ def prepare_config(path: str | Path, out: str | Path | None = None) -> Path:
 
 
 def summary(run_dir: str | Path) -> dict[str, Any]:
-    return json.loads((Path(run_dir) / "metrics.json").read_text())
+    """The run's ``metrics.json`` (a `CorruptFileError` naming it when damaged)."""
+    p = Path(run_dir) / "metrics.json"
+    m = read_json(p)
+    if m is None:
+        raise FileNotFoundError(f"{p} does not exist: the run has not finished (fxspace run)")
+    return m
 
 
 from fxspace.pipelines._docs import write_bench_page, write_docs  # noqa: E402

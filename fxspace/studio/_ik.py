@@ -14,7 +14,9 @@ the surface of the model and their target positions are set":
   current markers (their targets follow the animated surface, IK warm-started per frame);
 - *Export BVH* writes the current pose, or the tracked frames, as BVH
   (`fxspace.io.write_ik_bvh`); *Export glTF* writes them with the mesh as an
-  animated ``.glb`` (`fxspace.io.write_ik_gltf`).
+  animated ``.glb`` (`fxspace.io.write_ik_gltf`). A file of that name that this app did
+  not write (the user's own ``ik_pose.bvh``) is kept: the export goes beside it
+  (``ik_pose-2.bvh``), as the status line says.
 
 The state and actions live in `IKController` (``_ik_controller``, plain Python,
 testable without a browser); `IKView` draws it and `serve_ik` wires the page to it.

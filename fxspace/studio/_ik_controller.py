@@ -79,6 +79,7 @@ class IKController:
         self.playing = False
         self.last_result = None
         self.message = "click the mesh (or type a triangle) to add a marker"
+        self._exported: set[Path] = set()  # the files this app's exports wrote
         self.constraints: dict[int, str] = {}  # marker index → "normal" | "floor"
         self.constraint_weight = {"normal": 0.1, "floor": 100.0}
         self._model = None
@@ -292,22 +293,49 @@ class IKController:
         ang = np.stack([np.asarray(p.angles) for p in poses])
         return ang, np.stack([np.asarray(p.translation) for p in poses])
 
+    def _own_path(self, path) -> tuple[Path, str]:
+        """Where an export goes: ``path`` when it is free or this app wrote it (this
+        session), else the first free ``NAME-2.EXT``, ``NAME-3.EXT``… beside it — a file
+        the user has there (or a link) is never overwritten. Returns (path, a note)."""
+        import os
+
+        p = Path(path)
+        if not os.path.lexists(p) or Path(os.path.abspath(p)) in self._exported:
+            return p, ""
+        stem, dot, ext = p.name.partition(".")
+        for n in range(2, 10_000):
+            q = p.with_name(f"{stem}-{n}{dot}{ext}")
+            if not os.path.lexists(q) or Path(os.path.abspath(q)) in self._exported:
+                return q, f" ({p.name} exists and this app did not write it: kept)"
+        raise FxspaceError(f"{p}: no free name beside it; move the old exports away")
+
+    def _exported_to(self, out: Path) -> None:
+        import os
+
+        self._exported.add(Path(os.path.abspath(out)))
+
     def export_bvh(self, path) -> Path:
-        """Write the recorded frames (or the current pose) as BVH."""
+        """Write the recorded frames (or the current pose) as BVH (beside ``path`` when a
+        file this app did not write is there, see `_own_path`)."""
         from fxspace.io import write_ik_bvh
 
         ang, tr = self._frames()
+        path, note = self._own_path(path)
         out = write_ik_bvh(path, self.mesh, ang, tr, rate=self.fps)
-        self.message = f"wrote {len(ang)} frame(s) to {out}"
+        self._exported_to(out)
+        self.message = f"wrote {len(ang)} frame(s) to {out}{note}"
         return out
 
     def export_gltf(self, path) -> Path:
-        """Write the mesh and the recorded frames (or the current pose) as glTF."""
+        """Write the mesh and the recorded frames (or the current pose) as glTF (beside
+        ``path`` when a file this app did not write is there, see `_own_path`)."""
         from fxspace.io import write_ik_gltf
 
         ang, tr = self._frames()
+        path, note = self._own_path(path)
         out = write_ik_gltf(path, self.mesh, ang, tr, rate=self.fps)
-        self.message = f"wrote {len(ang)} frame(s) to {out}"
+        self._exported_to(out)
+        self.message = f"wrote {len(ang)} frame(s) to {out}{note}"
         return out
 
     def toggle_play(self) -> bool:
