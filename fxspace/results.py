@@ -77,6 +77,11 @@ class RESULTS(eqx.Enumeration):
     disconnected = (
         "the neighbourhood graph is disconnected; raise the threshold or drop the isolated frames"
     )
+    poor_fit = (
+        "the solve finished but the model does not fit the data (residual large for the "
+        "model's scale, or outlying markers); check the units, the marker names and order, "
+        "and the frames and markers the record names"
+    )
 
 
 def result_message(result: Any) -> str:
@@ -97,6 +102,7 @@ _MEMBERS = (
     "nonfinite_output",
     "stalled",
     "disconnected",
+    "poor_fit",
 )
 
 

@@ -72,7 +72,9 @@ class Binding(NamedTuple):
     ``names``; ``identity`` ``(I,)``: the identity-mode coefficients (zeros unless
     fitted); ``points`` ``(M, 3)``: the neutral markers in the rig's frame (each rides on
     its triangle point with its offset from the surface kept);
-    ``basis`` ``(K, M, 3)``: each shape's delta at the bound points.
+    ``basis`` ``(K, M, 3)``: each shape's delta at the bound points; ``units``: the
+    capture's length unit when known (``"mm"``…; ``None`` when not given), so that
+    `solve_weights` converts a take in other units or refuses it.
     """
 
     triangles: np.ndarray
@@ -86,6 +88,15 @@ class Binding(NamedTuple):
     identity: np.ndarray
     points: np.ndarray
     basis: np.ndarray
+    units: str | None = None
+
+    @property
+    def size(self) -> float:
+        """The bound face's size: the RMS distance of the neutral markers from their
+        centroid, in rig units (``size / scale`` in the capture's). The solve judges its
+        residual against it."""
+        P = np.asarray(self.points, np.float64)
+        return float(np.sqrt(np.mean(np.sum((P - P.mean(0)) ** 2, axis=1))))
 
     def to_rig(self, markers):
         """Capture-space markers ``(..., M, 3)`` in the rig's frame and units."""
@@ -185,7 +196,7 @@ def _closest_on_triangles(p, a, b, c):
     return np.nan_to_num(out, nan=1.0 / 3.0)
 
 
-def _vertex_binding(rig: Rig, vertex_ids, names) -> Binding:
+def _vertex_binding(rig: Rig, vertex_ids, names, units=None) -> Binding:
     ids = np.asarray(vertex_ids)
     if ids.ndim != 1 or len(ids) < 3 or not np.issubdtype(ids.dtype, np.integer):
         raise FxspaceError(f"vertex_ids must be a 1-D integer array of >= 3 vertices; got {ids!r}")
@@ -201,12 +212,18 @@ def _vertex_binding(rig: Rig, vertex_ids, names) -> Binding:
     if np.any(tri < 0):
         raise FxspaceError(f"vertex_ids {ids[tri < 0][:5].tolist()} are on no triangle")
     bary = (F[tri] == ids[:, None]).astype(np.float64)
-    names = tuple(names) if names is not None else tuple(f"v{i}" for i in ids)
+    if len(np.unique(ids)) != len(ids):
+        raise FxspaceError("vertex_ids must be distinct: two markers at one vertex")
+    names = tuple(str(n) for n in names) if names is not None else tuple(f"v{i}" for i in ids)
+    if len(names) != len(ids):
+        raise FxspaceError(f"names must give one name per vertex id ({len(ids)}); got {len(names)}")
+    _check_unique(names)
+    _check_spread(np.asarray(rig.neutral, np.float64)[ids], "vertex_ids")
     return _finish(rig, tri, bary, 1.0, np.eye(3), np.zeros(3), np.zeros(len(ids)), names,
-                   np.zeros(rig.identity.shape[0]))  # fmt: skip
+                   np.zeros(rig.identity.shape[0]), units=units)  # fmt: skip
 
 
-def _finish(rig, tri, bary, s, R, t, dist, names, coeffs, at=None) -> Binding:
+def _finish(rig, tri, bary, s, R, t, dist, names, coeffs, at=None, units=None) -> Binding:
     F = np.asarray(rig.faces)
     corners = F[tri]
     base = np.asarray(rig.neutral, np.float64)
@@ -219,7 +236,7 @@ def _finish(rig, tri, bary, s, R, t, dist, names, coeffs, at=None) -> Binding:
     D = np.asarray(rig.deltas, np.float64)
     basis = np.einsum("mj,kmjc->kmc", bary, D[:, corners])
     return Binding(tri, bary, corners, float(s), np.asarray(R), np.asarray(t), np.asarray(dist),
-                   tuple(names), np.asarray(coeffs), points, basis)  # fmt: skip
+                   tuple(names), np.asarray(coeffs), points, basis, units)  # fmt: skip
 
 
 def _landmark_pairs(rig: Rig, names) -> tuple[np.ndarray, np.ndarray]:
@@ -250,13 +267,42 @@ def _check_markers(neutral_markers, names) -> tuple[np.ndarray, tuple[str, ...]]
         raise FxspaceError(f"neutral_markers must be (M, 3) with M >= 4; got {X.shape}")
     if names is None or len(names) != len(X):
         raise FxspaceError("names must give one marker name per row of neutral_markers")
-    bad = [str(names[i]) for i in np.flatnonzero(~np.all(np.isfinite(X), axis=1))]
+    names = tuple(str(n) for n in names)
+    _check_unique(names)
+    bad = [names[i] for i in np.flatnonzero(~np.all(np.isfinite(X), axis=1))]
     if bad:
         raise FxspaceError(
             f"markers {bad[:5]} are missing (NaN) in the neutral frame; pick a frame where "
             "every marker is seen (e.g. the first complete one)"
         )
-    return X, tuple(str(n) for n in names)
+    _check_spread(X, "neutral_markers")
+    return X, names
+
+
+def _check_unique(names) -> None:
+    """Refuse duplicated marker names (each would be blamed for the other's error)."""
+    seen: dict[str, int] = {}
+    for n in names:
+        seen[n] = seen.get(n, 0) + 1
+    dup = sorted(n for n, c in seen.items() if c > 1)
+    if dup:
+        raise FxspaceError(
+            f"marker names must be unique; repeated: {dup[:5]} — rename the duplicates "
+            "(each marker is bound, solved and reported by its name)"
+        )
+
+
+def _check_spread(X: np.ndarray, what: str) -> None:
+    """Refuse a degenerate neutral frame: every marker at one point, or on one line (no
+    similarity, no face size to judge a fit against)."""
+    C = X - X.mean(0)
+    sv = np.linalg.svd(C, compute_uv=False)
+    if not sv[0] > 0 or sv[1] <= 1e-6 * sv[0]:
+        shape = "at one point" if not sv[0] > 0 else "on one line"
+        raise FxspaceError(
+            f"{what}: all {len(X)} markers lie {shape}: a degenerate neutral frame binds "
+            "nothing; pass a frame where the markers spread over the face"
+        )
 
 
 def bind_markers(
@@ -270,6 +316,7 @@ def bind_markers(
     part: str = "face",
     iterations: int = 15,
     identity_ridge: float = 1.0,
+    units: str | None = None,
 ) -> Binding:
     """Bind a capture's markers to ``rig`` (see the module docstring).
 
@@ -280,16 +327,23 @@ def bind_markers(
     farther than this from the surface after the fit, in rig units (default: 12 % of
     the distance between the outer eye corners, ≈ 1.1 cm on the ICT head); `part`: the
     vertex set whose triangles markers bind to (``"face"``; all triangles when the rig
-    has no such set); `iterations`: closest-point refinements.
+    has no such set); `iterations`: closest-point refinements; `units`: the capture's
+    length unit (``"mm"``, ``"cm"``, ``"m"``…; taken from a `MarkerSequence` frame's
+    sequence when you pass ``seq.units``): a take solved later in other units is then
+    converted (or refused when the units are unknown and its size disagrees).
+
+    Refused: duplicated marker names, a neutral frame with a missing marker, a
+    degenerate neutral frame (every marker at one point or on one line).
 
     **Returns:** a `Binding`.
     """
     if not isinstance(rig, Rig):
         raise FxspaceError("rig must be a fx.face.Rig (from fx.face.read_rig)")
+    units = _units_arg(units)
     if vertex_ids is not None:
         if neutral_markers is not None:
             raise FxspaceError("pass either neutral_markers (+ names) or vertex_ids, not both")
-        return _vertex_binding(rig, vertex_ids, names)
+        return _vertex_binding(rig, vertex_ids, names, units)
     if neutral_markers is None:
         raise FxspaceError("pass neutral_markers (M, 3) with their names, or vertex_ids")
     X, names = _check_markers(neutral_markers, names)
@@ -328,4 +382,21 @@ def bind_markers(
             "neutral frame, drop those markers, or raise max_distance"
         )
     tri = np.asarray(rig.face_triangles(part))[tri]
-    return _finish(rig, tri, bary, s, R, t, dist, names, coeffs, at=Y)
+    return _finish(rig, tri, bary, s, R, t, dist, names, coeffs, at=Y, units=units)
+
+
+def _units_arg(units) -> str | None:
+    """A length unit's `UNIT_SCALES` key (``"Millimeters"`` → ``"mm"``), or None."""
+    from fxspace.io import UNIT_SCALES
+
+    if units is None:
+        return None
+    u = units.strip().lower() if isinstance(units, str) else ""
+    alias = {"millimeters": "mm", "millimetres": "mm", "centimeters": "cm", "centimetres": "cm",
+             "meters": "m", "metres": "m", "inches": "in", "inch": "in", "feet": "ft"}  # fmt: skip
+    u = alias.get(u, u)
+    if u not in UNIT_SCALES:
+        raise FxspaceError(
+            f"units must be a length unit {sorted(UNIT_SCALES)} (or None); got {units!r}"
+        )
+    return u

@@ -57,7 +57,16 @@ def write_rig_gltf(path: str | Path, rig: Rig, weights, fps: float = 30.0,
                    name: str = "face") -> Path:  # fmt: skip
     """A ``.glb`` of ``rig`` with one morph target per shape (named) and, with
     ``weights`` ``(T, K)`` (NaN frames hold the previous frame's weights), the weight
-    animation at ``fps``: opens in Blender and three.js, plays the take."""
+    animation at ``fps``: opens in Blender and three.js, plays the take. The file is
+    binary glTF: `path` must end in ``.glb`` (a ``.gltf`` name is refused, since a
+    ``.gltf`` file is JSON and readers, ours too, would refuse GLB bytes under it)."""
+    if not isinstance(rig, Rig):
+        raise FxspaceError("rig must be a fx.face.Rig (from fx.face.read_rig)")
+    if Path(path).suffix.lower() != ".glb":
+        raise FxspaceError(
+            f"{path}: write_rig_gltf writes binary glTF; name the file with .glb "
+            f"(got {Path(path).suffix or 'no suffix'!r})"
+        )
     W = None if weights is None else _weights(weights, rig.names).copy()
     if W is not None:
         for t in range(len(W)):  # hold the last good frame over missing ones

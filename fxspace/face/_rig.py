@@ -26,9 +26,12 @@ V = rig.shape_vertices(weights)                       # (..., N, 3) at weights (
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import re
+import warnings
+import zipfile
 from pathlib import Path
 
 import equinox as eqx
@@ -37,7 +40,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from fxspace.errors import CorruptFileError, FxspaceError
-from fxspace.io import read_gltf_blendshapes, read_obj_mesh, read_obj_vertices
+from fxspace.io import read_gltf_blendshapes, read_obj_mesh
 from fxspace.runs import save_npz_atomic
 
 __all__ = ["Rig", "read_rig", "rig_from_arrays", "rig_cache_dir", "ICT_PARTS"]
@@ -152,6 +155,14 @@ def rig_from_arrays(
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise FxspaceError(f"shape names must be unique; repeated: {dup}")
+    low: dict[str, str] = {}
+    for n in names:  # weights travel by name, case-insensitively (transfer_weights)
+        if n.lower() in low:
+            raise FxspaceError(
+                f"shape names {low[n.lower()]!r} and {n!r} differ only in case: both would "
+                "take one weight when weights are matched by name; rename one"
+            )
+        low[n.lower()] = n
     if F.ndim != 2 or F.shape[1] != 3 or (len(F) and (F.min() < 0 or F.max() >= N)):
         raise FxspaceError(f"faces must be (F, 3) indices into the {N} vertices")
     for what, a in (("neutral", V), ("deltas", D)):
@@ -178,10 +189,15 @@ _IDENTITY = re.compile(r"^identity\d+$", re.I)
 
 
 def _folder_files(folder: Path) -> tuple[Path, list[tuple[str, Path]], list[Path]]:
-    objs = {}
+    objs: dict[str, Path] = {}
     for p in sorted(folder.iterdir()):
         m = _OBJ.match(p.name)
         if m and p.is_file():
+            if m["name"] in objs:
+                raise FxspaceError(
+                    f"{folder}: {objs[m['name']].name} and {p.name} are both shape "
+                    f"{m['name']!r}; keep one of them"
+                )
             objs[m["name"]] = p
     if not objs:
         raise FxspaceError(
@@ -213,33 +229,28 @@ def _read_folder(folder: Path, npath: Path, shapes, ident) -> dict:
 
     base = read_obj_mesh(npath)
     V = base.vertices
+    _finite(V, npath)
     order = [n for n, _ in shapes]
     meta = folder / "vertex_indices.json"
-    info = {}
-    if meta.is_file():
-        try:
-            info = json.loads(meta.read_text())
-        except json.JSONDecodeError as e:
-            raise CorruptFileError(f"{meta}: not JSON ({e})") from None
-        listed = [n for n in info.get("expressions", []) if n in dict(shapes)]
-        if listed:  # the rig's own list (ICT: the 53 ARKit-named shapes)
-            order = listed
+    info = _vertex_indices(meta, len(V)) if meta.is_file() else {}
+    if info.get("expressions"):
+        # the rig's own order (ICT: the 53 ARKit-named shapes); every listed shape must
+        # have its file, and a shape file the list lacks is kept after the listed ones
+        listed = list(info["expressions"])
+        absent = [n for n in listed if n not in dict(shapes)]
+        if absent:
+            raise FxspaceError(
+                f"{meta}: 'expressions' lists {absent[:5]} with no .obj/.obj.gz file in "
+                f"{folder}; add the files or remove them from the list"
+            )
+        order = listed + [n for n in order if n not in set(listed)]
     paths = dict(shapes)
     D = np.empty((len(order), len(V), 3))
     for k, name in enumerate(progress(order, desc=f"reading {folder.name} shapes")):
-        v = read_obj_vertices(paths[name])
-        if v.shape != V.shape:
-            raise FxspaceError(
-                f"{paths[name]}: {len(v)} vertices, the neutral {npath.name} has {len(V)}: "
-                "every shape must share the neutral's topology"
-            )
-        D[k] = v - V
+        D[k] = _shape(paths[name], base, npath) - V
     Id = np.empty((len(ident), len(V), 3))
     for i, p in enumerate(ident):
-        v = read_obj_vertices(p)
-        if v.shape != V.shape:
-            raise FxspaceError(f"{p}: {len(v)} vertices, the neutral has {len(V)}")
-        Id[i] = v - V
+        Id[i] = _shape(p, base, npath) - V
     sets = {}
     if "idx_to_landmark_verts" in info:
         sets["landmarks"] = np.asarray(info["idx_to_landmark_verts"], np.int64)
@@ -256,6 +267,78 @@ def _read_folder(folder: Path, npath: Path, shapes, ident) -> dict:
         out["uvs"], out["face_uvs"] = base.uvs.astype(f32), base.face_uvs.astype(np.int32)
     out.update({f"set:{k}": v for k, v in sets.items()})
     return out
+
+
+def _finite(v: np.ndarray, path: Path) -> None:
+    bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
+    if len(bad):
+        raise CorruptFileError(
+            f"{path}: {len(bad)} vertices hold NaN/inf (first: vertex {int(bad[0]) + 1}); "
+            "repair or re-export this mesh"
+        )
+
+
+def _shape(path: Path, base, npath: Path) -> np.ndarray:
+    """A shape's (or identity mode's) vertices, checked against the neutral: the same
+    vertex count, finite, the same triangles (a file of vertices alone is accepted)."""
+    m = read_obj_mesh(path, uvs=False)
+    V = base.vertices
+    if m.vertices.shape != V.shape:
+        raise FxspaceError(
+            f"{path}: {len(m.vertices)} vertices, the neutral {npath.name} has {len(V)}: "
+            "every shape must share the neutral's topology"
+        )
+    _finite(m.vertices, path)
+    # a shape file with no faces takes the neutral's; one with faces must have its faces
+    if len(m.faces) and (m.faces.shape != base.faces.shape
+                         or not np.array_equal(m.faces, base.faces)):  # fmt: skip
+        raise FxspaceError(
+            f"{path}: its triangles differ from the neutral {npath.name}'s (same vertex "
+            "count, other faces): every shape must share the neutral's topology; "
+            "re-export it from the same mesh"
+        )
+    return m.vertices
+
+
+#: vertex_indices.json keys read, and what each must be
+_INDEX_KEYS = ("expressions", "idx_to_landmark_verts", "idx_to_rigid_verts")
+
+
+def _vertex_indices(meta: Path, n: int) -> dict:
+    """The rig folder's ``vertex_indices.json``, checked: a JSON object whose
+    ``expressions`` is a list of names and whose index lists are integers in ``[0, n)``
+    (68 landmarks)."""
+    try:
+        info = json.loads(meta.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        where = f" at character {e.pos}" if isinstance(e, json.JSONDecodeError) else ""
+        raise CorruptFileError(f"{meta}: not JSON ({type(e).__name__}{where})") from None
+    if not isinstance(info, dict):
+        raise CorruptFileError(
+            f"{meta}: must be a JSON object with keys such as {list(_INDEX_KEYS)}; got a "
+            f"{type(info).__name__}"
+        )
+    ex = info.get("expressions")
+    if ex is not None and (not isinstance(ex, list) or not all(isinstance(x, str) for x in ex)
+                           or len(set(ex)) != len(ex)):  # fmt: skip
+        raise CorruptFileError(f"{meta}: 'expressions' must be a list of distinct shape names")
+    for key in _INDEX_KEYS[1:]:
+        if key not in info:
+            continue
+        a = info[key]
+        ok = isinstance(a, list) and all(isinstance(i, int) and not isinstance(i, bool)
+                                         for i in a)  # fmt: skip
+        if not ok or not a or min(a) < 0 or max(a) >= n:
+            raise CorruptFileError(
+                f"{meta}: {key!r} must be a non-empty list of vertex indices in [0, {n})"
+            )
+    lm = info.get("idx_to_landmark_verts")
+    if lm is not None and len(lm) != 68:
+        raise CorruptFileError(
+            f"{meta}: 'idx_to_landmark_verts' must list the 68 Multi-PIE landmarks; it has "
+            f"{len(lm)}"
+        )
+    return info
 
 
 def _from_npz(a) -> Rig:
@@ -305,12 +388,24 @@ def read_rig(path: str | Path, *, cache: bool = True) -> Rig:
     cpath = rig_cache_dir() / f"{key}.npz" if key else None
     if cpath is not None and cpath.is_file():
         try:
-            with np.load(cpath, allow_pickle=False) as a:
-                return _from_npz(a)
-        except (OSError, ValueError, KeyError):
-            cpath.unlink(missing_ok=True)  # damaged cache entry: read the files again
+            with np.load(io.BytesIO(cpath.read_bytes()), allow_pickle=False) as a:
+                return _from_npz(a)  # (from bytes: a torn entry leaves no file open)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            # a torn or damaged cache entry (FxspaceError is a ValueError too): read the
+            # files again and rewrite it
+            try:
+                cpath.unlink(missing_ok=True)
+            except OSError:
+                pass
     arrays = _read_folder(p, npath, shapes, ident)
     if cpath is not None:
-        cpath.parent.mkdir(parents=True, exist_ok=True)
-        save_npz_atomic(cpath, **arrays)
+        try:
+            cpath.parent.mkdir(parents=True, exist_ok=True)
+            save_npz_atomic(cpath, **arrays)
+        except OSError as e:  # an unwritable cache: the rig is read, just not kept
+            warnings.warn(
+                f"rig cache {cpath.parent} not writable ({type(e).__name__}): the rig is "
+                "read again next time; set XDG_CACHE_HOME to a writable folder",
+                stacklevel=2,
+            )
     return _from_npz(arrays)

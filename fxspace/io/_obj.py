@@ -19,6 +19,7 @@ from __future__ import annotations
 import gzip
 import re
 import stat
+import zlib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -57,8 +58,11 @@ def _bytes(path: str | Path) -> tuple[Path, bytes]:
     if data[:2] == b"\x1f\x8b":
         try:
             data = gzip.decompress(data)
-        except (OSError, EOFError) as e:
-            raise CorruptFileError(f"{p}: damaged gzip stream ({e})") from None
+        except (OSError, EOFError, zlib.error) as e:
+            raise CorruptFileError(
+                f"{p}: damaged gzip stream ({type(e).__name__}); restore the file from its "
+                "source"
+            ) from None
     return p, data
 
 
@@ -90,7 +94,10 @@ def _numbers(regex: re.Pattern, data: bytes, width: int, p: Path, what: str) -> 
                 raise ValueError(f"fewer than {width} numbers")
         except ValueError as e:
             n = _line_of(regex, data, k)
-            raise CorruptFileError(f"{p}:{n}: malformed {what} line ({e})") from None
+            why = "too few numbers" if "fewer" in str(e) else "not a number"
+            raise CorruptFileError(
+                f"{p}:{n}: malformed {what} line ({why}; expected {width} numbers)"
+            ) from None
     raise CorruptFileError(f"{p}: malformed {what} lines")  # pragma: no cover
 
 
@@ -115,17 +122,45 @@ def _corners(tokens: list[bytes], n: int, p: Path, slot: int) -> list[int]:
     return out
 
 
+def _fast_faces(lines: list[bytes], n: int) -> np.ndarray | None:
+    """The position indices of face lines that all have the same corner count, fanned,
+    in a few numpy calls (``None`` when the counts differ or an index is not an
+    integer: the line-by-line parse then finds the culprit)."""
+    if not lines:
+        return np.zeros((0, 3), np.int64)
+    counts = {len(ln.split()) for ln in lines}
+    if len(counts) != 1 or min(counts) < 3:
+        return None
+    (c,) = counts
+    try:
+        idx = np.array(re.sub(rb"/[^\s]*", b"", b" ".join(lines)).split()).astype(np.int64)
+    except ValueError:
+        return None
+    idx = idx.reshape(-1, c)
+    idx = np.where(idx > 0, idx - 1, n + idx)
+    fan = [np.stack([idx[:, 0], idx[:, k], idx[:, k + 1]], 1) for k in range(1, c - 1)]
+    return np.stack(fan, 1).reshape(-1, 3)
+
+
 @checked
-def read_obj_mesh(path: str | Path) -> ObjMesh:
+def read_obj_mesh(path: str | Path, *, uvs: bool = True) -> ObjMesh:
     """Positions, triangles and texture coordinates of an OBJ file (``.obj`` or
     ``.obj.gz``); polygons are fanned into triangles (a quad ``a b c d`` gives ``a b c``
-    and ``a c d``), each triangle keeps its corners' UV indices. A malformed file raises
-    `CorruptFileError` naming it."""
+    and ``a c d``), each triangle keeps its corners' UV indices. ``uvs=False`` skips the
+    texture coordinates (``uvs`` and ``face_uvs`` are ``None``) and reads the triangles
+    in a few numpy calls (a rig's shapes: their topology checked against the
+    neutral's). A malformed file raises `CorruptFileError` naming it."""
     p, data = _bytes(path)
     v = _numbers(_V, data, 3, p, "vertex")
     if len(v) == 0:
         raise CorruptFileError(f"{p}: no vertices ('v x y z' lines)")
-    uvs = _numbers(_VT, data, 2, p, "texture")
+    if not uvs:
+        F = _fast_faces(_F.findall(data), len(v))
+        if F is not None:
+            if len(F) and (F.min() < 0 or F.max() >= len(v)):
+                raise CorruptFileError(f"{p}: a face refers to a missing vertex")
+            return ObjMesh(v, F, None, None)
+    uvs = _numbers(_VT, data, 2, p, "texture") if uvs else np.zeros((0, 2))
     uvs = uvs if len(uvs) else None
     nuv = 0 if uvs is None else len(uvs)
     faces, fuv = [], []
@@ -135,7 +170,8 @@ def read_obj_mesh(path: str | Path) -> ObjMesh:
             tok = line.split()
             idx = _corners(tok, len(v), p, 0)
             if len(idx) < 3:
-                raise CorruptFileError(f"{p}: a face with fewer than 3 corners ({line!r})")
+                n = data.count(b"\n", 0, data.find(line)) + 1
+                raise CorruptFileError(f"{p}:{n}: a face with fewer than 3 corners")
             tri = [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
             faces += tri
             if has_uv:
@@ -144,8 +180,8 @@ def read_obj_mesh(path: str | Path) -> ObjMesh:
                     has_uv = False
                 else:
                     fuv += [(ti[0], ti[k], ti[k + 1]) for k in range(1, len(ti) - 1)]
-    except ValueError as e:
-        raise CorruptFileError(f"{p}: malformed face line ({e})") from None
+    except ValueError:
+        raise CorruptFileError(f"{p}: malformed face line (non-integer index)") from None
     F = np.asarray(faces, np.int64).reshape(-1, 3)
     if len(F) and (F.min() < 0 or F.max() >= len(v)):
         raise CorruptFileError(f"{p}: a face refers to a missing vertex")

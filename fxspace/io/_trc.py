@@ -12,7 +12,9 @@ Layout (tab separated)::
 
 An empty cell is a missing coordinate (NaN). The reader checks the declared frame and
 marker counts against the data and raises `CorruptFileError`
-with the file and the line number of the first problem.
+with the file and the line number of the first problem — never the file's content (a
+``.trc`` name on another file must not echo its first line into an error or a run's
+``status.json``); marker names are quoted only once the header is a TRC header.
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ def _read_trc(path: Path) -> MarkerSequence:
     if len(lines) < 5:
         raise fail(len(lines), f"TRC header needs 5 lines, the file has only {len(lines)}")
     if not lines[0].startswith("PathFileType"):
-        raise fail(1, f"not a TRC file: expected 'PathFileType', got {lines[0][:40]!r}")
+        raise fail(1, "not a TRC file: the first line does not start with 'PathFileType'")
 
     keys = [k.strip() for k in lines[1].split("\t")]
     vals = [v.strip() for v in lines[2].split("\t")]
@@ -67,19 +69,20 @@ def _read_trc(path: Path) -> MarkerSequence:
         n_frames = int(float(header["NumFrames"]))
         n_markers = int(float(header["NumMarkers"]))
     except ValueError:
-        raise fail(3, f"non-numeric DataRate/NumFrames/NumMarkers in {lines[2]!r}") from None
+        raise fail(3, "non-numeric DataRate/NumFrames/NumMarkers") from None
     if not np.isfinite(rate) or rate <= 0 or n_frames < 0 or n_markers <= 0:
         raise fail(3, f"invalid DataRate={rate}, NumFrames={n_frames} or NumMarkers={n_markers}")
     units = header["Units"]
 
     name_cells = lines[3].split("\t")
     if len(name_cells) < 2 or name_cells[0].strip() != "Frame#":
-        raise fail(4, f"expected the 'Frame#<TAB>Time<TAB>names...' row, got {lines[3][:40]!r}")
+        raise fail(4, "expected the 'Frame#<TAB>Time<TAB>names...' row")
     names = [c.strip() for c in name_cells[2:] if c.strip()]
     if len(names) != n_markers:
         raise fail(4, f"NumMarkers declares {n_markers} markers but the name row has {len(names)}")
     if len(set(names)) != len(names):
-        raise fail(4, "duplicated marker names in the name row")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise fail(4, f"duplicated marker names in the name row: {dup[:5]}; rename them")
     axis_cells = [c.strip() for c in lines[4].split("\t")[2:] if c.strip()]
     if len(axis_cells) != 3 * n_markers:
         raise fail(
@@ -126,7 +129,7 @@ def _read_trc(path: Path) -> MarkerSequence:
                     float(c)
                 except ValueError:
                     marker, axis = names[j // 3], "XYZ"[j % 3]
-                    raise fail(lineno, f"non-numeric cell {c!r} ({marker} {axis})") from None
+                    raise fail(lineno, f"non-numeric cell ({marker} {axis})") from None
         raise  # pragma: no cover - np.array failed but every cell parses
     if np.isinf(data).any():
         t, m, _ = np.argwhere(np.isinf(data))[0]

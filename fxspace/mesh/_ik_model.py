@@ -115,6 +115,7 @@ _STATUS_OF_RESULT = {
     "nonfinite_output": 2,
     "stalled": 3,
     "disconnected": 3,
+    "poor_fit": 3,
 }
 
 

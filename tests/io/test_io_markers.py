@@ -293,7 +293,7 @@ def test_trc_corrupt_cases(tmp_path, rng):
         ),
         "garbled.trc": (
             lines[:9] + [lines[9].replace(".", "x", 2)] + lines[10:],
-            r"line 10: non-numeric cell '.*x.*' \(mk0 X\)",
+            r"line 10: non-numeric cell \(mk0 X\)",  # never the cell's text (issue 43.7)
         ),
         "no_magic.trc": (["Hello"] + lines[1:], "line 1: not a TRC file"),
         "bad_count.trc": (

@@ -1,0 +1,307 @@
+"""Issue 43 items 2, 7 and 8 (the face part): a face solve whose ``result`` means the fit
+is good (units, marker order and names, outliers, degenerate bindings), the rig reader's
+bad files named, and issue 47 item 8's warm start. Each case is its reproduction: a
+small synthetic rig everywhere, the ICT head and an AnimFace take where present."""
+
+from __future__ import annotations
+
+import gzip
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import fxspace as fx
+from fxspace.errors import CorruptFileError, FxspaceError
+
+
+def grid_rig(n=14, K=6, seed=0):
+    """A bumpy square sheet (n × n vertices) with K smooth named shapes."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n))
+    V = np.stack([u.ravel(), v.ravel(), 0.3 * np.exp(-(u**2 + v**2)).ravel()], 1) * 10
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j
+            F += [(a, b, c), (a, c, d)]
+    D = []
+    for _ in range(K):
+        c = rng.uniform(-0.7, 0.7, 2)
+        g = np.exp(-((u.ravel() - c[0]) ** 2 + (v.ravel() - c[1]) ** 2) / 0.15)
+        D.append(g[:, None] * rng.normal(0, 1.0, 3)[None] * 2.0)
+    names = [f"shape{k}" for k in range(K)]
+    return fx.face.rig_from_arrays(V, np.asarray(D), names, np.asarray(F))
+
+
+def take(rig, ids, T=20, noise=0.05, seed=1):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, T)[:, None]
+    K = rig.num_shapes
+    phase = t * rng.uniform(0.5, 1.5, K) + rng.uniform(0, 1, K)
+    W = np.clip(0.5 + 0.6 * np.sin(2 * np.pi * phase), 0, 1)
+    V = np.asarray(rig.neutral)[None] + np.einsum("tk,knc->tnc", W, np.asarray(rig.deltas))
+    R = Rotation.from_rotvec(np.c_[0.2 * np.sin(3 * t), 0.1 * t, 0.05 * np.cos(2 * t)]).as_matrix()
+    X = np.einsum("tij,tmj->tmi", R, V[:, ids]) + (np.c_[t, -0.5 * t, 0.2 * t] * 3.0)[:, None]
+    return X + rng.normal(0, noise, X.shape), W
+
+
+@pytest.fixture(scope="module")
+def setup():
+    rig = grid_rig()
+    ids = np.arange(0, rig.num_vertices, 3)
+    X, W = take(rig, ids)
+    return rig, ids, X, W, fx.face.bind_markers(rig, vertex_ids=ids, units="mm")
+
+
+def test_good_take_is_successful_and_notes_are_empty(setup):
+    rig, ids, X, W, b = setup
+    s = fx.face.solve_weights(rig, b, X, temporal=0.0)
+    assert bool(np.all(np.asarray(s.converged))) and s.notes == () and len(s.bad_frames) == 0
+    assert float(np.max(np.asarray(s.stats["fit"]))) < 0.08
+    assert not bool(np.any(np.asarray(s.outliers)))
+
+
+@pytest.mark.parametrize("factor,like", [(0.001, "bound in mm, solved in m"),
+                                         (0.1, "bound in mm, solved in cm"),
+                                         (10.0, "bound in cm, solved in mm")])  # fmt: skip
+def test_a_take_in_other_units_is_refused_with_the_fix(setup, factor, like):
+    """Issue 43.2: bound in mm, solved in m or cm — was "converged" on every frame."""
+    rig, ids, X, W, b = setup
+    with pytest.raises(FxspaceError, match=like + r".*units="):
+        fx.face.solve_weights(rig, b, X * factor)
+
+
+def test_a_take_that_says_its_units_is_converted(setup):
+    rig, ids, X, W, b = setup
+    names = b.names
+    seq = fx.io.MarkerSequence(X / 1000.0, names, 60.0, "m")
+    s = fx.face.solve_weights(rig, b, seq, temporal=0.0)
+    ref = fx.face.solve_weights(rig, b, X, temporal=0.0)
+    np.testing.assert_allclose(np.asarray(s.weights), np.asarray(ref.weights), atol=1e-6)
+    assert bool(np.all(np.asarray(s.converged)))
+
+
+def test_markers_in_another_order_matched_by_name_or_caught(setup):
+    """Issue 43.2: a take with markers in another order was "converged"."""
+    rig, ids, X, W, b = setup
+    perm = np.random.default_rng(0).permutation(len(ids))
+    names = [b.names[i] for i in perm]
+    s = fx.face.solve_weights(rig, b, X[:, perm], names=names, temporal=0.0)
+    assert bool(np.all(np.asarray(s.converged)))  # by name: re-ordered
+    s = fx.face.solve_weights(rig, b, X[:, perm], temporal=0.0)  # no names: geometry
+    assert bool(np.all(np.asarray(s.result == fx.RESULTS.poor_fit)))
+    assert any("RMS residual" in n for n in s.notes)
+    with pytest.raises(FxspaceError, match="not the binding's.*missing"):
+        fx.face.solve_weights(rig, b, X, names=[*b.names[:-1], "Nope"])
+    with pytest.raises(FxspaceError, match="solve_weights: the solve finished but"):
+        fx.face.solve_weights(rig, b, X[:, perm], throw=True)
+
+
+def test_two_swapped_markers_are_named(setup):
+    """Issue 43.2: just two markers (the mouth corners) swapped."""
+    rig, ids, X, W, b = setup
+    Xs = X.copy()
+    Xs[:, [10, 11]] = Xs[:, [11, 10]]
+    s = fx.face.solve_weights(rig, b, Xs, temporal=0.0)
+    assert bool(np.all(np.asarray(s.result == fx.RESULTS.poor_fit)))
+    out = np.asarray(s.outliers)
+    assert out[:, 10].all() and out[:, 11].all()
+    joined = " ".join(s.notes)
+    assert f"{b.names[10]!r} sits where {b.names[11]!r} belongs" in joined
+
+
+def test_one_marker_far_off_in_one_frame_is_named_and_left_out(setup):
+    """Issue 43.2: one marker 500 mm off in one frame (50 units on a 9-unit face)."""
+    rig, ids, X, W, b = setup
+    Xo = X.copy()
+    Xo[5, 7, 2] += 50.0
+    s = fx.face.solve_weights(rig, b, Xo, temporal=0.0)
+    res = np.asarray(s.result == fx.RESULTS.poor_fit)
+    assert res[5] and res.sum() == 1 and list(s.bad_frames) == [5]
+    assert np.flatnonzero(np.asarray(s.outliers)[5]).tolist() == [7]
+    assert any(f"frame 5: marker {b.names[7]!r}" in n for n in s.notes)
+    # left out of the frame's solve: its weights are as good as the clean frames'
+    assert float(np.abs(np.asarray(s.weights)[5] - W[5]).mean()) < 0.05
+
+
+def test_degenerate_and_duplicated_bindings_are_refused():
+    """Issue 43.2 (all neutral markers at one point) and 43.8 (a duplicated marker name
+    blamed other markers)."""
+    rig = grid_rig()
+    names = list(fx.face.LANDMARKS)[:6]
+    with pytest.raises(FxspaceError, match="at one point"):
+        fx.face.bind_markers(rig, np.ones((6, 3)), names)
+    line = np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)]
+    with pytest.raises(FxspaceError, match="on one line"):
+        fx.face.bind_markers(rig, line, names)
+    with pytest.raises(FxspaceError, match=r"repeated: \['chin'\]"):
+        fx.face.bind_markers(rig, np.random.default_rng(0).normal(size=(6, 3)),
+                             ["chin", *names[1:5], "chin"])  # fmt: skip
+    with pytest.raises(FxspaceError, match="distinct"):
+        fx.face.bind_markers(rig, vertex_ids=[0, 5, 5, 30])
+    with pytest.raises(FxspaceError, match="units must be a length unit"):
+        fx.face.bind_markers(rig, vertex_ids=[0, 5, 9, 30], units="parsecs")
+
+
+def test_warm_start_needs_fewer_steps(setup):
+    """Issue 47.8: the edited solve starts from the unedited weights."""
+    rig, ids, X, W, b = setup
+    plain = fx.face.solve_weights(rig, b, X)
+    Xe = X.copy()
+    Xe[8:12, 3] += 0.3  # a small edit
+    cold = fx.face.solve_weights(rig, b, Xe)
+    warm = fx.face.solve_weights(rig, b, Xe, init=np.asarray(plain.weights))
+    assert int(np.sum(np.asarray(warm.num_steps))) < int(np.sum(np.asarray(cold.num_steps)))
+    np.testing.assert_allclose(np.asarray(warm.weights), np.asarray(cold.weights), atol=0.02)
+
+
+# -- the rig reader (issue 43.8) ---------------------------------------------------------
+def _write(path, V, F, gz=False):
+    text = "\n".join([f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in V]
+                     + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F]) + "\n"  # fmt: skip
+    path.write_bytes(gzip.compress(text.encode()) if gz else text.encode())
+
+
+@pytest.fixture()
+def folder(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    rig = grid_rig(n=5, K=3)
+    d = tmp_path / "rig"
+    d.mkdir()
+    N0, F = np.asarray(rig.neutral), np.asarray(rig.faces)
+    _write(d / "neutral.obj", N0, F)
+    for k, n in enumerate(rig.names):
+        _write(d / f"{n}.obj.gz", N0 + np.asarray(rig.deltas[k]), F, gz=True)
+    return d, rig, N0, F
+
+
+def test_corrupt_gz_shape_names_the_file(folder):
+    d, *_ = folder
+    raw = (d / "shape1.obj.gz").read_bytes()
+    (d / "shape1.obj.gz").write_bytes(raw[:10] + b"\xff" * 8 + raw[18:])
+    with pytest.raises(CorruptFileError, match="shape1.obj.gz: damaged gzip"):
+        fx.face.read_rig(d, cache=False)
+
+
+def test_nan_in_one_shape_names_the_file(folder):
+    d, rig, N0, F = folder
+    V = N0 + np.asarray(rig.deltas[2])
+    V[3, 1] = np.nan
+    _write(d / "shape2.obj.gz", V, F, gz=True)
+    with pytest.raises(CorruptFileError, match="shape2.obj.gz: 1 vertices hold NaN"):
+        fx.face.read_rig(d, cache=False)
+
+
+def test_two_files_for_one_shape_are_refused(folder):
+    d, rig, N0, F = folder
+    _write(d / "shape0.obj", N0, F)
+    with pytest.raises(FxspaceError, match="shape0.obj and shape0.obj.gz are both shape"):
+        fx.face.read_rig(d, cache=False)
+
+
+def test_other_faces_with_the_same_vertex_count_are_refused(folder):
+    d, rig, N0, F = folder
+    _write(d / "shape1.obj.gz", N0, F[:, ::-1], gz=True)  # flipped triangles
+    with pytest.raises(FxspaceError, match="shape1.obj.gz: its triangles differ"):
+        fx.face.read_rig(d, cache=False)
+
+
+def test_vertex_indices_json_checked_and_never_drops_shapes(folder):
+    d, rig, N0, F = folder
+    meta = d / "vertex_indices.json"
+    meta.write_text(json.dumps({"expressions": ["shape2"]}))
+    r = fx.face.read_rig(d, cache=False)
+    assert r.names == ("shape2", "shape0", "shape1")  # the listed first, none dropped
+    for bad, msg in [([1, 2], "JSON object"), ({"expressions": "shape2"}, "list of distinct"),
+                     ({"idx_to_landmark_verts": [[1, 2]]}, "vertex indices"),
+                     ({"idx_to_landmark_verts": list(range(10))}, "68"),
+                     ({"expressions": ["smile"]}, "no .obj")]:  # fmt: skip
+        meta.write_text(json.dumps(bad))
+        with pytest.raises(FxspaceError, match=msg):
+            fx.face.read_rig(d, cache=False)
+    meta.write_text("{not json")
+    with pytest.raises(CorruptFileError, match="not JSON"):
+        fx.face.read_rig(d, cache=False)
+
+
+def test_truncated_cache_entry_is_recomputed(folder, tmp_path):
+    d, rig, *_ = folder
+    a = fx.face.read_rig(d)
+    (entry,) = (tmp_path / "cache" / "fxspace" / "rigs").glob("*.npz")
+    entry.write_bytes(entry.read_bytes()[:200])
+    b = fx.face.read_rig(d)  # was BadZipFile on every rerun
+    np.testing.assert_array_equal(np.asarray(a.deltas), np.asarray(b.deltas))
+    c = fx.face.read_rig(d)  # and the entry was rewritten whole
+    np.testing.assert_array_equal(np.asarray(a.deltas), np.asarray(c.deltas))
+
+
+def test_case_twins_and_gltf_suffix_refused(tmp_path):
+    rig = grid_rig(n=5, K=2)
+    with pytest.raises(FxspaceError, match="differ only in case"):
+        fx.face.rig_from_arrays(rig.neutral, rig.deltas, ["Smile", "smile"], rig.faces)
+    with pytest.raises(FxspaceError, match=r"name the file with \.glb"):
+        fx.face.write_rig_gltf(tmp_path / "x.gltf", rig, None)
+    assert not (tmp_path / "x.gltf").exists()
+
+
+# -- the real head (ICT) and a real take -------------------------------------------------
+@pytest.fixture(scope="module")
+def ict(data_dir):
+    p = data_dir / "face" / "ict"
+    if not (p / "generic_neutral_mesh.obj.gz").is_file():
+        pytest.skip(f"the ICT Face Model is not under {p}")
+    return fx.face.read_rig(p)
+
+
+@pytest.mark.slow
+def test_real_take_mouth_corners_swapped_and_units(ict, data_dir):
+    """Issue 43.2 on the real head: the AnimFace jaw take, bound in mm."""
+    seq = fx.io.read_markers(data_dir / "face" / "animface_jaw.c3d")
+    X = np.asarray(seq.positions)[:60]
+    b = fx.face.bind_markers(ict, X[0], seq.names, units=seq.units)
+    s = fx.face.solve_weights(ict, b, X)
+    assert float(np.mean(np.asarray(s.converged))) > 0.8
+    assert not bool(np.any(np.asarray(s.result == fx.RESULTS.poor_fit)))
+    i, j = seq.names.index("Mouth_Lend"), seq.names.index("Mouth_Rend")
+    Xs = X.copy()
+    Xs[:, [i, j]] = Xs[:, [j, i]]
+    bad = fx.face.solve_weights(ict, b, Xs)
+    assert bool(np.all(np.asarray(bad.result == fx.RESULTS.poor_fit)))
+    assert "'Mouth_Lend' sits where 'Mouth_Rend' belongs" in " ".join(bad.notes)
+    with pytest.raises(FxspaceError, match="bound in mm, solved in m"):
+        fx.face.solve_weights(ict, fx.face.bind_markers(ict, X[0], seq.names), X / 1000.0)
+    metres = fx.io.MarkerSequence(X / 1000.0, seq.names, seq.rate, "m")
+    conv = fx.face.solve_weights(ict, b, metres)  # the take says its units: converted
+    np.testing.assert_allclose(np.asarray(conv.weights), np.asarray(s.weights), atol=1e-5)
+
+
+# -- reads that leak (issue 43.7) --------------------------------------------------------
+def test_trc_and_obj_errors_never_echo_file_content(tmp_path):
+    """A ``.trc`` name on another file printed its first line into the error (and so into
+    a run's world-readable status.json); the OBJ reader echoed a face line."""
+    secret = "TOPSECRET root:$6$hash"
+    p = tmp_path / "x.trc"
+    p.write_text(secret + "\nmore\nlines\nhere\nstill\n")
+    with pytest.raises(CorruptFileError, match="x.trc, line 1: not a TRC file") as e:
+        fx.io.read_markers(p)
+    assert "TOPSECRET" not in str(e.value)
+    head = ["PathFileType\t4\t(X/Y/Z)\tx.trc",
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits",
+            f"60\t60\t{secret}\t1\tmm", "Frame#\tTime\ta\t\t", "\t\tX1\tY1\tZ1", ""]  # fmt: skip
+    p.write_text("\n".join(head) + "\n")
+    with pytest.raises(CorruptFileError, match="line 3: non-numeric") as e:
+        fx.io.read_markers(p)
+    assert "TOPSECRET" not in str(e.value)
+    head[2] = "60\t60\t1\t1\tmm"
+    p.write_text("\n".join([*head, f"1\t0\t{secret}\t2\t3"]) + "\n")
+    with pytest.raises(CorruptFileError, match=r"line 7: non-numeric cell \(a X\)") as e:
+        fx.io.read_markers(p)
+    assert "TOPSECRET" not in str(e.value)
+    o = tmp_path / "m.obj"
+    for body in (f"v 0 0 0\nv 1 0 0\nf 1 {secret}\n", f"v 0 0 {secret}\n"):
+        o.write_text(body)
+        with pytest.raises(CorruptFileError, match="m.obj") as e:
+            fx.io.read_obj_mesh(o)
+        assert "TOPSECRET" not in str(e.value)
