@@ -207,6 +207,13 @@ def _fmt(v: Any) -> str:
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    if isinstance(v, dict):  # an inline table (e.g. one entry of a list of tables)
+        items = (
+            f"{k if k.replace('_', '').isalnum() else _fmt(k)} = {_fmt(x)}"
+            for k, x in v.items()
+            if x is not None
+        )
+        return "{" + ", ".join(items) + "}"
     raise ConfigError(f"cannot write {v!r} ({type(v).__name__}) to TOML")
 
 

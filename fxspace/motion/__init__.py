@@ -2,8 +2,10 @@
 k-NN blending over sampled parameter spaces, incremental time-warping (eq. 1) with the two
 clocks aligned by eqs. 2–3, upper/lower-body splicing and the §3.2 Horn re-placement, all in
 one pure per-frame step (`synthesize_step`); continuous, steerable locomotion on top
-(`locomotion_step`, `run_session`; the config-level session that reads a TOML and its
-clips is `fxspace.pipelines.scripted_session`, a layer above).
+(`locomotion_step`, `run_session`), joints found by role on any humanoid skeleton
+(`joint_map_for`: CMU, Bandai Namco, Mixamo-style, VRM, SMPL names). The config-level
+session that reads a TOML and its clips is `fxspace.pipelines.scripted_session`, a layer
+above.
 
 Quaternions are ``(w, x, y, z)``; lengths are metres; see `Motion`. The rotation helpers
 re-exported here live in `fxspace.rotations`.
@@ -29,6 +31,15 @@ from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
 from fxspace.motion._horn import absolute_rotation as absolute_rotation
 from fxspace.motion._horn import apply_rigid as apply_rigid
+from fxspace.motion._jointmap import BODY_ROLES as BODY_ROLES
+from fxspace.motion._jointmap import CONVENTIONS as CONVENTIONS
+from fxspace.motion._jointmap import LENGTH_UNITS as LENGTH_UNITS
+from fxspace.motion._jointmap import ROLES as ROLES
+from fxspace.motion._jointmap import JointMap as JointMap
+from fxspace.motion._jointmap import JointMapError as JointMapError
+from fxspace.motion._jointmap import SkeletonSpec as SkeletonSpec
+from fxspace.motion._jointmap import infer_length_unit as infer_length_unit
+from fxspace.motion._jointmap import joint_map_for as joint_map_for
 from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
 from fxspace.motion._locomotion import LocomotionState as LocomotionState
 from fxspace.motion._locomotion import TurnTable as TurnTable
@@ -58,9 +69,12 @@ from fxspace.motion._session import session_turn_table as session_turn_table
 from fxspace.motion._session import smooth_controls as smooth_controls
 from fxspace.motion._setups import SETUPS as SETUPS
 from fxspace.motion._setups import Setup as Setup
+from fxspace.motion._setups import SetupClip as SetupClip
 from fxspace.motion._setups import SetupData as SetupData
 from fxspace.motion._setups import SetupSpace as SetupSpace
 from fxspace.motion._setups import prepare_setup as prepare_setup
+from fxspace.motion._setups import setup_labels as setup_labels
+from fxspace.motion._setups import setup_roles as setup_roles
 from fxspace.motion._setups import setup_takes as setup_takes
 from fxspace.motion._space import extract_window as extract_window
 from fxspace.motion._space import find_key_times as find_key_times
@@ -124,6 +138,15 @@ __all__ = [
     "absolute_orientation",
     "absolute_rotation",
     "apply_rigid",
+    "BODY_ROLES",
+    "CONVENTIONS",
+    "LENGTH_UNITS",
+    "ROLES",
+    "JointMap",
+    "JointMapError",
+    "SkeletonSpec",
+    "infer_length_unit",
+    "joint_map_for",
     "euler_to_quat",
     "matrix_to_quat",
     "quat_conj",
@@ -135,10 +158,13 @@ __all__ = [
     "quat_to_matrix",
     "SETUPS",
     "Setup",
+    "SetupClip",
     "SetupData",
     "SetupSpace",
     "prepare_setup",
     "setup_takes",
+    "setup_labels",
+    "setup_roles",
     "extract_window",
     "find_key_times",
     "stack_examples",

@@ -13,6 +13,14 @@ the pipelines and the studio share one construction. Walks are cut to whole gait
 the left foot (`gait_window`), every clip is start-aligned, and each set is registered
 against its first example ``M_1`` (DTW of lower-body features for walks, of upper-body
 features for the hand clips, key times for the karate clips).
+
+Joints are found by role (`fxspace.motion.joint_map_for`), not by name: the upper/lower
+split is the child of ``hips`` on the way to ``head``, the gait foot ``left_foot``, the
+hand ``left_hand``, the kick toe ``right_toes`` (or ``right_foot``), so a CMU, Bandai
+Namco, ``LeftUpLeg``-style (Mixamo), VRM or SMPL skeleton drives every set-up; a config's
+``[skeleton] map`` names joints the conventions miss. Clips come from the defaults above
+or, with ``SetupData(source="files", clips=...)``, from one's own files (`SetupClip`:
+path, lower/upper part, label), labelled in the set-up's ``info``.
 """
 
 from __future__ import annotations
@@ -25,8 +33,10 @@ from typing import Literal, NamedTuple
 import jax
 import numpy as np
 
+from fxspace.config import ConfigError
 from fxspace.errors import FxspaceError
 from fxspace.motion._fk import fk_arrays
+from fxspace.motion._jointmap import BODY_ROLES, JointMap, SkeletonSpec
 from fxspace.motion._register import alignment_curve, gait_window, pose_features, register_dtw
 from fxspace.motion._space import extract_window, find_key_times, stack_examples
 from fxspace.motion._splice import align_start, heading_quat, upper_body_mask
@@ -37,11 +47,14 @@ from fxspace.rotations import quat_conj, quat_rotate
 __all__ = [
     "SetupName",
     "SETUPS",
+    "SetupClip",
     "SetupData",
     "SetupSpace",
     "Setup",
     "prepare_setup",
     "setup_takes",
+    "setup_labels",
+    "setup_roles",
 ]
 
 SetupName = Literal["mood_walk", "block_walk", "block_kick"]
@@ -60,31 +73,127 @@ DEFAULTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "block_kick": (("135_04", "135_07", "135_11"), ("135_05", "135_10", "135_09")),
 }  # fmt: skip
 
-# joint names of the two skeletons (Bandai Namco BVH, CMU ASF)
-_NAMES = {
-    "bandai": dict(
-        spine="Spine", lhand="Hand_L", lfoot="Foot_L", rtoe="Toes_R", feet=("Toes_L", "Toes_R"),
-        lower=("UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L", "UpperLeg_R", "LowerLeg_R",
-               "Foot_R", "Toes_R"),
-        upper=("Hand_L", "LowerArm_L", "UpperArm_L", "Hand_R", "LowerArm_R", "Head"),
-    ),
-    "cmu": dict(
-        spine="lowerback", lhand="lhand", lfoot="lfoot", rtoe="rtoes", feet=("ltoes", "rtoes"),
-        lower=("lfemur", "ltibia", "lfoot", "ltoes", "rfemur", "rtibia", "rfoot", "rtoes"),
-        upper=("lhand", "lradius", "lhumerus", "rhand", "rradius", "head"),
-    ),
-}  # fmt: skip
+# labels of the default clips where the take name does not say it (Ha & Han's mood walk)
+DEFAULT_LABELS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "mood_walk": ((), ("joy", "sad")),
+}
+_CLIP_SUFFIXES = (".bvh", ".bvh.gz", ".amc", ".amc.gz")
+
+
+@dataclasses.dataclass(frozen=True)
+class SetupClip:
+    """One of one's own clips (``[[data.clips]]`` of a config; ``SetupData.source =
+    "files"``).
+
+    - ``path``: a BVH (``.bvh``, ``.bvh.gz``) or an AMC (``.amc``, ``.amc.gz``) file.
+    - ``part``: ``"lower"`` (the lower-body examples: walks, kicks) or ``"upper"`` (the
+      upper body: moods, hand raises, blocks).
+    - ``label``: what the clip is (``"proud"``); default the file name. The mood walk's
+      two upper labels name its weight axis (``"proud weight (tired = 1 − proud)"``).
+    - ``asf``: an AMC's skeleton (default ``<subject>.asf`` beside it, CMU-style).
+    - ``units``: a BVH's length unit (`fxspace.motion.LENGTH_UNITS` name, or metres per
+      file unit); ``""``: the data table's ``units``.
+    - ``stride``: keep every ``stride``-th frame (0: the config's ``stride`` for AMC, 1 for
+      BVH); ``rate``: an AMC's frame rate (0: CMU's 120 Hz).
+    """
+
+    path: str
+    part: Literal["lower", "upper"] = "lower"
+    label: str = ""
+    asf: str = ""
+    units: str | float = ""
+    stride: int = 0
+    rate: float = 0.0
+
+    def validate(self) -> None:
+        if not isinstance(self.path, str) or not self.path.lower().endswith(_CLIP_SUFFIXES):
+            raise ConfigError(
+                f"data.clips: path {self.path!r} must be a BVH (.bvh, .bvh.gz) or an AMC "
+                "(.amc, .amc.gz) file"
+            )
+        if self.part not in ("lower", "upper"):
+            raise ConfigError(
+                f"data.clips: {self.path}: part must be 'lower' or 'upper', got {self.part!r}"
+            )
+        _check_units(self.units, f"data.clips: {self.path}: units", allow_empty=True)
+        if self.stride < 0 or not self.rate >= 0:
+            raise ConfigError(f"data.clips: {self.path}: stride and rate must be >= 0")
+
+    @property
+    def name(self) -> str:
+        """The label, else the file name without its extension."""
+        if self.label:
+            return self.label
+        base = self.path.replace("\\", "/").rsplit("/", 1)[-1]
+        for suf in sorted(_CLIP_SUFFIXES, key=len, reverse=True):
+            if base.lower().endswith(suf):
+                return base[: -len(suf)]
+        return base
+
+
+def _check_units(units, where: str, allow_empty: bool = False) -> None:
+    from fxspace.motion._jointmap import LENGTH_UNITS
+
+    if isinstance(units, str):
+        if units in LENGTH_UNITS or units == "auto" or (allow_empty and units == ""):
+            return
+    elif isinstance(units, int | float) and not isinstance(units, bool) and units > 0:
+        if np.isfinite(units):
+            return
+    raise ConfigError(
+        f"{where} must be 'auto' (inferred from the skeleton's size), one of "
+        f"{list(LENGTH_UNITS)} or metres per file unit (a positive number), got {units!r}"
+    )
 
 
 @dataclasses.dataclass(frozen=True)
 class SetupData:
-    """Clips of a set-up (empty: the set-up's defaults) and how they are cut."""
+    """Clips of a set-up and how they are cut.
+
+    - ``source``: ``"default"`` (the set-up's Bandai Namco / CMU takes under the data root,
+      or those named by ``lower`` / ``upper``) or ``"files"`` (``clips``, one's own).
+    - ``lower`` / ``upper``: take names (``source = "default"``; empty: the defaults).
+    - ``clips``: `SetupClip` entries (``source = "files"``).
+    - ``units``: the BVH files' length unit: ``"auto"`` (inferred by `fxspace.io.read_bvh`
+      from the skeleton's size, said on the console, checked against an adult's leg), a
+      `fxspace.motion.LENGTH_UNITS` name (``"cm"`` for Bandai Namco, ``"cmu"`` for the CMU
+      BVH conversion) or metres per file unit.
+    """
 
     lower: tuple[str, ...] = ()
     upper: tuple[str, ...] = ()
     cycles: int = 2  # gait cycles per walk clip
     max_reps: int = 4  # repetitions taken per karate take
     half_window_s: float = 1.0  # karate hand window around its key time
+    source: Literal["default", "files"] = "default"
+    clips: tuple[SetupClip, ...] = ()
+    units: str | float = "auto"
+
+    def validate(self) -> None:
+        if self.source not in ("default", "files"):
+            raise ConfigError(f"data.source must be 'default' or 'files', got {self.source!r}")
+        _check_units(self.units, "data.units")
+        if self.source == "files":
+            if self.lower or self.upper:
+                raise ConfigError(
+                    "data.lower / data.upper name default takes; with data.source = 'files' "
+                    "list the clips as data.clips = [{path = ..., part = 'lower'}, ...]"
+                )
+            parts = {c.part for c in self.clips}
+            if parts != {"lower", "upper"}:
+                raise ConfigError(
+                    "data.source = 'files' needs data.clips with part = 'lower' and part = "
+                    f"'upper' clips, e.g. [[data.clips]] path = 'walk_01.bvh', part = 'lower'; "
+                    f"got parts {sorted(parts)}"
+                )
+            for c in self.clips:
+                c.validate()
+            paths = [c.path for c in self.clips]
+            dup = sorted({p for p in paths if paths.count(p) > 1})
+            if dup:
+                raise ConfigError(f"data.clips lists {dup} more than once")
+        elif self.clips:
+            raise ConfigError("data.clips are read with data.source = 'files'; set it")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,13 +295,123 @@ def _kicks(takes, load, J, max_reps: int, rate: float):
 
 
 def setup_takes(name: str, data: SetupData = SetupData()) -> tuple[tuple[str, ...], ...]:
-    """``(lower takes, upper takes)`` the set-up ``name`` reads: ``data``'s, else its
-    defaults (Bandai ``dataset-…`` or CMU ``SSS_TT`` names)."""
+    """``(lower takes, upper takes)`` the set-up ``name`` reads: the clip paths of
+    ``data.clips`` (``source = "files"``), ``data``'s take names, else its defaults
+    (Bandai ``dataset-…`` or CMU ``SSS_TT`` names)."""
     if not isinstance(name, str) or name not in SETUPS:
         raise FxspaceError(f"unknown set-up {name!r}; choose one of {list(SETUPS)}")
     if not isinstance(data, SetupData):
         raise FxspaceError(f"data must be a SetupData, got {type(data).__name__}")
+    if data.source == "files":
+        return tuple(
+            tuple(c.path for c in data.clips if c.part == part) for part in ("lower", "upper")
+        )
     return tuple(data.lower or DEFAULTS[name][0]), tuple(data.upper or DEFAULTS[name][1])
+
+
+def setup_labels(name: str, data: SetupData = SetupData()) -> tuple[tuple[str, ...], ...]:
+    """``(lower labels, upper labels)``, one per take of `setup_takes`: the clips'
+    ``label`` (else their file names) for ``source = "files"``; the mood walk's default
+    upper clips are ``("joy", "sad")``; other takes are labelled by their names."""
+    lower, upper = setup_takes(name, data)
+    if data.source == "files":
+        return tuple(
+            tuple(c.name for c in data.clips if c.part == part) for part in ("lower", "upper")
+        )
+    out = []
+    for takes, default, labels in zip(
+        (lower, upper), DEFAULTS[name], DEFAULT_LABELS.get(name, ((), ())), strict=True
+    ):
+        out.append(tuple(labels) if labels and takes == default else tuple(takes))
+    return out[0], out[1]
+
+
+def _upper_axis(name: str, upper_labels: tuple[str, ...]) -> str:
+    """The name of the mood walk's upper control axis, from its two clip labels."""
+    if name != "mood_walk":
+        return "left-hand position (root frame)"
+    a, b = upper_labels[0], upper_labels[1] if len(upper_labels) > 1 else "other"
+    return f"{a} weight ({b} = 1 − {a})"
+
+
+def _as_spec(joints) -> SkeletonSpec:
+    if joints is None:
+        return SkeletonSpec()
+    if isinstance(joints, SkeletonSpec):
+        return joints
+    if isinstance(joints, JointMap):
+        return SkeletonSpec(map=joints.as_dict())
+    if isinstance(joints, dict):
+        return SkeletonSpec(map=dict(joints))
+    raise FxspaceError(
+        "joints must be a SkeletonSpec, a JointMap or a {role: joint name} dict, got "
+        f"{type(joints).__name__}"
+    )
+
+
+def setup_roles(skeleton, joints=None, what: str = "the set-up's skeleton") -> dict:
+    """The joints a set-up uses, found by role on ``skeleton`` (a `Motion`): ``split``
+    (the upper body's root: the child of ``hips`` on the way to ``head``), ``lhand``,
+    ``lfoot``, ``rtoe`` (``right_toes``, else ``right_foot``), ``feet`` (both toes, else
+    feet), ``lower`` / ``upper`` (the registration features' joints) and ``map`` (the
+    `JointMap`). ``joints``: a config's `SkeletonSpec`, a `JointMap` or ``{role: name}``."""
+    jm = _as_spec(joints).joint_map(skeleton.names, required=BODY_ROLES, what=what)
+    parents = skeleton.parents
+    hips, j = jm.index("hips"), jm.index("head")
+    chain = []
+    while j >= 0 and j != hips:
+        chain.append(j)
+        j = parents[j]
+    if j != hips or not chain:
+        raise FxspaceError(
+            f"{what}: the head ({jm['head']!r}) does not hang below the hips "
+            f"({jm['hips']!r}); name the pelvis joint in the config: [skeleton] map = "
+            '{hips = "…"}'
+        )
+
+    def toe(side: str) -> str:
+        return jm.get(f"{side}_toes") or jm[f"{side}_foot"]
+
+    legs = ("upper_leg", "lower_leg", "foot", "toes")
+    return dict(
+        split=skeleton.names[chain[-1]],
+        lhand=jm["left_hand"],
+        lfoot=jm["left_foot"],
+        rtoe=toe("right"),
+        feet=(toe("left"), toe("right")),
+        lower=tuple(jm[f"{s}_{r}"] for s in ("left", "right") for r in legs if f"{s}_{r}" in jm),
+        upper=tuple(jm[r] for r in ("left_hand", "left_lower_arm", "left_upper_arm",
+                                    "right_hand", "right_lower_arm", "head")),
+        map=jm,
+    )  # fmt: skip
+
+
+class _Loader:
+    """``load(take)`` with every clip checked against the first: one skeleton (the same
+    joints), one frame rate."""
+
+    def __init__(self, load):
+        self.load, self.first, self.first_take = load, None, None
+
+    def __call__(self, take: str):
+        m = _np(self.load(take))
+        if self.first is None:
+            self.first, self.first_take = m, take
+            return m
+        f = self.first
+        if tuple(m.names) != tuple(f.names) or tuple(m.parents) != tuple(f.parents):
+            only = [n for n in m.names if n not in f.names][:5]
+            raise FxspaceError(
+                f"clip {take}: its skeleton differs from {self.first_take}'s (joints "
+                f"{only or 'in another order'}); every clip of a set-up must share one "
+                "skeleton"
+            )
+        if not np.isclose(m.rate, f.rate, rtol=1e-3):
+            raise FxspaceError(
+                f"clip {take} runs at {m.rate:g} Hz and {self.first_take} at {f.rate:g} Hz; "
+                "every clip of a set-up must share one rate (set the clips' stride)"
+            )
+        return m
 
 
 class _Examples(NamedTuple):
@@ -214,11 +433,14 @@ class _Examples(NamedTuple):
     registration_s: float
 
 
-def _bandai_examples(name, load, data, lower_takes, upper_takes) -> _Examples:
-    """Bandai Namco walks (lower) and mood walks or hand raises (upper), DTW-registered."""
+def _walk_examples(name, load, data, lower_takes, upper_takes, joints) -> _Examples:
+    """Walks (lower) and mood walks or hand raises (upper), DTW-registered."""
     t0 = time.perf_counter()
-    J = _NAMES["bandai"]
-    lows = [_walk(load(t), J["lfoot"], data.cycles) for t in lower_takes]
+    load = _Loader(load)
+    first = load(lower_takes[0])
+    J = setup_roles(first, joints, f"clip {lower_takes[0]}")
+    lows = [_walk(first if t == lower_takes[0] else load(t), J["lfoot"], data.cycles)
+            for t in lower_takes]  # fmt: skip
     skel = lows[0]
     t_io = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -243,12 +465,13 @@ def _bandai_examples(name, load, data, lower_takes, upper_takes) -> _Examples:
                      t_io, time.perf_counter() - t0)  # fmt: skip
 
 
-def _cmu_examples(name, load, data, lower_takes, upper_takes) -> _Examples:
-    """CMU karate: left-hand blocks (upper) and right-foot kicks (lower), registered by
+def _kick_examples(name, load, data, lower_takes, upper_takes, joints) -> _Examples:
+    """Karate: left-hand blocks (upper) and right-foot kicks (lower), registered by
     their key times (start, strike ↔ block, end)."""
     t0 = time.perf_counter()
-    J = _NAMES["cmu"]
-    first = _np(load(upper_takes[0]))
+    load = _Loader(load)
+    first = load(upper_takes[0])
+    J = setup_roles(first, joints, f"clip {upper_takes[0]}")
     W = int(round(data.half_window_s * first.rate))
     ups, ukeys = _karate_hands(upper_takes, load, J, W, data.max_reps)
     lows, lkeys = _kicks(lower_takes, load, J, data.max_reps, first.rate)
@@ -280,21 +503,43 @@ def prepare_setup(
     data: SetupData = SetupData(),
     space: SetupSpace = SetupSpace(),
     key: jax.Array | None = None,
+    *,
+    joints=None,
+    scale: float | None = None,
 ) -> Setup:
     """Load, cut, register and sample the set-up ``name`` (one of `SETUPS`).
 
-    **Arguments:** ``load(take)`` returns a `Motion` (Bandai takes are
-    ``dataset-…``, CMU ones ``SSS_TT``); ``data``/``space`` configure clips and sampling;
-    ``key`` the sampling PRNG key (default ``PRNGKey(0)``).
+    **Arguments:** ``load(take)`` returns a `Motion` in metres for each take of
+    `setup_takes` (Bandai takes are ``dataset-…``, CMU ones ``SSS_TT``, one's own clips
+    their paths); ``data``/``space`` configure clips and sampling; ``key`` the sampling
+    PRNG key (default ``PRNGKey(0)``); ``joints`` a config's `SkeletonSpec` (or a
+    `JointMap`, or ``{role: joint name}``) for skeletons whose names no convention of
+    `fxspace.motion.joint_map_for` covers; ``scale`` the metres per unit of the BVH files
+    the set-up writes (default: the Bandai Namco cm for the walks, the CMU ASF unit for
+    the kicks).
 
-    **Returns:** a `Setup` (spaces ready for `synthesize_step`).
+    **Returns:** a `Setup` (spaces ready for `synthesize_step`); its ``info`` names the
+    clips' labels (``lower_labels``, ``upper_labels``), the mood walk's weight axis
+    (``upper_axis``) and the joint map (``joint_map``: role → joint, ``joint_convention``).
     """
     lower_takes, upper_takes = setup_takes(name, data)
+    if not lower_takes or not upper_takes:
+        raise FxspaceError(
+            f"set-up {name} needs lower and upper clips, got {len(lower_takes)} lower and "
+            f"{len(upper_takes)} upper"
+        )
+    if name == "mood_walk" and len(upper_takes) != 2:
+        raise FxspaceError(
+            f"mood_walk weighs two upper-body walks (w and 1 − w), got {len(upper_takes)} "
+            f"upper clips {list(upper_takes)}; give exactly two"
+        )
+    lower_labels, upper_labels = setup_labels(name, data)
     key = jax.random.PRNGKey(0) if key is None else key
-    pick = _bandai_examples if name in ("mood_walk", "block_walk") else _cmu_examples
-    e = pick(name, load, data, lower_takes, upper_takes)
+    pick = _walk_examples if name in ("mood_walk", "block_walk") else _kick_examples
+    e = pick(name, load, data, lower_takes, upper_takes, joints)
     J, lows, ups, skel, t_io = e.J, e.lows, e.ups, e.lows[0], e.io_s
-    lam, scale, dims = e.lam, e.scale, e.dims
+    lam, dims = e.lam, e.dims
+    scale = e.scale if scale is None else float(scale)
     t0 = time.perf_counter()
     exL = stack_examples([c.rotations for c in lows], [c.root_translation for c in lows], e.warps_l)
     exU = stack_examples([c.rotations for c in ups], [c.root_translation for c in ups], e.warps_u)
@@ -306,8 +551,8 @@ def prepare_setup(
         lam,
         skel.parents,
         skel.offsets,
-        mask=upper_body_mask(skel.parents, skel.names, J["spine"]),
-        spine=skel.index(J["spine"]),
+        mask=upper_body_mask(skel.parents, skel.names, J["split"]),
+        spine=skel.index(J["split"]),
         lower_joint=e.lower_joint,
         lower_dims=dims,
         lower_time=e.lower_time,
@@ -335,6 +580,12 @@ def prepare_setup(
         "upper_reference": upper_takes[0],
         "n_lower_examples": len(lows),
         "n_upper_examples": len(ups),
+        "lower_labels": list(lower_labels),
+        "upper_labels": list(upper_labels),
+        "upper_axis": _upper_axis(name, upper_labels),
+        "joint_convention": J["map"].convention,
+        "joint_map": J["map"].as_dict(),
+        "upper_root": J["split"],
     }
     return Setup(
         name,

@@ -12,6 +12,13 @@ scratch, synthesises clips with `fxspace.motion.synthesize` (fixed parameters, a
 lower parameter steered during the clip), times one `fxspace.motion.synthesize_step`
 with and without re-placement, reports foot sliding, and for the mood walk sweeps the joy
 weight (speed figure). Writes ``<setup>.bvh``, ``<setup>_steer.bvh``, figures and metrics.
+
+One's own clips: ``[data] source = "files"`` and ``[[data.clips]]`` entries (``path`` to a
+BVH or AMC file, ``part = "lower"`` / ``"upper"``, ``label``; see
+`fxspace.motion.SetupClip`), BVH ``units`` declared or inferred from the leg length (said
+on the console), joints found by role (`fxspace.motion.joint_map_for`; ``[skeleton] map``
+names the ones no naming convention covers). Every clip read is listed, with its units and
+frames, in the set-up's ``clips`` metric.
 """
 
 from __future__ import annotations
@@ -26,9 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from fxspace import motion as M
-from fxspace._progress import progress
+from fxspace._progress import note, progress
 from fxspace.config import ConfigError
 from fxspace.data import data_path
+from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.io import Motion, read_amc, read_bvh, write_bvh
 from fxspace.runs import cached, cached_arrays, run_key, save_figure_atomic, write_json_atomic
 
@@ -40,6 +48,7 @@ __all__ = [
     "prepare_app",
     "run",
     "load_take",
+    "read_clip",
     "take_files",
     "data_files",
     "load_setup",
@@ -67,11 +76,34 @@ class Config:
     space: M.SetupSpace = M.SetupSpace()
     synth: SynthConfig = SynthConfig()
     x64: bool = False  # run in float64 (jax.enable_x64 for the run only)
+    skeleton: M.SkeletonSpec = M.SkeletonSpec()  # [skeleton] map = {role = "joint name"}
 
     def validate(self) -> None:
         for s in self.setups:
             if s not in M.SETUPS:
                 raise ConfigError(f"setups: unknown set-up {s!r}; choose from {list(M.SETUPS)}")
+        self.data.validate()
+        self.skeleton.validate()
+        if self.data.source == "files":
+            if len(self.setups) != 1:
+                raise ConfigError(
+                    f"data.source = 'files' feeds one set-up; set setups to one of "
+                    f"{list(M.SETUPS)}, got {list(self.setups)}"
+                )
+            n_up = sum(c.part == "upper" for c in self.data.clips)
+            if self.setups[0] == "mood_walk" and n_up != 2:
+                raise ConfigError(
+                    f"data.clips: mood_walk weighs two upper-body walks (w and 1 − w; e.g. "
+                    f"labels 'proud' and 'tired'), got {n_up} with part = 'upper'"
+                )
+            for c in self.data.clips:
+                for key, f in (("path", c.path), ("asf", c.asf)):
+                    if f and not Path(f).is_file():
+                        what = "is a directory" if Path(f).is_dir() else "does not exist"
+                        raise ConfigError(
+                            f"data.clips: {key} {f} {what} (relative paths resolve against the "
+                            "config file's folder)"
+                        )
         if self.stride < 1:
             raise ConfigError("stride must be >= 1")
         if not 0.0 <= self.synth.alpha <= 1.0 or any(not 0 <= a <= 1 for a in self.synth.alphas):
@@ -112,10 +144,37 @@ def take_files(take: str) -> list[Path]:
             data_path("body", "cmu", subj, f"{take}.amc.gz")]  # fmt: skip
 
 
+def _clip_asf(clip: M.SetupClip) -> Path:
+    """An AMC clip's skeleton: its ``asf``, else ``<subject>.asf`` beside it (CMU-style
+    ``SSS_TT.amc``), else the only ``.asf`` there."""
+    if clip.asf:
+        return Path(clip.asf)
+    p = Path(clip.path)
+    cand = p.parent / f"{p.name.split('_')[0].split('.')[0]}.asf"
+    if cand.is_file():
+        return cand
+    asfs = sorted(p.parent.glob("*.asf"))
+    if len(asfs) == 1:
+        return asfs[0]
+    raise ConfigError(
+        f"data.clips: {clip.path}: an AMC needs its skeleton; set asf = \"…/subject.asf\" "
+        f"({'none' if not asfs else len(asfs)} .asf beside it)"
+    )
+
+
+def _is_amc(path: str) -> bool:
+    return path.lower().endswith((".amc", ".amc.gz"))
+
+
 def data_files(cfg: Config) -> list[Path]:
     """The files a run reads (for its content key): every clip of every set-up, so a run
     (and its stored set-up) is never served after a clip changed on disk."""
     files: list[Path] = []
+    if cfg.data.source == "files":
+        for c in cfg.data.clips:
+            for f in ([_clip_asf(c)] if _is_amc(c.path) else []) + [Path(c.path)]:
+                files += [f] if f not in files else []
+        return files
     for name in cfg.setups:
         for takes in M.setup_takes(name, cfg.data):
             for t in takes:
@@ -130,6 +189,136 @@ def load_take(take: str, stride: int = 4) -> Motion:
     if take.startswith("dataset-"):
         return M.drop_root(read_bvh(files[0], scale=0.01))
     return read_amc(*files).frames(slice(None, None, stride))
+
+
+def read_clip(
+    clip: M.SetupClip,
+    data: M.SetupData | None = None,
+    stride: int = 4,
+    skeleton: M.SkeletonSpec | None = None,
+) -> tuple[Motion, dict]:
+    """One's own clip (``[[data.clips]]``) in metres, and a record of what was read.
+
+    A BVH's lengths are converted by its ``units`` (the clip's, else ``data.units``):
+    declared (`fxspace.motion.LENGTH_UNITS` or metres per unit) or ``"auto"``, inferred by
+    `fxspace.io.read_bvh` from the rest skeleton's size and checked against an adult's leg
+    (a leg outside 0.59–1.15 m is refused, asking for the unit); a static root above the
+    hips (Bandai Namco's ``joint_Root``) is dropped; every ``stride``-th frame is kept
+    (the clip's ``stride``, else 1). An AMC is read with its ASF (`read_amc`, metres),
+    every ``stride``-th frame (the clip's, else the config's). Says on the console what
+    was read: file, label, frames, rate, units and how they were found, joint names.
+
+    **Returns:** ``(motion, record)``: record keys ``path``, ``part``, ``label``, ``units``,
+    ``units_from`` (``declared`` / ``inferred …``), ``metres_per_unit``, ``frames``,
+    ``rate_hz``, ``stride``, ``joint_convention`` (and ``asf`` for an AMC).
+    """
+    data = M.SetupData() if data is None else data
+    skeleton = M.SkeletonSpec() if skeleton is None else skeleton
+    p = Path(clip.path)
+    rec: dict = {"path": str(p), "part": clip.part, "label": clip.name}
+    if _is_amc(clip.path):
+        asf = _clip_asf(clip)
+        k = clip.stride or stride
+        m = read_amc(asf, p, rate=clip.rate or 120.0).frames(slice(None, None, k))
+        jm = skeleton.joint_map(m.names, required=(), what=str(p))
+        rec |= {"asf": str(asf), "units": "m", "units_from": "ASF (converted by read_amc)",
+                "metres_per_unit": M.LENGTH_UNITS["cmu"], "stride": k}  # fmt: skip
+    else:
+        units = clip.units or data.units
+        if isinstance(units, str) and units in _READ_BVH_UNITS:  # read_bvh converts, says so
+            try:
+                m = read_bvh(p, units=units)
+            except FxspaceError as e:
+                if isinstance(e, CorruptFileError) or units != "auto":
+                    raise
+                raise ConfigError(f"data.clips: {e}; {_DECLARE}") from None
+            scale = None if units == "auto" else M.LENGTH_UNITS[units]
+        else:  # the CMU unit, or metres per file unit
+            scale = M.LENGTH_UNITS[units] if isinstance(units, str) else float(units)
+            m = read_bvh(p, scale=scale)
+        jm = skeleton.joint_map(m.names, required=(), what=str(p))
+        if units == "auto":
+            _check_leg(_leg_m(m, jm), p)
+        if "hips" in jm and jm.index("hips") == 1 and m.parents.count(0) == 1:
+            m = M.drop_root(m)  # a static root above the hips (Bandai Namco's joint_Root)
+            jm = skeleton.joint_map(m.names, required=(), what=str(p))
+        k = clip.stride or 1
+        m = m.frames(slice(None, None, k))
+        rec |= {"units": units, "metres_per_unit": scale, "stride": k,
+                "units_from": "inferred by fxspace.io.read_bvh from the rest skeleton's size"
+                if units == "auto" else "declared"}  # fmt: skip
+    rec |= {"frames": m.num_frames, "rate_hz": float(m.rate), "joint_convention": jm.convention,
+            "leg_m": _leg_m(m, jm)}  # fmt: skip
+    note(
+        f"{p.name}: {clip.part} clip {rec['label']!r}, {m.num_frames} frames at "
+        f"{m.rate:.4g} Hz, units {rec['units']} ({rec['units_from']}), leg "
+        f"{rec['leg_m']:.3g} m, joints: {jm.describe()}"
+    )
+    return m, rec
+
+
+# the units fxspace.io.read_bvh converts itself (and says so on the console)
+_READ_BVH_UNITS = ("auto", "m", "cm", "mm", "in", "ft")
+
+
+def _leg_m(m: Motion, jm) -> float:
+    """The left hip-to-ankle length (m) by role; NaN where the roles are missing."""
+    off = np.asarray(m.offsets)
+    roles = ("left_lower_leg", "left_foot")
+    if not all(r in jm for r in roles):
+        return float("nan")
+    return float(sum(np.linalg.norm(off[jm.index(r)]) for r in roles))
+
+
+def _check_leg(leg: float, path: Path) -> None:
+    """A clip whose units were inferred must have an adult's leg once in metres."""
+    if np.isfinite(leg) and not 0.82 / 1.4 <= leg <= 0.82 * 1.4:
+        raise ConfigError(
+            f"data.clips: {path}: with its units inferred (fxspace.io.read_bvh) its leg is "
+            f"{leg:.3g} m, not an adult's (~0.8 m); {_DECLARE}"
+        )
+
+
+_DECLARE = (
+    f"declare the file's unit on the clip or in [data]: units = one of {list(M.LENGTH_UNITS)} "
+    "('cmu' for the CMU BVH conversion) or metres per file unit"
+)
+
+
+def _setup_loader(cfg: Config):
+    """``(load(take) -> Motion, records)``: the config's clips by take name (defaults) or
+    path (``source = "files"``); ``records`` fills with what was read."""
+    records: dict = {}
+    if cfg.data.source != "files":
+
+        def load(take: str) -> Motion:
+            records.setdefault(take, {"take": take, "files": [str(f) for f in take_files(take)]})
+            return load_take(take, cfg.stride)
+
+        return load, records
+    clips = {c.path: c for c in cfg.data.clips}
+
+    def load_file(path: str) -> Motion:
+        m, rec = read_clip(clips[path], cfg.data, cfg.stride, cfg.skeleton)
+        records.setdefault(path, rec)
+        return m
+
+    return load_file, records
+
+
+def _build_setup(name: str, cfg: Config, key) -> M.Setup:
+    """`fxspace.motion.prepare_setup` on the config's clips, with the config's joint map;
+    the clips read (and, for one's own files, the units they are written back in) go to
+    the set-up's ``info``."""
+    load, records = _setup_loader(cfg)
+    st = M.prepare_setup(name, load, cfg.data, cfg.space, key, joints=cfg.skeleton)
+    info = {**st.info, "clips": list(records.values()), "data_source": cfg.data.source}
+    if cfg.data.source == "files":
+        lower = M.setup_takes(name, cfg.data)[0]
+        # written back in the first lower clip's unit (metres where read_bvh inferred it)
+        scale = records[lower[0]]["metres_per_unit"] or 1.0
+        return st._replace(scale=float(scale), info=info)
+    return st._replace(info=info)
 
 
 _SETUPS: dict = {}
@@ -162,9 +351,7 @@ def load_setup(config: str | Path, setup: str | None = None) -> M.Setup:
         key = jax.random.fold_in(
             jax.random.fold_in(jax.random.PRNGKey(seed), cfg.setups.index(name)), 0
         )
-        _SETUPS[ck] = M.prepare_setup(
-            name, lambda t: load_take(t, cfg.stride), cfg.data, cfg.space, key
-        )
+        _SETUPS[ck] = _build_setup(name, cfg, key)
     return _SETUPS[ck]
 
 
@@ -348,14 +535,7 @@ def _stored_setup(run_dir: Path, name: str, cfg: Config) -> M.Setup | None:
 
 def _stage_setup(name: str, cfg: Config, run_dir: Path, key) -> M.Setup:
     def compute() -> dict:
-        st = M.prepare_setup(
-            name,
-            lambda t: load_take(t, cfg.stride),
-            cfg.data,
-            cfg.space,
-            jax.random.fold_in(key, 0),
-        )
-        return _setup_to_arrays(st)
+        return _setup_to_arrays(_build_setup(name, cfg, jax.random.fold_in(key, 0)))
 
     return _setup_from_arrays(cached_arrays(run_dir, f"{name}_setup", compute))
 
@@ -781,13 +961,19 @@ def _joy_sweep(st: M.Setup, cfg: Config, run_dir: Path, qL) -> dict:
         ]
         for a in progress(sy.alphas, f"{st.name}: joy sweep")
     }
+    labels = st.info.get("upper_labels") or ["joy", "sad"]
+    axis = st.info.get("upper_axis") or f"{labels[0]} weight ({labels[1]} = 1 − {labels[0]})"
     save_figure_atomic(
-        P.plot_speed_vs_weight(sy.joy_weights, speeds, title=f"{st.name}: speed vs joy weight"),
+        P.plot_speed_vs_weight(
+            sy.joy_weights, speeds, title=f"{st.name}: speed vs {labels[0]} weight", xlabel=axis
+        ),
         run_dir / f"{st.name}_speed_vs_joy.png",
     )
-    return {
+    return {  # "joy": the weight of the first upper clip, whatever its label (upper_axis)
         "speed_vs_joy": {f"alpha={a:g}": v for a, v in speeds.items()},
         "joy_weights": list(sy.joy_weights),
+        "upper_axis": axis,
+        "upper_labels": list(labels),
     }
 
 
@@ -809,7 +995,9 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key, seed: int) -> dict:
     m["table1"] = {
         "paper_upper_lower": list(paper),
         "ours_upper_lower": [st.info["n_upper_examples"], st.info["n_lower_examples"]],
-        "clips": _TABLE1_WHY[name],
+        "clips": _TABLE1_WHY[name] if cfg.data.source != "files" else (
+            f"one's own clips: lower {st.info['lower_labels']}, upper {st.info['upper_labels']}"
+        ),
     }
     m.update(cached(run_dir, f"{name}_targets", lambda: _stage_targets(st, cfg, qL, wq_u)))
     tw = {}

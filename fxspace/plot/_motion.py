@@ -106,15 +106,21 @@ def plot_clocks(clocks: dict, lam=None, title: str = "") -> Figure:
 
 
 def plot_speed_vs_weight(
-    weights, speeds: dict, ylabel: str = "ground speed (m/s)", title: str = ""
+    weights,
+    speeds: dict,
+    ylabel: str = "ground speed (m/s)",
+    title: str = "",
+    xlabel: str = "joy weight (sad = 1 − joy)",
 ) -> Figure:
     """Speed of the synthesised motion against an upper-body weight (Ha & Han §4: a higher
-    joy weight makes the whole walk faster), one line per α (``{α: speeds}``)."""
+    joy weight makes the whole walk faster), one line per α (``{α: speeds}``); ``xlabel``
+    names the weight's axis from the clips' labels (e.g. ``proud weight (tired = 1 −
+    proud)``)."""
     fig, ax = plt.subplots(figsize=(5.5, 4))
     w = np.asarray(weights)
     for i, (alpha, v) in enumerate(sorted(speeds.items())):
         ax.plot(w, np.asarray(v), marker="o", c=f"C{i}", label=f"α={alpha:g}")
-    ax.set_xlabel("joy weight (sad = 1 − joy)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
