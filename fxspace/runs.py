@@ -173,7 +173,7 @@ def _kind(mode: int) -> str:
         return "a socket"
     if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
         return "a device"
-    return "not a regular file"
+    return "a regular file" if stat.S_ISREG(mode) else "not a regular file"
 
 
 def _unsafe_below(root: Path, rel: str, final: bool = True) -> str | None:
@@ -493,9 +493,10 @@ def _manifest_entries(run_dir: str | Path) -> dict[str, int | None]:
     m = _manifest_path(run_dir)
     try:
         data = read_regular(m)
-        lines = data.decode("utf-8").splitlines() if data is not None else []
-    except (OSError, UnicodeDecodeError, UnsafePathError):
+    except (OSError, UnsafePathError):
         return {}
+    # a damaged line (not UTF-8) names no file of ours; the other lines still count
+    lines = data.decode("utf-8", "replace").splitlines() if data is not None else []
     out: dict[str, int | None] = {}
     for ln in lines:
         rel, _, ino = ln.partition("\t")

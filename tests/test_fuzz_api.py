@@ -18,6 +18,7 @@ runs in well under a minute.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import os
@@ -592,3 +593,98 @@ def test_effective_keys_reads_a_generator_once():
     k = fx.controlpoints.EditKey(segment=0, control=1, frame=3, offset=(0.0, 1.0, 0.0))
     out = fx.controlpoints.effective_keys(x for x in [k])
     assert out == {(0, 1): [k]}
+
+
+# ------------------------------------------------ issue 43: the file and folder families
+_RUN_NAMES = ("status.json", "metrics.json", "meta.json", "config.toml", ".fxspace-lock",
+              ".fxspace-manifest", "cache", "cache/KEY", "cache/space.npz",
+              "expression_space.npz")  # fmt: skip
+_FILE_FAMILIES = ("symlink_out", "fifo", "garbage_json", "torn", "read_only", "folder")
+
+
+@pytest.mark.slow  # ~8 s on 2 cores; each family's case runs fast in test_issue43_files
+@settings(max_examples=24, deadline=None, derandomize=True, phases=[Phase.generate],
+          suppress_health_check=list(HealthCheck))  # fmt: skip
+@given(family=st.sampled_from(_FILE_FAMILIES), name=st.sampled_from(_RUN_NAMES),
+       finished=st.booleans(), force=st.booleans())  # fmt: skip
+def test_run_folder_file_families(tmp_path_factory, family, name, finished, force):
+    """Issue 43: a run folder whose bookkeeping name is a symlink out of it, a FIFO,
+    garbage JSON, a torn archive, a folder, or a read-only run folder: the run completes
+    or fails with one `FxspaceError`, within seconds, and nothing outside the folder
+    changes (the victim's files keep their bytes)."""
+    import shutil
+    import signal
+    import types
+    from unittest import mock
+
+    from fxspace.pipelines import _REGISTERED, register, run_dict
+    from fxspace.runs import cached_arrays, save_npz_atomic
+
+    tmp = tmp_path_factory.mktemp("files")
+    victim = tmp / "victim"
+    victim.mkdir()
+    (victim / "KEY").write_text("the user's")
+    (victim / "notes.txt").write_text("the user's")
+    before = {p.name: p.read_bytes() for p in victim.iterdir()}
+    mod = types.ModuleType("fuzz_files_toy")
+    mod.Config, mod.STAGES = _FuzzCfg, ("space",)
+    mod.run = lambda cfg, d, seed: (
+        save_npz_atomic(d / "expression_space.npz",
+                        **cached_arrays(d, "space", lambda: {"x": np.arange(3)})),
+        {"ok": 1},
+    )[1]  # fmt: skip
+    register(mod, "fuzz_files_toy")
+    r = tmp / "r"
+    patch = mock.patch.object(fx.runs, "git_sha", lambda: None)  # (git is slow on 2 cores)
+    patch.start()
+    try:
+        if finished:
+            run_dict({"experiment": "fuzz_files_toy"}, r)
+        r.mkdir(exist_ok=True)
+        p = r / name
+        p.parent.mkdir(exist_ok=True)
+        if family != "read_only" and (p.exists() or p.is_symlink()):
+            shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+        if family == "symlink_out":
+            p.symlink_to(victim if name == "cache" else victim / "notes.txt")
+            if name != ".fxspace-manifest":
+                with (r / ".fxspace-manifest").open("a") as f:
+                    f.write(f"{name}\n")
+        elif family == "fifo":
+            os.mkfifo(p)
+        elif family == "garbage_json":
+            p.write_bytes(b'{"garbage\xff')
+        elif family == "torn":
+            p.write_bytes(b"PK\x03\x04\x14\x00")
+        elif family == "folder":
+            p.mkdir()
+            (p / "inside.txt").write_text("the user's")
+        elif family == "read_only":
+            r.chmod(0o500)
+
+        def boom(*_):
+            raise TimeoutError(f"{family} at {name} blocked")
+
+        old = signal.signal(signal.SIGALRM, boom)
+        signal.alarm(30)
+        try:
+            run_dict({"experiment": "fuzz_files_toy"}, r, force=force)
+            assert (r / "metrics.json").is_file()
+        except FxspaceError:
+            pass
+        finally:
+            signal.alarm(0)
+            signal.signal(signal.SIGALRM, old)
+            r.chmod(0o700)
+    finally:
+        patch.stop()
+        _REGISTERED.pop("fuzz_files_toy", None)
+    assert {p.name: p.read_bytes() for p in victim.iterdir()} == before
+    if family == "folder":
+        assert (p / "inside.txt").read_text() == "the user's"
+
+
+@dataclasses.dataclass(frozen=True)
+class _FuzzCfg:
+    def validate(self):
+        pass

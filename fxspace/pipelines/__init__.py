@@ -49,6 +49,7 @@ from fxspace.pipelines.parametric_synthesis import scripted_session as scripted_
 from fxspace.pipelines.parametric_synthesis import session_parameters as session_parameters  # noqa: E402,E501
 from fxspace.runs import (
     MANIFEST,
+    UnsafePathError,
     active_run,
     clean_run,
     read_json,
@@ -411,6 +412,8 @@ def _run_one(
 def _what_changed(run_dir: Path, st: dict[str, Any]) -> str:
     """What differs from the finished run in ``run_dir``: fxspace's code (with the
     versions, where ``meta.json`` says) or the data."""
+    if not st:
+        return "a key fxspace cannot read (status.json is missing or damaged)"
     old_code = st.get("code")
     if not isinstance(old_code, str):
         return "other code or data (a run from before fxspace recorded which)"
@@ -453,6 +456,11 @@ def _run_locked(
         clean_run(run_dir)  # another config's (or code's) files: stale beside the new ones
     run_dir.mkdir(parents=True, exist_ok=True)
     if os.path.lexists(metrics_p):
+        if os.path.isdir(metrics_p) and not os.path.islink(metrics_p):
+            raise UnsafePathError(
+                f"{metrics_p} is a folder; fxspace writes its metrics there: move it away, "
+                "or choose another --out"
+            )
         metrics_p.unlink()  # marked unfinished first: a stop part-way is never "complete"
     code = _runs.code_digest()[:16]
     with active_run(run_dir, force=force):

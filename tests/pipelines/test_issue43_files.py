@@ -479,7 +479,8 @@ def test_cache_that_is_a_file_falls_back_with_a_message(tmp_path, toy, capsys):
     (d,) = run_dict({"experiment": toy}, r)
     assert _metrics(d)["sq"] == 4 and CALLS == [2]
     assert (r / "cache").read_text() == "the user's file named cache"
-    assert "without a cache" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "cache is a regular file, not a folder" in out and "without a cache" in out
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes read-only folders")
