@@ -50,10 +50,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     res = sweep_config(
         args.config, args.out, workers=args.workers, scheduler=args.scheduler,
         fail_fast=args.fail_fast, force=args.force, engine=args.engine,
+        lock_wait=args.lock_wait,
     )  # fmt: skip
     failed = [r for r in res if r["status"] != "complete"]
     for r in failed:
-        print(f"fxspace sweep: FAILED {r['run_dir']}: {r['error']}", file=sys.stderr)
+        print(f"fxspace sweep: {r['status'].upper()} {r['run_dir']}: {r['error']}",
+              file=sys.stderr)  # fmt: skip
     print(f"fxspace sweep: {len(res) - len(failed)} complete, {len(failed)} failed")
     return 1 if failed else 0
 
@@ -134,6 +136,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if not script.is_file():
         print(f"no benchmark {args.name!r}; available: {names}", file=sys.stderr)
         return 2
+    from fxspace.runs import _is_bench_record, check_writable
+
+    bench = Path(os.environ.get("FXSPACE_RUNS", "runs")) / "bench"
+    # refused before minutes of measuring, not after: a NAME.json fxspace did not write
+    check_writable(bench, [bench / f"{args.name}.json"], recognise=_is_bench_record)
     sys.argv = [str(script), *args.rest]
     runpy.run_path(str(script), run_name="__main__")
     return 0
@@ -201,6 +208,11 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument(
         "--engine", default="auto", choices=("auto", "dask", "processes", "serial"),
         help="auto: Dask when installed, else processes",
+    )  # fmt: skip
+    w.add_argument(
+        "--lock-wait", type=float, default=600.0, metavar="SECONDS",
+        help="how long to wait for a run folder another process holds, then report it "
+        "(default 600)",
     )  # fmt: skip
     w.set_defaults(func=_cmd_sweep)
 

@@ -550,3 +550,38 @@ def test_ik_exports_never_overwrite_a_users_file(data_dir, tmp_path):
     assert ctl.export_bvh(tmp_path / "ik_pose.bvh").name == "ik_pose-2.bvh"  # still beside
     assert ctl.export_bvh(tmp_path / "fresh.bvh") == tmp_path / "fresh.bvh"
     assert ctl.export_bvh(tmp_path / "fresh.bvh") == tmp_path / "fresh.bvh"  # its own
+
+
+def test_cli_bench_refuses_a_users_record_before_measuring(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("FXSPACE_RUNS", str(tmp_path))
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "dtw.json").write_text('{"mine": true}')
+    assert main(["bench", "dtw"]) == 2
+    assert "dtw.json exist" in capsys.readouterr().err
+    assert (tmp_path / "bench" / "dtw.json").read_text() == '{"mine": true}'
+
+
+def test_cli_run_with_a_fifo_status_is_one_line_exit_2(tmp_path, toy, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'experiment = "{toy}"\n')
+    r = tmp_path / "r"
+    r.mkdir()
+    os.mkfifo(r / "status.json")
+    with _within(20):
+        assert main(["run", str(cfg), "--out", str(r), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "status.json is a FIFO" in err
+
+
+def test_bench_page_rewrites_the_committed_page_and_its_own_records(tmp_path):
+    from fxspace.pipelines import write_bench_page
+
+    out = tmp_path / "benchmarks"
+    shutil.copytree(ROOT / "docs" / "benchmarks", out)
+    write_bench("dtw", _rows(), title="DTW again", command="c", root=tmp_path / "runs")
+    page = write_bench_page(tmp_path / "runs", out)  # no manifest: recognised as its own
+    assert "## DTW again" in page.read_text()
+    (out / "data" / "fcm.json").write_text('{"a user": "file"}')  # no longer a record
+    write_bench("fcm", _rows(), title="t", command="c", root=tmp_path / "runs")
+    with pytest.raises(OverwriteRefusedError, match=r"fcm\.json"):
+        write_bench_page(tmp_path / "runs", out)
