@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
 T = TypeVar("T")
+
+#: the package's logger: `note` records go here too (a NullHandler: no double printing)
+_LOG = logging.getLogger("fxspace")
+_LOG.addHandler(logging.NullHandler())
 
 #: callables told every stage line and progress step (an app's waiting page shows them)
 _LISTENERS: list[Callable[[str], None]] = []
@@ -57,3 +62,16 @@ def stage(msg: str) -> None:
     _tell(msg)
     if os.environ.get("FXSPACE_QUIET") != "1":
         print(f"[fxspace] {msg}", file=sys.stderr, flush=True)
+
+
+def note(msg: str, *, warning: bool = False) -> None:
+    """Something the user must hear of as it happens (a drop, a resample, a unit
+    inferred or converted, markers cut to a shared set): a `stage` line on stderr and a
+    record on the ``fxspace`` logger (INFO, or WARNING with ``warning=True``; tests read
+    it with ``caplog``). A warning is printed even when ``FXSPACE_QUIET=1``."""
+    _LOG.log(logging.WARNING if warning else logging.INFO, msg)
+    if warning:
+        _tell(f"warning: {msg}")
+        print(f"[fxspace] warning: {msg}", file=sys.stderr, flush=True)
+    else:
+        stage(msg)

@@ -2,23 +2,32 @@
 
 Shared by the threshold-sweep and navigation pipelines. ``source = "animface"`` reads
 the three AnimFace takes from the data root (``FXSPACE_DATA``); ``"files"`` reads the
-given marker files; ``"synthetic"`` uses the embedded seeded generator (no data needed).
+given marker files (C3D, TRC, NPZ, CSV/TSV tables); ``"synthetic"`` uses the embedded
+seeded generator (no data needed).
+
+Nothing is dropped, converted or resampled without a word: `load_face` says on the
+console (``fxspace._progress.note``) every marker cut to the shared set, unit converted,
+take resampled (only when ``resample_hz`` asks: mixed rates are refused otherwise),
+frame filled or dropped for missing markers and frame thinned, and keeps the same in
+``FaceFrames.reading`` for the run's metrics.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Literal, NamedTuple
 
 import numpy as np
 
+from fxspace._progress import note
 from fxspace._validate import describe_missing
 from fxspace.config import ConfigError
 from fxspace.data import data_path
 from fxspace.errors import FxspaceError
 from fxspace.expression import fill_gaps, missing_report
-from fxspace.io import read_markers
+from fxspace.io import UNIT_SCALES, MarkerSequence, read_markers
 from fxspace.synthetic import synthetic_face
 
 __all__ = [
@@ -39,8 +48,16 @@ class FaceData:
 
     - `source`: ``"animface"`` (real capture under ``$FXSPACE_DATA/face``), ``"files"``
       (``paths``) or ``"synthetic"`` (embedded generator).
-    - `takes`: AnimFace file names (``source = "animface"``).
-    - `paths`: marker files (``source = "files"``): .c3d, .trc, .trc.gz, .npz.
+    - `takes`: AnimFace file names (``source = "animface"`` only; empty otherwise, so a
+      resolved config lists only what was read).
+    - `paths`: marker files (``source = "files"`` only): .c3d, .trc, .trc.gz, .npz, or
+      tables .csv/.tsv/.txt (``.gz`` too); relative to the config file's folder.
+    - `units`: the files' length unit (``"mm"``, ``"cm"``, ``"m"``, ``"in"``, ``"ft"``):
+      declares it for tables, overrides a file's own label; ``""`` = as each file says
+      (tables: inferred from the extent, said).
+    - `rate`: Hz for tables without a time column; ``0`` = from each file.
+    - `resample_hz`: ``0`` (default) refuses takes of different rates; ``> 0`` resamples
+      every take whose rate differs to this rate (linear in time), said on the console.
     - `stride`: keep every ``stride``-th frame of each take.
     - `max_frames`: if > 0, thin evenly to at most this many frames in all.
     - `target_frames`: if > 0, resample every take in time (linear interpolation) so the
@@ -56,6 +73,9 @@ class FaceData:
     source: Literal["animface", "files", "synthetic"] = "animface"
     takes: tuple[str, ...] = ANIMFACE_TAKES
     paths: tuple[str, ...] = ()
+    units: str = ""
+    rate: float = 0.0
+    resample_hz: float = 0.0
     stride: int = 1
     max_frames: int = 0
     target_frames: int = 0
@@ -65,7 +85,32 @@ class FaceData:
     synthetic_markers: int = 60
     synthetic_noise_mm: float = 0.3
 
+    def __post_init__(self) -> None:
+        # the AnimFace takes belong to source = "animface" only: elsewhere the default list
+        # is cleared, so the resolved config.toml records only the files read
+        if self.source != "animface" and tuple(self.takes) == ANIMFACE_TAKES:
+            object.__setattr__(self, "takes", ())
+
     def validate(self) -> None:
+        if self.source != "animface" and self.takes:
+            raise ConfigError(
+                f"data.takes names AnimFace files, read only with source = 'animface' (here "
+                f"{self.source!r}); list your own files in data.paths with source = 'files'"
+            )
+        if self.source != "files" and self.paths:
+            raise ConfigError(
+                f"data.paths is read only with source = 'files' (here {self.source!r}); set "
+                "data.source = 'files' or remove data.paths"
+            )
+        if self.units and self.units not in UNIT_SCALES:
+            raise ConfigError(
+                f"data.units must be one of {sorted(UNIT_SCALES)} or '' (as the files say), "
+                f"got {self.units!r}"
+            )
+        for key in ("rate", "resample_hz"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"data.{key} must be a number of Hz >= 0 (0: off), got {v}")
         if self.stride < 1:
             raise ConfigError(f"data.stride must be >= 1, got {self.stride}")
         if self.max_frames < 0 or self.target_frames < 0:
@@ -107,6 +152,7 @@ class FaceFrames(NamedTuple):
     label: np.ndarray
     label_names: tuple[str, ...]
     missing: dict | None = None  # counts: filled samples/frames, dropped frames, gaps left
+    reading: dict | None = None  # what was read and every drop / resample / conversion said
 
 
 def resample_frames(pos: np.ndarray, n: int) -> np.ndarray:
@@ -142,11 +188,95 @@ def _sequences(cfg: FaceData, seed: int) -> list[tuple]:
     if cfg.source == "animface":
         paths = [data_path("face", t) for t in cfg.takes]
     else:
-        paths = list(cfg.paths)
-    return [(str(p).rsplit("/", 1)[-1], read_markers(p), None, None) for p in paths]
+        paths = [Path(p) for p in cfg.paths]
+    kw = {"units": cfg.units or None, "rate": cfg.rate or None}
+    return [(p.name, read_markers(p, **kw), None, None) for p in paths]
 
 
-def _handle_missing(pos: np.ndarray, cfg: FaceData, take: str, names, counts: dict):
+def _resample_seq(seq: MarkerSequence, hz: float) -> MarkerSequence:
+    """``seq`` at ``hz`` over the same time span: linear in time, NaN where a neighbour is."""
+    T = seq.n_frames
+    n = max(2, int(math.floor((T - 1) * hz / seq.rate + 1e-9)) + 1)
+    src = np.arange(n) * (seq.rate / hz)
+    lo = np.minimum(np.floor(src).astype(int), T - 1)
+    hi = np.minimum(lo + 1, T - 1)
+    w = (src - lo)[:, None, None]
+    p = np.asarray(seq.positions, np.float64)
+    out = (1 - w) * p[lo] + w * p[hi]
+    exact = w[:, 0, 0] == 0
+    out[exact] = p[lo[exact]]  # a sample on a source frame is that frame, NaN or not
+    return dataclasses.replace(seq, positions=out, rate=float(hz))
+
+
+def _align_rates(seqs: list[tuple], cfg: FaceData, reading: dict) -> list[tuple]:
+    """One rate for every take: mixed rates refused unless ``resample_hz`` asks (said)."""
+    rates = {take: float(s.rate) for take, s, *_ in seqs}
+    reading["rates_hz"] = rates
+    target = cfg.resample_hz
+    if not target:
+        if len({round(r, 6) for r in rates.values()}) > 1:
+            listed = ", ".join(f"{t} {r:g} Hz" for t, r in rates.items())
+            raise ConfigError(
+                f"the takes have different frame rates ({listed}); set [data] resample_hz "
+                f"to one rate (e.g. {min(rates.values()):g}) to resample them to it"
+            )
+        return seqs
+    out = []
+    for take, s, lab, ln in seqs:
+        if abs(s.rate - target) > 1e-9 * target:
+            if lab is not None:
+                src = np.rint(np.arange(_resample_seq(s, target).n_frames) * s.rate / target)
+                lab = np.asarray(lab)[np.minimum(src.astype(int), len(lab) - 1)]
+            r = _resample_seq(s, target)
+            msg = (f"{take}: resampled {s.rate:g} → {target:g} Hz ({s.n_frames} → "
+                   f"{r.n_frames} frames, linear in time; [data] resample_hz)")  # fmt: skip
+            _say(reading, msg)
+            reading.setdefault("resampled", {})[take] = {
+                "from_hz": float(s.rate), "to_hz": float(target),
+                "from_frames": s.n_frames, "to_frames": r.n_frames,
+            }  # fmt: skip
+            s = r
+        out.append((take, s, lab, ln))
+    return out
+
+
+def _shared_markers(seqs: list[tuple], reading: dict) -> list[str]:
+    """The marker names every take has (the first take's order); any cut is said."""
+    first = seqs[0][1].names
+    names = [n for n in first if all(n in s.names for _, s, *_ in seqs)]
+    if len(names) < 4:
+        raise ConfigError(
+            f"the takes share only {len(names)} marker names ({names}); need at least 4 — "
+            "check that every take uses the same marker names"
+        )
+    dropped = {}
+    for take, s, *_ in seqs:
+        unused = [n for n in s.names if n not in names]
+        lacks = [n for n in first if n not in s.names]
+        if not unused and not lacks:
+            continue
+        dropped[take] = unused
+        parts = []
+        if lacks:
+            parts.append(f"lacks {len(lacks)} of {seqs[0][0]}'s markers ({', '.join(lacks)})")
+        if unused:
+            parts.append(f"{len(unused)} of its markers are not in every take, dropped "
+                         f"({', '.join(unused)})")  # fmt: skip
+        _say(reading, f"{take}: " + "; ".join(parts))
+    if dropped:
+        _say(reading, f"markers: using the {len(names)} shared by every take")
+    reading["markers_used"] = list(names)
+    reading["markers_dropped"] = dropped
+    return names
+
+
+def _say(reading: dict, msg: str) -> None:
+    note(msg)
+    reading.setdefault("notes", []).append(msg)
+
+
+def _handle_missing(pos: np.ndarray, cfg: FaceData, take: str, names, counts: dict,
+                    reading: dict):  # fmt: skip
     """Apply ``cfg.missing`` to one take: returns ``(positions, kept frame indices)``."""
     bad = ~np.isfinite(pos).all(axis=2)
     if not bad.any():
@@ -158,16 +288,35 @@ def _handle_missing(pos: np.ndarray, cfg: FaceData, take: str, names, counts: di
             f"({describe_missing(runs)}); set [data] missing = 'fill' (gaps up to max_gap "
             "frames) or 'drop'"
         )
+    said = []
+    unfilled: list = []
     if cfg.missing == "fill":
         res = fill_gaps(pos, cfg.max_gap, marker_names=names)
         counts["filled_samples"] += int(res.filled.sum())
         counts["filled_frames"] += int(res.filled.any(axis=1).sum())
         counts["unfilled_gaps"] += [f"{take}: {m} frames {a}-{b}" for m, a, b in res.unfilled]
+        unfilled = res.unfilled
         pos = res.positions
+        if res.filled.any():
+            said.append(f"gaps of at most max_gap = {cfg.max_gap} frames filled in "
+                        f"{int(res.filled.any(axis=1).sum())} frames")  # fmt: skip
     kept = np.flatnonzero(np.isfinite(pos).all(axis=(1, 2)))
-    counts["dropped_frames"] += len(pos) - len(kept)
+    n_drop = len(pos) - len(kept)
+    counts["dropped_frames"] += n_drop
+    per = counts.setdefault("dropped_frames_per_take", {})
+    per[take] = n_drop
+    if n_drop:
+        why = ("markers missing (missing = 'drop')" if cfg.missing == "drop" else
+               f"gaps longer than max_gap = {cfg.max_gap} frames or at a take's end: "
+               f"{describe_missing(unfilled)}")  # fmt: skip
+        said.append(f"{n_drop} of {len(pos)} frames dropped ({why})")
+    if said:
+        _say(reading, f"{take}: " + "; ".join(said))
     if not len(kept):
-        raise FxspaceError(f"{take}: every frame has a missing marker; nothing is left")
+        raise FxspaceError(
+            f"{take}: every frame has a missing marker; nothing is left (raise [data] "
+            "max_gap, or remove the markers that are never seen)"
+        )
     return pos[kept], kept
 
 
@@ -175,32 +324,54 @@ def load_face(cfg: FaceData, seed: int = 0) -> FaceFrames:
     """Load, align marker sets (names common to all takes, first take's order), convert to
     millimetres, fill/drop/reject occluded markers (``cfg.missing``), thin/resample, and
     stack the takes. ``FaceFrames.frame`` keeps each frame's original number in its take
-    and ``FaceFrames.missing`` the counts of filled and dropped frames."""
+    and ``FaceFrames.missing`` the counts of filled and dropped frames.
+
+    Every marker cut, rate resample (mixed rates are refused unless ``resample_hz`` is
+    set), unit conversion, frame fill, drop and thinning is said on the console as it
+    happens and recorded in ``FaceFrames.reading`` (``notes``, ``files``,
+    ``markers_dropped``, ``resampled``, ``converted``)."""
+    reading: dict = {"notes": []}
     seqs = _sequences(cfg, seed)
-    names = [n for n in seqs[0][1].names if all(n in s.names for _, s, *_ in seqs)]
-    if len(names) < 4:
-        raise ConfigError(f"the takes share only {len(names)} marker names; need at least 4")
+    if cfg.source != "synthetic":
+        reading["files"] = [
+            {"take": t, "path": str(p), "frames": s.n_frames, "markers": s.n_markers,
+             "rate_hz": float(s.rate), "units": s.units, "file_units": s.file_units}
+            for (t, s, *_), p in zip(seqs, face_data_files(cfg), strict=True)
+        ]  # fmt: skip
+    seqs = _align_rates(seqs, cfg, reading)
+    names = _shared_markers(seqs, reading)
     rate = seqs[0][1].rate
     pos_all, take_all, frame_all, label_all = [], [], [], []
     per_take = []
     counts = {"filled_samples": 0, "filled_frames": 0, "dropped_frames": 0, "unfilled_gaps": []}
     for k, (take, seq, lab, _) in enumerate(seqs):
         s = seq.select(names) if tuple(seq.names) != tuple(names) else seq
-        s = s.to_units("mm") if s.units in ("mm", "cm", "m") else s
+        if s.units in ("cm", "m"):
+            _say(reading, f"{take}: converted from {s.units} to mm")
+            reading.setdefault("converted", {})[take] = f"{s.units} -> mm"
+            s = s.to_units("mm")
+        elif s.units != "mm":
+            raise ConfigError(
+                f"{take}: units {s.units!r} are not a length unit fxspace knows; set "
+                f"[data] units to one of {sorted(UNIT_SCALES)}"
+            )
         pos = np.asarray(s.positions, np.float64)
-        pos, idx = _handle_missing(pos, cfg, take, names, counts)
+        pos, idx = _handle_missing(pos, cfg, take, names, counts, reading)
         lab = (np.full(len(seq.positions), k) if lab is None else np.asarray(lab))[idx]
         per_take.append((pos, idx, lab, k))
     if cfg.target_frames:
         total = sum(len(p) for p, *_ in per_take)
-        counts = [max(2, round(cfg.target_frames * len(p) / total)) for p, *_ in per_take]
-        counts[-1] += cfg.target_frames - sum(counts)
+        sizes = [max(2, round(cfg.target_frames * len(p) / total)) for p, *_ in per_take]
+        sizes[-1] += cfg.target_frames - sum(sizes)
         new = []
-        for (pos, idx, lab, k), c in zip(per_take, counts, strict=True):
+        for (pos, idx, lab, k), c in zip(per_take, sizes, strict=True):
             src = np.linspace(0, len(pos) - 1, c)
             near = np.rint(src).astype(int)
             new.append((resample_frames(pos, c), idx[near], lab[near], k))
+        _say(reading, f"resampled to target_frames = {cfg.target_frames} frames in all "
+                      f"({total} before; linear interpolation in time)")  # fmt: skip
         per_take = new
+    before = sum(len(p) for p, *_ in per_take)
     for pos, idx, lab, k in per_take:
         sl = slice(None, None, cfg.stride)
         pos_all.append(pos[sl])
@@ -208,12 +379,18 @@ def load_face(cfg: FaceData, seed: int = 0) -> FaceFrames:
         label_all.append(lab[sl])
         take_all.append(np.full(len(pos[sl]), k))
     pos = np.concatenate(pos_all)
+    if cfg.stride > 1:
+        _say(reading, f"stride = {cfg.stride}: every {cfg.stride}th frame kept "
+                      f"({before} → {len(pos)} frames)")  # fmt: skip
     take = np.concatenate(take_all)
     frame = np.concatenate(frame_all)
     label = np.concatenate(label_all)
     if cfg.max_frames and len(pos) > cfg.max_frames:
         keep = np.unique(np.linspace(0, len(pos) - 1, cfg.max_frames).round().astype(int))
+        _say(reading, f"max_frames = {cfg.max_frames}: thinned evenly from {len(pos)} to "
+                      f"{len(keep)} frames")  # fmt: skip
         pos, take, frame, label = pos[keep], take[keep], frame[keep], label[keep]
     take_names = tuple(n for n, *_ in seqs)
     label_names = seqs[0][3] if seqs[0][3] is not None else take_names
-    return FaceFrames(pos, take, frame, take_names, tuple(names), rate, label, label_names, counts)
+    return FaceFrames(pos, take, frame, take_names, tuple(names), rate, label, label_names,
+                      counts, reading)  # fmt: skip

@@ -42,6 +42,7 @@ from fxspace.expression._sparse import sparse_components as sparse_components
 from fxspace.expression._sparse import to_scipy as to_scipy
 from fxspace.expression._sweep import CRITERIA as CRITERIA
 from fxspace.expression._sweep import SweepResult as SweepResult
+from fxspace.expression._sweep import bridge_parts as bridge_parts
 from fxspace.expression._sweep import choose_threshold as choose_threshold
 from fxspace.expression._sweep import sweep_message as sweep_message
 from fxspace.expression._sweep import threshold_grid as threshold_grid
@@ -88,6 +89,7 @@ __all__ = [
     "PAIR_WEIGHT",
     "embed_graph",
     "sweep_message",
+    "bridge_parts",
     "SweepResult",
     "choose_threshold",
     "threshold_grid",

@@ -4,6 +4,20 @@ For each ε the chain graph → geodesic → MDS → Pearson r runs as one branc
 ``jax.lax.map``-ped (vmapped in batches) over the thresholds. A threshold that leaves the
 graph disconnected gets ``r = nan`` and ``connected = False`` with its component count —
 never ``inf`` distances fed to the embedding.
+
+**Bridged graphs.** Just above the connecting threshold the ε-graph is held together by
+*bridges*: single edges whose removal splits the frames in two (the bottleneck edge of the
+minimum spanning tree is one by construction). Every geodesic between the two parts runs
+through that edge, so the geodesic matrix is dominated by a few long chains — close to a
+1-D (tree) metric that a 2-D MDS reproduces almost exactly: r → 1 for a graph that is a
+poor manifold model. On a real take (962 frames of AnimFace cheeks) the connecting ε holds
+47 bridges, the largest splitting 417 frames from 545, and its r beats every denser graph
+when long filled gaps stretch the take into chains. `threshold_sweep` therefore reports,
+per ε, the size of the smaller part the graph's largest bridge cuts off
+(``bridge_part``), and `choose_threshold` skips ε whose graph a bridge splits with at
+least ``min_bridge_part`` of the frames on each side (default 5 %), naming them. Kim &
+Jung (§2.2) sweep ε "between the smallest and the largest distance" and keep the highest
+r; they do not discuss this degenerate end of the range.
 """
 
 from __future__ import annotations
@@ -40,6 +54,7 @@ __all__ = [
     "threshold_grid",
     "choose_threshold",
     "sweep_message",
+    "bridge_parts",
 ]
 
 CRITERIA = ("max_r", "bounded_degree", "elbow")
@@ -56,6 +71,10 @@ class SweepResult(NamedTuple):
     - `mean_degree`: ``(S,)`` mean number of neighbours per frame.
     - `eigenvalues`: ``(S, dim)`` top MDS eigenvalues (NaN where disconnected).
     - `num_frames`: number of frames ``n``.
+    - `bridge_part`: ``(S,)`` frames in the smaller part cut off by the graph's largest
+      bridge (an edge whose removal disconnects it): 0 when no edge is a bridge or the
+      graph is disconnected, -1 when not computed (a traced sweep); ``None`` for a
+      result built without it.
     """
 
     thresholds: Float[Array, " S"]
@@ -65,6 +84,7 @@ class SweepResult(NamedTuple):
     mean_degree: Float[Array, " S"]
     eigenvalues: Float[Array, "S dim"]
     num_frames: int
+    bridge_part: Int[Array, " S"] | None = None
 
 
 def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str):
@@ -163,7 +183,97 @@ def threshold_sweep(
         S = th.shape[0]  # gathered on the host unless traced
         out = tuple(a[:S] if traced else np.asarray(a)[:S] for a in out)
     r, conn, ncomp, deg, eig = (jnp.asarray(a) for a in out)
-    return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]))
+    if traced:
+        bridge = jnp.full(th.shape, -1, jnp.int32)
+    else:
+        bridge = jnp.asarray(bridge_parts(np.asarray(P), np.asarray(th), np.asarray(conn)))
+    return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]), bridge)
+
+
+def _spanning_tree(P: np.ndarray) -> np.ndarray | None:
+    """Parents of a minimum spanning tree of ``P`` rooted at 0 (Prim, O(n²)); ``None``
+    when ``P`` is disconnected (inf entries)."""
+    n = len(P)
+    in_tree = np.zeros(n, bool)
+    dist = np.full(n, np.inf)
+    parent = np.full(n, -1)
+    dist[0] = 0.0
+    for _ in range(n):
+        d = np.where(in_tree, np.inf, dist)
+        u = int(np.argmin(d))
+        if not np.isfinite(d[u]):
+            return None
+        in_tree[u] = True
+        better = ~in_tree & (P[u] < dist)
+        dist[better] = P[u][better]
+        parent[better] = u
+    return parent
+
+
+def bridge_parts(pairwise, thresholds, connected=None) -> np.ndarray:
+    """Per ε, the frames in the smaller part cut off by the ε-graph's largest bridge.
+
+    Bridges of a connected graph are edges of every spanning tree, so only the ``n − 1``
+    edges of one minimum spanning tree are candidates: the tree edge above node ``v`` is
+    a bridge of the ε-graph iff exactly one graph edge leaves ``v``'s subtree. With the
+    nodes in the tree's depth-first order every subtree is a contiguous block, so the
+    edges leaving each of them are two rectangle sums of the 2-D prefix sum of the
+    adjacency matrix: O(n²) per ε, on the host. Bridges only disappear as ε grows, so
+    the scan stops at the first ε without one.
+
+    **Arguments:** ``pairwise`` ``(n, n)`` state distances; ``thresholds`` ``(S,)``;
+    ``connected`` ``(S,)`` (computed when ``None``): disconnected ε get 0.
+
+    **Returns:** ``(S,)`` int32, 0 where no edge is a bridge.
+    """
+    P = np.asarray(pairwise, np.float64)
+    th = np.asarray(thresholds, np.float64).reshape(-1)
+    n = len(P)
+    out = np.zeros(th.shape, np.int32)
+    if n < 3:
+        return out
+    parent = _spanning_tree(np.where(np.isfinite(P), P, np.inf))
+    if parent is None:
+        return out
+    t_conn = max(float(P[v, parent[v]]) for v in range(1, n))
+    conn = th >= t_conn if connected is None else np.asarray(connected, bool).reshape(-1)
+    kids: list[list[int]] = [[] for _ in range(n)]
+    for v in range(1, n):
+        kids[parent[v]].append(v)
+    order, stack = [], [0]
+    while stack:
+        v = stack.pop()
+        order.append(v)
+        stack.extend(reversed(kids[v]))
+    order_a = np.asarray(order)
+    size = np.ones(n, np.int64)
+    for v in order[::-1]:
+        if parent[v] >= 0:
+            size[parent[v]] += size[v]
+    tin = np.empty(n, np.int64)
+    tin[order_a] = np.arange(n)
+    Pp = P[np.ix_(order_a, order_a)]
+    lo = tin[order_a[1:]]
+    sz = size[order_a[1:]]
+    hi = lo + sz
+    part = np.minimum(sz, n - sz)
+    for k in np.argsort(th):
+        if not conn[k]:
+            continue
+        A = (Pp <= th[k]).astype(np.int32)
+        np.fill_diagonal(A, 0)
+        C = np.zeros((n + 1, n + 1), np.int64)
+        C[1:, 1:] = A.cumsum(0).cumsum(1)
+
+        # edges from the block [lo, hi) to the columns before it and after it
+        leaving = (C[hi, lo] - C[lo, lo] - C[hi, 0] + C[lo, 0]) + (
+            C[hi, n] - C[lo, n] - C[hi, hi] + C[lo, hi]
+        )
+        bridged = part[leaving == 1]
+        if not bridged.size:
+            break  # no bridge here, none at any larger ε
+        out[k] = int(bridged.max())
+    return out
 
 
 def _as_thresholds(thresholds, dtype) -> Array:
@@ -251,8 +361,17 @@ def choose_threshold(
     sweep: SweepResult,
     criterion: Literal["max_r", "bounded_degree", "elbow"] = "max_r",
     max_mean_degree: float | None = None,
+    *,
+    min_bridge_part: float | None = 0.05,
 ) -> dict:
     """Pick a threshold from a sweep.
+
+    Only connected ε are candidates, and (with ``min_bridge_part``, default 0.05) not
+    those whose graph a single edge — a bridge — splits into two parts each holding at
+    least that fraction of the frames (at least 2): their geodesics are chains through
+    that edge and their r measures the chain, not the manifold (module docstring). The
+    skipped ε are listed in the result's ``skipped_bridged``; ``None`` keeps them (the
+    paper's plain rule). A sweep without ``bridge_part`` skips nothing.
 
     **Criteria:**
     - ``"max_r"`` (default): the paper's — the threshold whose 2-D embedding best keeps
@@ -282,6 +401,25 @@ def choose_threshold(
         raise FxspaceError(
             "no threshold in the sweep gives a connected graph: " + sweep_message(sweep)
         )
+    skipped: list[dict] = []
+    bp = sweep.bridge_part
+    if min_bridge_part is not None and bp is not None:
+        min_bridge_part = check_scalar(min_bridge_part, "min_bridge_part", low=0.0, high=0.5)
+        bp = np.asarray(bp).reshape(-1)
+        k_min = max(2, int(np.ceil(min_bridge_part * sweep.num_frames)))
+        held = conn & (bp >= k_min)
+        skipped = [{"threshold": float(th[k]), "score": float(r[k]), "bridge_part": int(bp[k])}
+                   for k in np.flatnonzero(held)]  # fmt: skip
+        if held.any() and not (conn & ~held).any():
+            listed = ", ".join(f"ε={d['threshold']:.4g} (r={d['score']:.4f}, splits off "
+                               f"{d['bridge_part']} frames)" for d in skipped)  # fmt: skip
+            raise FxspaceError(
+                f"every connected threshold of the sweep leaves a graph held together by one "
+                f"edge (a bridge): {listed}; their r measures that chain, not the manifold. "
+                "Extend the grid toward the largest distance, or pass min_bridge_part=None "
+                "to accept them"
+            )
+        conn = conn & ~held
     idx = np.flatnonzero(conn)
     if criterion == "max_r":
         k = idx[np.argmax(r[idx])]
@@ -313,6 +451,7 @@ def choose_threshold(
         "threshold": float(th[k]),
         "score": float(r[k]),
         "mean_degree": float(np.asarray(sweep.mean_degree)[k]),
+        "skipped_bridged": skipped,
     }
 
 
@@ -323,9 +462,17 @@ def sweep_message(sweep: SweepResult, pairwise: Array | None = None) -> str:
     th = np.asarray(sweep.thresholds)
     nc = np.asarray(sweep.n_components)
     parts = [f"ε={t:.4g}: {c} components" for t, c, ok in zip(th, nc, conn, strict=True) if not ok]
+    bp = None if sweep.bridge_part is None else np.asarray(sweep.bridge_part)
+    held = (
+        []
+        if bp is None
+        else [f"ε={t:.4g} (a bridge splits off {b} frames)"
+              for t, b, ok in zip(th, bp, conn, strict=True) if ok and b > 0]
+    )  # fmt: skip
+    tail = ("; held together by a bridge at " + "; ".join(held)) if held else ""
     if not parts:
-        return "all thresholds give a connected graph"
-    msg = "disconnected at " + "; ".join(parts)
+        return "all thresholds give a connected graph" + tail
+    msg = "disconnected at " + "; ".join(parts) + tail
     if pairwise is not None:
         msg += (
             f". The smallest threshold that connects the graph is "

@@ -1,4 +1,4 @@
-"""Readers and writers only: markers (C3D, TRC, NPZ), body motion (ASF/AMC, BVH) and
+"""Readers and writers only: markers (C3D, TRC, NPZ, CSV/TSV tables), body motion (ASF/AMC, BVH) and
 skinned glTF. The data types live with their system (`fxspace.motion.Motion`,
 `fxspace.mesh.SkinnedMesh`) or in ``io/_types`` (`MarkerSequence`).
 
@@ -32,6 +32,7 @@ from fxspace.io._meshseq import write_ply_sequence as write_ply_sequence
 from fxspace.io._obj import ObjMesh as ObjMesh
 from fxspace.io._obj import read_obj_mesh as read_obj_mesh
 from fxspace.io._obj import read_obj_vertices as read_obj_vertices
+from fxspace.io._table import write_table as write_table
 from fxspace.io._trc import write_trc as write_trc
 from fxspace.io._types import UNIT_SCALES as UNIT_SCALES
 from fxspace.io._types import MarkerSequence as MarkerSequence
@@ -68,6 +69,7 @@ __all__ = [
     "write_obj_sequence",
     "write_ply_sequence",
     "write_trc",
+    "write_table",
     "UNIT_SCALES",
     "MarkerSequence",
     "Animation",

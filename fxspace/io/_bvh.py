@@ -5,6 +5,9 @@ Angles are degrees in the file; a joint whose channels list rotations in the ord
 (the order of the channels, read left to right, is the order of the matrix product).
 Lengths are multiplied by ``scale`` on reading (file units → metres) and divided by it
 on writing, so ``write_bvh(p, read_bvh(p, scale=s), scale=s)`` reproduces the file's units.
+BVH declares no unit: ``units=`` names it (``"cm"`` for the Bandai Namco files) or
+``units="auto"`` infers it from the skeleton's size; either is said on the console, and a
+skeleton of implausible size in metres (the default) gets a warning naming the likely unit.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from fxspace._progress import note
 from fxspace._validate import check_readable, check_scalar, checked
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.motion import Motion
@@ -71,8 +75,36 @@ class _Tokens:
             raise self.error(f"expected a number for {what}, found {t!r}", n) from None
 
 
+_UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+_UNIT_SPELLING = {"meter": "m", "meters": "m", "metre": "m", "metres": "m",
+                  "centimeter": "cm", "centimeters": "cm", "centimetre": "cm",
+                  "centimetres": "cm", "millimeter": "mm", "millimeters": "mm",
+                  "millimetre": "mm", "millimetres": "mm", "inch": "in", "inches": "in",
+                  "foot": "ft", "feet": "ft"}  # fmt: skip
+
+
+def _rest_extent(parents, offsets) -> float:
+    """The diagonal of the box holding the rest-pose joints (file units)."""
+    pos = np.zeros((len(parents), 3))
+    for j, p in enumerate(parents):
+        pos[j] = np.asarray(offsets[j], float) + (pos[p] if p >= 0 else 0.0)
+    return float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0)))
+
+
+def _unit_for_extent(e: float) -> str | None:
+    """The unit that makes a skeleton ``e`` file units across a person (1–3 m diagonal,
+    within a factor 1.2), ``None`` when no unit does."""
+    best, best_d = None, np.inf
+    for u, m in _UNITS_M.items():
+        v = e * m
+        d = 0.0 if 1.0 <= v <= 3.0 else min(abs(np.log(v / 1.0)), abs(np.log(v / 3.0)))
+        if d < best_d - 1e-12:
+            best, best_d = u, d
+    return best if best_d <= np.log(1.2) else None
+
+
 @checked
-def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
+def read_bvh(path: str | Path, scale: float = 1.0, *, units: str | None = None) -> Motion:
     """Read a ``.bvh`` (or ``.bvh.gz``) file into a `Motion`.
 
     **Arguments:**
@@ -80,6 +112,11 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     - ``path``: the file.
     - ``scale``: metres per file length unit (CMU's BVH conversion uses the ASF unit,
       ``0.0254 / 0.45`` m).
+    - ``units``: the file's length unit instead of ``scale``: ``"m"``, ``"cm"`` (the
+      Bandai Namco files), ``"mm"``, ``"in"``, ``"ft"``, or ``"auto"`` (inferred from the
+      rest skeleton's size, for a human-sized figure); said on the console. With neither,
+      lengths are metres, and a skeleton under 0.3 m or over 5 m across gets a warning
+      naming the likely unit.
 
     **Returns:** a ``Motion``; end sites become joints named ``<parent>_end``.
 
@@ -90,10 +127,24 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     keeps its world position (`fxspace.motion.drop_root` then removes the static root).
     Other varying translations (stretching bones) raise ``CorruptFileError``.
 
-    Raises ``CorruptFileError`` naming the line of the first malformed token, and
-    `FxspaceError` for a ``scale`` that is not a finite positive number.
+    Raises ``CorruptFileError`` naming the line of the first malformed token (a ``Frame
+    Time`` that is not a finite positive number included), and `FxspaceError` for a
+    ``scale`` that is not a finite positive number, an unknown ``units``, or both given.
     """
     scale = check_scalar(scale, "scale", low=0.0, low_open=True)
+    if units is not None:
+        u = units.strip().lower() if isinstance(units, str) else units
+        u = _UNIT_SPELLING.get(u, u)
+        if u != "auto" and u not in _UNITS_M:
+            raise FxspaceError(
+                f"units must be one of {sorted(_UNITS_M)} or 'auto', got {units!r}"
+            )
+        if scale != 1.0:
+            raise FxspaceError(
+                f"give scale (metres per file unit) or units, not both (scale={scale:g}, "
+                f"units={units!r})"
+            )
+        units = u
     path = Path(path)
     lines = _open_text(path).splitlines()
     try:
@@ -146,6 +197,32 @@ def read_bvh(path: str | Path, scale: float = 1.0) -> Motion:
     if tk.i != len(tk.toks):
         raise tk.error(f"unexpected {tk.toks[tk.i][0]!r} after the root joint")
 
+    extent = _rest_extent(parents, offsets)
+    if units == "auto":
+        units = _unit_for_extent(extent) if extent > 0 else None
+        if units is None:
+            sizes = ", ".join(f"{extent * m:.3g} m in {u}" for u, m in _UNITS_M.items())
+            raise FxspaceError(
+                f"{path}: cannot infer the units: the rest skeleton spans {extent:.4g} units "
+                f"({sizes}), no unit gives a person 1–3 m across; pass units=… or scale=… "
+                "(CMU's BVH conversion: scale=0.0254/0.45)"
+            )
+        note(f"{path.name}: lengths inferred to be {units} (the rest skeleton spans "
+             f"{extent:.4g} units: {extent * _UNITS_M[units]:.3g} m); read as metres "
+             f"(declare units=… if not)")  # fmt: skip
+        scale = _UNITS_M[units]
+    elif units is not None:
+        scale = _UNITS_M[units]
+        note(f"{path.name}: lengths in {units} (declared), read as metres "
+             f"(the rest skeleton spans {extent * scale:.3g} m)")  # fmt: skip
+    elif scale == 1.0 and extent > 0 and not 0.3 <= extent <= 5.0:
+        likely = _unit_for_extent(extent)
+        if likely not in (None, "m"):
+            note(f"{path.name}: the rest skeleton spans {extent:.4g} m read as metres (BVH "
+                 f"declares no unit) — implausible for a body; the lengths look like {likely} "
+                 f"({extent * _UNITS_M[likely]:.3g} m): read with units={likely!r}",
+                 warning=True)  # fmt: skip
+
     n_ch = sum(len(c) for c in channels)
     data, dt = _read_frames(path, lines, mline, n_ch)
     quats, root, local = _decode_channels(data, channels, parents, offsets)
@@ -183,8 +260,11 @@ def _read_frames(path, lines: list[str], mline: int, n_ch: int) -> tuple[np.ndar
         dt = float(val)
     except ValueError:
         raise CorruptFileError(f"{path}, line {k}: bad frame time {val!r}") from None
-    if dt <= 0:
-        raise CorruptFileError(f"{path}, line {k}: frame time must be positive, got {dt}")
+    if not np.isfinite(dt) or dt <= 0:
+        raise CorruptFileError(
+            f"{path}, line {k}: the frame time must be a finite positive number of seconds, "
+            f"got {val!r}; fix the 'Frame Time:' line (e.g. 0.00833333 for 120 Hz)"
+        )
     rows = []
     for ln_no in range(k, len(lines)):
         s = lines[ln_no].split()

@@ -470,6 +470,7 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
             "max_gap": cfg.data.max_gap,
             **(face.missing or {}),
         },  # fmt: skip
+        "reading": face.reading,  # what was read; every drop/resample/conversion said
         "threshold": ns.threshold,
         "threshold_source": ns.threshold_source,
         "criterion": ns.choice["criterion"] if ns.choice else None,

@@ -299,6 +299,7 @@ def _metrics(cfg: Config, face, P, sw, choices, sp, timings) -> dict:
         "dtype": str(P.dtype),
         "dim": int(sp["embedding"].shape[1]),
         "missing": {"policy": cfg.data.missing, "max_gap": cfg.data.max_gap, **face.missing},
+        "reading": face.reading,  # what was read; every drop/resample/conversion said
         "markers": int(face.positions.shape[1]),
         "takes": list(face.take_names),
         "state_distance": "Frobenius distance between marker-distance matrices (mm)",

@@ -74,9 +74,14 @@ def test_choose_threshold_criteria(rng):
     P = _curve(rng)
     sw = fx.threshold_sweep(P, fx.threshold_grid(P, num=8, upper_quantile=0.9))
     best = fx.choose_threshold(sw, "max_r")
-    assert best["score"] == np.nanmax(np.asarray(sw.scores))
+    # the highest r among connected ε not held together by a bridge (issue 44)
+    held = np.asarray(sw.bridge_part) >= max(2, np.ceil(0.05 * sw.num_frames))
+    assert best["score"] == np.nanmax(np.where(held, np.nan, np.asarray(sw.scores)))
+    skipped = [d["threshold"] for d in best["skipped_bridged"]]
+    assert skipped == np.asarray(sw.thresholds)[held].tolist()
     bd = fx.choose_threshold(sw, "bounded_degree", max_mean_degree=10)
-    assert bd["mean_degree"] <= 10 or bd["index"] == int(np.flatnonzero(sw.connected)[0])
+    first = int(np.flatnonzero(np.asarray(sw.connected) & ~held)[0])
+    assert bd["mean_degree"] <= 10 or bd["index"] == first
     el = fx.choose_threshold(sw, "elbow")
     assert bool(sw.connected[el["index"]])
     with pytest.raises(ValueError, match="criterion"):
@@ -120,7 +125,8 @@ def test_grid_spans_connecting_to_largest_distance(rng):
     assert float(sw.mean_degree[-1]) == pytest.approx(89.0)  # complete graph
     best = fx.choose_threshold(sw)  # max_r is the default (the paper's)
     assert best["criterion"] == "max_r"
-    assert best["score"] == np.nanmax(np.asarray(sw.scores))
+    held = np.asarray(sw.bridge_part) >= max(2, np.ceil(0.05 * sw.num_frames))  # issue 44
+    assert best["score"] == np.nanmax(np.where(held, np.nan, np.asarray(sw.scores)))
 
 
 def test_expression_space_on_synthetic_face():

@@ -366,7 +366,7 @@ def test_npz_corrupt_and_missing_keys(tmp_path, rng):
 
 def test_unknown_extension_and_missing_file(tmp_path):
     with pytest.raises(ValueError, match=r"unknown marker file extension; supported: \.c3d, \.trc"):
-        read_markers(tmp_path / "take.csv")
+        read_markers(tmp_path / "take.xlsx")
     missing = tmp_path / "absent.trc"
     with pytest.raises(FileNotFoundError, match="absent.trc"):
         read_markers(missing)
@@ -375,7 +375,8 @@ def test_unknown_extension_and_missing_file(tmp_path):
 def test_public_names():
     assert fx.io.read_markers is read_markers
     assert fx.io.MarkerSequence is MarkerSequence
-    assert fx.io.SUPPORTED_EXTENSIONS == (".c3d", ".trc", ".trc.gz", ".npz")
+    assert fx.io.SUPPORTED_EXTENSIONS[:4] == (".c3d", ".trc", ".trc.gz", ".npz")
+    assert {".csv", ".tsv", ".txt", ".csv.gz"} <= set(fx.io.SUPPORTED_EXTENSIONS)
 
 
 # -- real data -----------------------------------------------------------------------------

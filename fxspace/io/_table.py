@@ -1,0 +1,446 @@
+"""Marker tables (CSV / TSV text exports) and the unit checks every marker reader shares.
+
+A lab's marker export is often a text table, one row per frame::
+
+    Frame;Time;lip_l_x;lip_l_y;lip_l_z;brow.X;brow.Y;brow.Z;label
+    1;0.000;12.1;-3.4;51.0;NA;NA;NA;neutral
+    2;0.017;12.2;-3.3;51.1;40.2;18.0;60.1;neutral
+
+`read_table` reads it into a `MarkerSequence`:
+
+- **separator**: ``,``, ``;`` or tab, detected from the header (the one that splits the
+  header and the first rows into the same number of cells); ``sep=`` forces one. With
+  ``;`` or tab, decimal commas (``12,1``) are read as decimal points.
+- **missing values**: empty cells and ``NA``, ``N/A``, ``NaN``, ``null``, ``None``,
+  ``-`` (any case) are NaN — never 0.
+- **marker columns**: three columns ``NAME<sep>X``, ``NAME<sep>Y``, ``NAME<sep>Z`` with
+  ``<sep>`` one of ``_`` ``.`` ``:`` ``-`` or a space, and X/Y/Z in either case
+  (``lip_x``, ``lip.X``, ``lip:X``, ``lip X``); a unit in brackets after a column name
+  (``lip_x (mm)``, ``lip_x [m]``) declares the units.
+- **frame or time column**: ``Frame``/``Frame#``/``Index``/``Sample`` (gaps in the
+  numbering become rows of NaN, said) and ``Time``/``Time (s)``/``t``/``Time_ms``: the
+  rate comes from the time column, or from ``rate=``.
+- **other columns** (a label, a sub-frame, a marker with only two axes) are ignored and
+  named in a note.
+- **units**: ``units=`` declares them; else a bracketed unit in the header; else they are
+  inferred from the data's extent (`infer_units`) and the inference is said.
+
+Notes go through ``fxspace._progress.note`` (a console line and an ``fxspace`` log
+record). `check_units_plausible` warns when a face or body has an implausible size for
+its declared unit, naming the likely unit and the fix.
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+import re
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from fxspace._progress import note
+from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.io._types import UNIT_SCALES, MarkerSequence, _check_seq, canonical_units
+
+__all__ = [
+    "TABLE_EXTENSIONS",
+    "MISSING_TOKENS",
+    "read_table",
+    "write_table",
+    "marker_extent",
+    "infer_units",
+    "check_units_plausible",
+]
+
+#: File name endings read as marker tables (each also gzipped: ``.csv.gz``).
+TABLE_EXTENSIONS = (".csv", ".tsv", ".txt")
+
+#: Cells read as a missing value (NaN), compared case-insensitively after stripping.
+MISSING_TOKENS = ("", "na", "n/a", "nan", "null", "none", "-")
+
+_SEPS = {"\t": "tab", ";": "';'", ",": "','"}
+_AXIS = re.compile(r"^(?P<name>.+?)[ _.:\-]+(?P<axis>[xyzXYZ])$")
+_UNIT = re.compile(r"^(?P<col>.*?)\s*[\(\[](?P<unit>[^\)\]]+)[\)\]]\s*$")
+_FRAME = {"frame", "frame#", "frames", "frame_number", "frame number", "frame no", "index",
+          "sample", "frame_no", "frameno"}  # fmt: skip
+_TIME_S = {"time", "t", "time_s", "time (s)", "time [s]", "seconds", "sec", "timestamp"}
+_TIME_MS = {"time_ms", "time (ms)", "time [ms]", "ms", "milliseconds"}
+
+#: Per-frame extents (mm) plausible for a captured face or body: a face spans about
+#: 150–300 mm, a body 1–2.5 m; outside [30 mm, 5 m] a unit label is likely wrong.
+_PLAUSIBLE_MM = (30.0, 5000.0)
+
+
+# -- units ---------------------------------------------------------------------------------
+def marker_extent(positions: np.ndarray) -> float | None:
+    """The markers' size: the median over frames of the diagonal of the box that holds a
+    frame's present markers (frames with at least 2 markers), in the positions' units;
+    ``None`` when no frame has 2 markers."""
+    pos = np.asarray(positions, np.float64)
+    ok = np.isfinite(pos).all(axis=-1)
+    good = ok.sum(axis=1) >= 2
+    if not good.any():
+        return None
+    p = np.where(ok[..., None], pos, np.nan)[good]
+    diag = np.linalg.norm(np.nanmax(p, axis=1) - np.nanmin(p, axis=1), axis=-1)
+    diag = diag[np.isfinite(diag)]
+    return float(np.median(diag)) if diag.size else None
+
+
+def infer_units(positions: np.ndarray) -> tuple[str, str]:
+    """``(unit, why)``: the length unit a marker array's extent suggests (``marker_extent``:
+    under 5 → ``"m"``, 5–50 → ``"cm"`` (a face in cm), else ``"mm"`` (a face in mm, or a
+    body in cm — said in ``why``; declare the units to be sure)."""
+    e = marker_extent(positions)
+    if e is None:
+        return "mm", "no frame holds two markers, so mm is assumed"
+    if e < 5.0:
+        unit = "m"
+    elif e < 50.0:
+        unit = "cm"
+    else:
+        unit = "mm"
+    why = f"a frame spans {e:.3g} (median)"
+    if unit == "mm" and e < 400.0:
+        why += " — a face in mm, or a body in cm"
+    return unit, why
+
+
+def _likely_unit(extent_mm: float) -> str:
+    """The unit that brings an implausible extent (read in mm) nearest a face or body."""
+    best, best_d = "mm", math.inf
+    for u in ("mm", "cm", "m", "in"):
+        mm = extent_mm * UNIT_SCALES[u]  # the values, read as u instead of mm
+        lo, hi = 100.0, 2500.0
+        d = 0.0 if lo <= mm <= hi else min(abs(math.log(mm / lo)), abs(math.log(mm / hi)))
+        if d < best_d:
+            best, best_d = u, d
+    return best
+
+
+def check_units_plausible(seq: MarkerSequence, source: str) -> bool:
+    """Warn (`note`, ``warning=True``) when ``seq``'s markers have an implausible size for
+    their declared unit (a frame spanning under 30 mm or over 5 m), naming the likely
+    unit and the fix (``units=`` / ``[data] units``). Returns whether the size is
+    plausible (True when it cannot be judged: unknown units, < 2 markers)."""
+    if seq.units not in UNIT_SCALES:
+        return True
+    e = marker_extent(seq.positions)
+    if e is None or e == 0.0:
+        return True
+    mm = e * UNIT_SCALES[seq.units]
+    lo, hi = _PLAUSIBLE_MM
+    if lo <= mm <= hi:
+        return True
+    values_mm = e  # the numbers themselves, as if they were mm
+    likely = _likely_unit(values_mm)
+    if likely == seq.units:
+        return True
+    note(
+        f"{source}: the markers span {e:.3g} {seq.units} per frame (median) — implausible "
+        f"for a face or a body in {seq.units}; the values look like {likely} "
+        f"({e * UNIT_SCALES[likely]:.3g} mm). If they are, read them with "
+        f"units={likely!r} (a config: [data] units = {likely!r})",
+        warning=True,
+    )
+    return False
+
+
+# -- text -----------------------------------------------------------------------------------
+def _load_text(path: Path) -> str:
+    raw = path.read_bytes()
+    if path.name.lower().endswith(".gz"):
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError, zlib.error) as e:
+            raise CorruptFileError(f"{path}: not a readable gzip file ({e})") from e
+    if b"\x00" in raw[:4096]:
+        raise CorruptFileError(f"{path}: binary data, not a text table")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def _detect_sep(path: Path, rows: list[tuple[int, str]], sep: str | None) -> str:
+    if sep is not None:
+        if sep not in _SEPS:
+            raise FxspaceError(f"sep must be one of ',', ';' or '\\t' (tab), got {sep!r}")
+        return sep
+    head = [ln for _, ln in rows[:20]]
+    for cand in ("\t", ";", ","):
+        n = head[0].count(cand)
+        if n >= 2 and all(ln.count(cand) == n for ln in head[1:]):
+            return cand
+    for cand in ("\t", ";", ","):  # a ragged file: the separator the header uses most
+        if head[0].count(cand) >= 2:
+            return cand
+    raise CorruptFileError(
+        f"{path}, line {rows[0][0]}: no ',', ';' or tab separates the header into columns "
+        "(a marker table needs NAME_x, NAME_y, NAME_z columns)"
+    )
+
+
+def _classify(header: list[str]):
+    """Columns → (markers {name: [ix, iy, iz]} in order, frame col, (time col, scale),
+    unit from brackets, other column names)."""
+    groups: dict[str, dict[str, int]] = {}
+    frame_col, time_col, units = None, None, set()
+    other: list[str] = []
+    for i, raw in enumerate(header):
+        cell = raw.strip().strip('"').strip()
+        m = _UNIT.match(cell)
+        base, unit = (m["col"], m["unit"].strip()) if m else (cell, None)
+        low = cell.lower()
+        if low in _FRAME and frame_col is None:
+            frame_col = i
+            continue
+        if (low in _TIME_S or low in _TIME_MS) and time_col is None:
+            time_col = (i, 1e-3 if low in _TIME_MS else 1.0)
+            continue
+        a = _AXIS.match(base)
+        if a and a["name"].strip():
+            g = groups.setdefault(a["name"].strip(), {})
+            ax = a["axis"].lower()
+            if ax in g:  # a duplicated axis: keep the first, name the second
+                other.append(cell)
+                continue
+            g[ax] = i
+            if unit:
+                units.add(unit)
+            continue
+        other.append(cell or f"(column {i + 1}, no name)")
+    markers = {}
+    for name, g in groups.items():
+        if set(g) == {"x", "y", "z"}:
+            markers[name] = [g["x"], g["y"], g["z"]]
+        else:
+            other += [header[i].strip() for i in g.values()]
+    return markers, frame_col, time_col, units, other
+
+
+def _numbers(path, cells: list[list[str]], cols: list[int], lines: list[int], comma: bool,
+             header: list[str]) -> np.ndarray:  # fmt: skip
+    """The columns ``cols`` of every row as float64, missing tokens NaN."""
+    out = np.empty((len(cells), len(cols)), np.float64)
+    for r, row in enumerate(cells):
+        for k, c in enumerate(cols):
+            v = row[c].strip().strip('"').strip()
+            if v.lower() in MISSING_TOKENS:
+                out[r, k] = np.nan
+                continue
+            if comma:
+                v = v.replace(",", ".")
+            try:
+                out[r, k] = float(v)
+            except ValueError:
+                raise CorruptFileError(
+                    f"{path}, line {lines[r]}: column {header[c].strip()!r} holds a value that "
+                    f"is not a number ({v[:20]!r}); missing values may be empty, NA, NaN or -"
+                ) from None
+    if np.isinf(out).any():
+        r = int(np.flatnonzero(np.isinf(out).any(axis=1))[0])
+        raise CorruptFileError(f"{path}, line {lines[r]}: an infinite value; mark missing as NA")
+    return out
+
+
+def read_table(
+    path: str | Path,
+    *,
+    units: str | None = None,
+    rate: float | None = None,
+    sep: str | None = None,
+) -> MarkerSequence:
+    """Read a marker table (``.csv``, ``.tsv``, ``.txt``, each optionally ``.gz``); see the
+    module docstring for the layout. ``units`` (a ``UNIT_SCALES`` key or spelling)
+    declares the units, ``rate`` (Hz) the frame rate when the table has no time column
+    (with one, they must agree within 1 %), ``sep`` forces the separator.
+
+    **Raises:** `CorruptFileError` naming the file and line (no header, no marker columns,
+    a row of the wrong length, a cell that is not a number, an uneven or decreasing time
+    column); `FxspaceError` when the rate is neither in the file nor given.
+    """
+    path = Path(path)
+    text = _load_text(path)
+    rows = [(n + 1, ln) for n, ln in enumerate(text.splitlines())
+            if ln.strip() and not ln.lstrip().startswith("#")]  # fmt: skip
+    if not rows:
+        raise CorruptFileError(f"{path}: empty marker table (no header row)")
+    s = _detect_sep(path, rows, sep)
+    header = rows[0][1].split(s)
+    markers, frame_col, time_col, hdr_units, other = _classify(header)
+    if not markers:
+        raise CorruptFileError(
+            f"{path}, line {rows[0][0]}: no marker columns: a marker needs three columns "
+            "NAME_x, NAME_y, NAME_z (or NAME.X, NAME:X, 'NAME X'); "
+            f"separator {_SEPS[s]}, {len(header)} columns"
+        )
+    body = rows[1:]
+    if not body:
+        raise CorruptFileError(f"{path}: the table has a header but no rows")
+    cells, lines = [], []
+    for n, ln in body:
+        c = ln.split(s)
+        if len(c) > len(header) and all(not x.strip() for x in c[len(header) :]):
+            c = c[: len(header)]  # a trailing separator
+        if len(c) != len(header):
+            raise CorruptFileError(
+                f"{path}, line {n}: {len(c)} cells, the header has {len(header)} "
+                f"(separator {_SEPS[s]}; a truncated or ragged row)"
+            )
+        cells.append(c)
+        lines.append(n)
+    # decimal commas: only where ',' is not the separator and cells hold no '.'
+    comma = s != "," and any("," in c[i] for c in cells[:50] for ix in markers.values()
+                                for i in ix)  # fmt: skip
+    names = list(markers)
+    cols = [i for ix in markers.values() for i in ix]
+    xyz = _numbers(path, cells, cols, lines, comma, header).reshape(len(cells), len(names), 3)
+    said = []
+    if comma:
+        said.append("decimal commas read as points")
+
+    # frames: gaps in a frame column become NaN rows
+    if frame_col is not None:
+        fr = _numbers(path, cells, [frame_col], lines, False, header)[:, 0]
+        if np.isnan(fr).any() or np.any(fr != np.round(fr)):
+            bad = int(np.flatnonzero(np.isnan(fr) | (fr != np.round(fr)))[0])
+            raise CorruptFileError(f"{path}, line {lines[bad]}: the frame number is not an integer")
+        d = np.diff(fr)
+        if (d <= 0).any():
+            bad = int(np.flatnonzero(d <= 0)[0]) + 1
+            raise CorruptFileError(
+                f"{path}, line {lines[bad]}: frame numbers must increase (frame {fr[bad]:g} "
+                f"follows {fr[bad - 1]:g})"
+            )
+        if (d > 1).any():
+            full = np.full((int(fr[-1] - fr[0]) + 1, len(names), 3), np.nan)
+            full[(fr - fr[0]).astype(int)] = xyz
+            said.append(f"{len(full) - len(xyz)} frame(s) absent from the frame numbering "
+                        "inserted as missing (NaN)")  # fmt: skip
+            xyz = full
+
+    # rate: from the time column or given
+    if time_col is not None:
+        i, sc = time_col
+        t = _numbers(path, cells, [i], lines, comma, header)[:, 0] * sc
+        if frame_col is not None and len(t) < len(xyz):  # rows were inserted: per row
+            t_rate = _rate_from_time(path, t, lines, steps=np.diff(fr))
+        else:
+            t_rate = _rate_from_time(path, t, lines)
+        if rate is not None and t_rate is not None and abs(t_rate - rate) > 0.01 * rate:
+            raise FxspaceError(
+                f"{path}: rate={rate:g} Hz disagrees with the time column ({t_rate:.6g} Hz); "
+                "drop the rate argument (config: [data] rate = 0) or fix the time column"
+            )
+        if rate is None:
+            if t_rate is None:
+                raise FxspaceError(f"{path}: one row only, so no rate in the time column; "
+                                   "pass rate=… Hz (config: [data] rate)")  # fmt: skip
+            rate = t_rate
+            said.append(f"rate {rate:.6g} Hz from the time column {header[i].strip()!r}")
+    elif rate is None:
+        raise FxspaceError(
+            f"{path}: the table has no time column, so its frame rate is unknown; pass "
+            "rate=… Hz to read_markers (a config: [data] rate = 120.0)"
+        )
+
+    if other:
+        shown = ", ".join(repr(o) for o in other[:8]) + (" …" if len(other) > 8 else "")
+        said.append(f"{len(other)} non-marker column(s) ignored: {shown}")
+
+    if units is not None:
+        u = canonical_units(units)
+    elif len(hdr_units) == 1:
+        u = canonical_units(hdr_units.pop())
+        said.append(f"units {u!r} from the header")
+    elif len(hdr_units) > 1:
+        raise CorruptFileError(
+            f"{path}: the header declares several units {sorted(hdr_units)}; "
+            "pass units=… for the whole table"
+        )
+    else:
+        u, why = infer_units(xyz)
+        said.append(f"units inferred as {u!r} from the data's extent ({why}); "
+                    f"declare them with units=… (a config: [data] units) if not")  # fmt: skip
+    sep_name = _SEPS[s]
+    note(f"{path.name}: {len(names)} markers × {len(xyz)} frames, separator {sep_name}"
+         + "".join(f"; {x}" for x in said))  # fmt: skip
+    try:
+        return MarkerSequence(xyz, tuple(names), float(rate), u)
+    except FxspaceError as e:
+        raise CorruptFileError(f"{path}: {e}") from None
+
+
+def _rate_from_time(path, t: np.ndarray, lines, steps: np.ndarray | None = None):
+    """Hz from a time column (seconds), checked even: ``None`` for a single row."""
+    if len(t) < 2:
+        return None
+    if np.isnan(t).any():
+        bad = int(np.flatnonzero(np.isnan(t))[0])
+        raise CorruptFileError(f"{path}, line {lines[bad]}: the time column has a missing value")
+    dt = np.diff(t)
+    if steps is not None:
+        dt = dt / steps
+    if (dt <= 0).any():
+        bad = int(np.flatnonzero(dt <= 0)[0]) + 1
+        raise CorruptFileError(f"{path}, line {lines[bad]}: the time column must increase")
+    med = float(np.median(dt))
+    off = np.abs(dt - med) > 0.01 * med + 1e-9
+    if off.any():
+        bad = int(np.flatnonzero(off)[0]) + 1
+        raise CorruptFileError(
+            f"{path}, line {lines[bad]}: the time column is not evenly spaced (step "
+            f"{dt[bad - 1]:.6g} s, the median step is {med:.6g} s); rows may be missing — "
+            "add a frame column, or fix the export"
+        )
+    n_steps = float(np.sum(steps)) if steps is not None else float(len(t) - 1)
+    hz = n_steps / float(t[-1] - t[0])  # the whole span: rounded times average out
+    return float(round(hz)) if abs(hz - round(hz)) <= 1e-4 * hz else hz
+
+
+def write_table(
+    path: str | Path,
+    seq: MarkerSequence,
+    *,
+    sep: str = ",",
+    missing: str = "",
+    style: str = "{name}_{axis}",
+    columns: dict[str, list] | None = None,
+    decimals: int = 6,
+) -> Path:
+    """Write ``seq`` as a marker table that `read_table` reads back (atomic; ``.gz``
+    compressed): a ``Frame`` and a ``Time`` column, then ``style`` columns per marker
+    (``"{name}_{axis}"`` → ``lip_x``; ``"{name}.{AXIS}"`` → ``lip.X``), then ``columns``
+    (extra non-marker columns, one value per frame, e.g. a label). Missing values are
+    written as ``missing`` (``""``, ``"NA"``, ``"NaN"``…); ``sep`` is ``,``, ``;`` or tab.
+    The units are not written: read the table back with ``units=seq.units``.
+    """
+    from fxspace.runs import write_bytes_atomic
+
+    _check_seq(seq)
+    if sep not in _SEPS:
+        raise FxspaceError(f"sep must be one of ',', ';' or '\\t' (tab), got {sep!r}")
+    if missing.strip().lower() not in MISSING_TOKENS:
+        raise FxspaceError(f"missing must be one of {list(MISSING_TOKENS)}, got {missing!r}")
+    extra = dict(columns or {})
+    for k, v in extra.items():
+        if len(v) != seq.n_frames:
+            raise FxspaceError(f"columns[{k!r}] has {len(v)} values; seq has {seq.n_frames} frames")
+    head = ["Frame", "Time"] + [
+        style.format(name=n, axis=a, AXIS=a.upper()) for n in seq.names for a in "xyz"
+    ] + list(extra)  # fmt: skip
+    rows = [sep.join(head)]
+    pos = np.asarray(seq.positions, np.float64).reshape(seq.n_frames, -1)
+    for t in range(seq.n_frames):
+        cells = [str(t + 1), f"{t / seq.rate:.9g}"]
+        cells += [missing if np.isnan(v) else f"{v:.{decimals}f}" for v in pos[t]]
+        cells += [str(extra[k][t]) for k in extra]
+        rows.append(sep.join(cells))
+    data = ("\n".join(rows) + "\n").encode("utf-8")
+    p = Path(path)
+    if p.name.lower().endswith(".gz"):
+        data = gzip.compress(data, mtime=0)
+    return write_bytes_atomic(p, data)
