@@ -205,8 +205,9 @@ def _unsafe_below(root: Path, rel: str, final: bool = True) -> str | None:
     return None
 
 
-def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file in the same folder + rename).
+def write_bytes_atomic(path: str | Path, data: bytes, mode: int | None = None) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file in the same folder + rename), with
+    the usual mode (``0o666 & ~umask``) or ``mode``, set before the file appears.
 
     Inside a run (`active_run`), a path under the run folder is written only when no
     folder on the way is a symbolic link (`UnsafePathError`: fxspace never writes out of
@@ -226,7 +227,8 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; use the usual mode
+        # mkstemp makes 0600; use the usual mode (or the one asked for)
+        os.chmod(tmp, (0o666 & ~_umask()) if mode is None else mode)
         os.replace(tmp, p)
     except BaseException:
         if os.path.exists(tmp):
@@ -1153,9 +1155,17 @@ def write_report(
         if r["status"] == "corrupt":
             print(f"fxspace report: {r['run']}: {r['error']}", file=sys.stderr)
     check_writable(out, [out / "runs.csv", out / "runs.md"], force=force)
-    clean_run(out)  # the previous report's files (only those fxspace wrote)
+    if not any(os.path.lexists(out / n) for n in ("status.json", "metrics.json", "config.toml")):
+        # the previous report's files (only those fxspace wrote, only a report's names),
+        # never in a folder that holds a run (``--out`` pointed at one)
+        clean_run(out, keep=lambda rel: not _report_file(rel))
     with active_run(out, force=force):
         return _write_report(rows, swept, metrics, out)
+
+
+def _report_file(rel: str) -> bool:
+    return rel in ("runs.csv", "runs.md") or ("/" not in rel and "_vs_" in rel
+                                               and rel.endswith(".png"))  # fmt: skip
 
 
 def _write_report(

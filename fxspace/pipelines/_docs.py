@@ -398,9 +398,10 @@ def _copy_figure(src: Path, dst: Path) -> None:
     """Copy a run's figure (a regular file) keeping its permissions: a figure readable
     only by its owner stays so in the docs."""
     data = read_regular(src)
-    mode = stat.S_IMODE(os.stat(src).st_mode)
-    write_bytes_atomic(dst, data or b"")
-    os.chmod(dst, stat.S_IMODE(os.stat(dst).st_mode) & mode)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    mode = stat.S_IMODE(os.stat(src).st_mode) & 0o666 & ~mask
+    write_bytes_atomic(dst, data or b"", mode=mode)  # the mode set before it appears
 
 
 def write_docs(runs: str | Path = "runs", out: str | Path = "docs/reproductions",

@@ -585,3 +585,40 @@ def test_bench_page_rewrites_the_committed_page_and_its_own_records(tmp_path):
     write_bench("fcm", _rows(), title="t", command="c", root=tmp_path / "runs")
     with pytest.raises(OverwriteRefusedError, match=r"fcm\.json"):
         write_bench_page(tmp_path / "runs", out)
+
+
+def test_report_out_pointed_at_a_run_folder_deletes_nothing_of_it(tmp_path, toy):
+    run_dict({"experiment": toy}, tmp_path / "s" / "a")
+    (other,) = run_dict({"experiment": toy, "n": 3}, tmp_path / "other")
+    before = sorted(p.name for p in other.iterdir())
+    write_report(tmp_path / "s", out=other)
+    write_report(tmp_path / "s", out=other)
+    assert set(before) <= {p.name for p in other.iterdir()} and _metrics(other)["sq"] == 9
+
+
+def test_report_replaces_its_own_old_figures(tmp_path, toy):
+    run_dict({"experiment": toy}, tmp_path / "s" / "a")
+    run_dict({"experiment": toy, "n": 3}, tmp_path / "s" / "b")
+    _, rep = write_report(tmp_path / "s")
+    old = rep / "sq_vs_n.png"
+    assert old.is_file()
+    shutil.rmtree(tmp_path / "s" / "b")
+    (rep / "mine_vs_notes.png").write_bytes(b"the user's")
+    write_report(tmp_path / "s")  # one run left: no figure to compare, the old one goes
+    assert not old.exists() and (rep / "mine_vs_notes.png").read_bytes() == b"the user's"
+
+
+def test_cache_whose_writes_fail_falls_back_with_a_message(tmp_path, toy, monkeypatch, capsys):
+    """A read-only cache as root sees it (root writes anyway): the writes fail."""
+    real = runs.write_bytes_atomic
+
+    def failing(path, data, mode=None):
+        if Path(path).parent.name == "cache":
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path, data, mode)
+
+    monkeypatch.setattr(runs, "write_bytes_atomic", failing)
+    (d,) = run_dict({"experiment": toy}, tmp_path / "r")
+    assert _metrics(d)["sq"] == 4
+    out = capsys.readouterr().out
+    assert "KEY cannot be written (Permission denied)" in out and "without a cache" in out
