@@ -622,3 +622,32 @@ def test_cache_whose_writes_fail_falls_back_with_a_message(tmp_path, toy, monkey
     assert _metrics(d)["sq"] == 4
     out = capsys.readouterr().out
     assert "KEY cannot be written (Permission denied)" in out and "without a cache" in out
+
+
+def test_studio_preparation_never_hangs_on_a_garbage_lock(tmp_path, toy):
+    from fxspace.pipelines import prepare_config
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'experiment = "{toy}"\n')
+    r = tmp_path / "r"
+    r.mkdir()
+    (r / LOCK).write_text("{}")
+    with _within(20):
+        assert prepare_config(cfg, r) == r
+    assert _metrics(r)["sq"] == 4
+
+
+def test_studio_opens_a_finished_run_of_older_code_as_it_is(tmp_path, toy, monkeypatch, capsys):
+    import fxspace.pipelines as P
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'experiment = "{toy}"\n')
+    r = tmp_path / "r"
+    P.run_config(cfg, r)
+    before = (r / "metrics.json").read_bytes()
+    monkeypatch.setattr(runs, "code_digest", lambda: "code-2")
+    toy_mod = P.load_pipeline(toy)
+    monkeypatch.setattr(toy_mod, "prepare_app", lambda cfg, d, seed: None, raising=False)
+    assert P.prepare_config(cfg, r) == r
+    assert (r / "metrics.json").read_bytes() == before
+    assert "shows it as it is" in capsys.readouterr().out
