@@ -119,7 +119,9 @@ def _refit_rss(Z: np.ndarray, cps: np.ndarray) -> float:
 
 @checked
 def choose_count(
-    Z: Float[ArrayLike, "T k"], picks: list[np.ndarray], criterion: Literal["bic", "elbow"] = "bic"
+    Z: Float[ArrayLike, "T k"],
+    picks: list[np.ndarray],
+    criterion: Literal["bic", "elbow"] = "elbow",
 ) -> tuple[int, dict]:
     """Choose among candidate change-point sets (one per count) by BIC or the elbow of
     the refitted RSS (module docstring); returns (index into `picks`, the table)."""
@@ -169,7 +171,7 @@ def segment_motion(
     lam_grid: int = 48,
     tol: float = 1e-8,
     on: Literal["velocity", "position"] = "velocity",
-    criterion: Literal["bic", "elbow"] = "bic",
+    criterion: Literal["bic", "elbow"] = "elbow",
     max_segments: int | None = None,
 ) -> Segmentation:
     """Cut a motion series into segments at the fused-lasso change points.
@@ -178,9 +180,10 @@ def segment_motion(
 
     - `X`: ``(T, ...)`` frames (e.g. ``(T, N, 3)`` vertex trajectories); finite.
     - `n_segments`: target number of segments (searches λ over a log grid of ``lam_grid``
-      values in one vmapped solve); ``"auto"`` → the count chosen from the data by
-      `criterion` on the λ path (module docstring); ``None`` → use ``lam`` and keep every
-      change point.
+      values in one vmapped solve); 8 by default, the paper's count (Hirose & Higuchi §2:
+      150 frames cut into 8; the paper names no rule for it); ``"auto"`` → the count
+      chosen from the data by `criterion` on the λ path (module docstring); ``None`` → use
+      ``lam`` and keep every change point.
     - `lam`: λ₂ (on the unit-scale summary) when ``n_segments`` is ``None``.
     - `n_components`: principal components in the summary; `min_length`: minimum
       segment length in frames; `tol`: a jump smaller than this is no change point.
@@ -188,7 +191,9 @@ def segment_motion(
       so segments are stretches of near-constant velocity (piecewise-linear motion — what
       key-frame interpolation models best); ``"position"`` fits the summary itself
       (piecewise-constant poses).
-    - `criterion`: ``"bic"`` or ``"elbow"`` (with ``n_segments="auto"``);
+    - `criterion`: ``"elbow"`` (the default everywhere: `fit_scene`'s
+      ``segment_criterion``, the reconstruction config and the docs) or ``"bic"`` (with
+      ``n_segments="auto"``);
       `max_segments`: the largest count considered (default ``T // (2·min_length)``).
 
     **Returns:** `Segmentation`. Cost: one fused-lasso solve over

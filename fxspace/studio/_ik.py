@@ -10,6 +10,8 @@ the surface of the model and their target positions are set":
 - each marker's target is a **draggable gizmo**; the mesh follows on every drag event
   (one warm-started `fxspace.solve_ik` per event), or type a target and press
   *Move target*;
+- *Solver*: Levenberg–Marquardt on the analytic Jacobian (the default), or the paper's
+  gradient path, BFGS on the factored gradient of eq. (13) (or on eq. (9));
 - *Remove marker*; *Play / Pause* plays the mesh's own animation and tracks it with the
   current markers (their targets follow the animated surface, IK warm-started per frame);
 - *Export BVH* writes the current pose, or the tracked frames, as BVH
@@ -31,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from fxspace.errors import FxspaceError
-from fxspace.studio._ik_controller import IKController, load_ik_mesh
+from fxspace.studio._ik_controller import IK_SOLVERS, IKController, load_ik_mesh
 from fxspace.studio._server import (
     Player,
     ServeOptions,
@@ -53,6 +55,7 @@ def status_text(st: dict) -> str:
         [
             f"Constraints: {cons}" if cons else "",
             f"{'Playing' if st['playing'] else 'Paused'} t = {st['time']:.2f} s",
+            f"Solver: {IK_SOLVERS[st['solver']]}" if "solver" in st else "",
         ],
         st["message"],
     )
@@ -78,6 +81,7 @@ class IKView:
         self.tgt_text = gui.add_text("Target x y z", initial_value="")
         self.move_btn = gui.add_button("Move target")
         self.rm_btn = gui.add_button("Remove marker")
+        self.solver = gui.add_dropdown("Solver", tuple(IK_SOLVERS), initial_value=ctl.solver)
         self.kind = gui.add_dropdown("Constraint", ("normal", "floor", "none"))
         self.cons_btn = gui.add_button("Constrain marker")
         self.play_btn = gui.add_button("Play / Pause", disabled=ctl.animation is None)
@@ -163,6 +167,9 @@ class IKView:
             lambda _e: self.guarded(
                 lambda: ctl.add_constraint(self._marker(), str(self.kind.value))
             )
+        )
+        self.solver.on_update(
+            lambda _e: self.guarded(lambda: ctl.set_solver(str(self.solver.value)))
         )
         self.play_btn.on_click(lambda _e: self.guarded(ctl.toggle_play))
         self.export_btn.on_click(lambda _e: self.guarded(lambda: ctl.export_bvh(export_path)))

@@ -14,6 +14,8 @@ import numpy as np
 
 from fxspace.errors import FxspaceError
 from fxspace.mesh import (
+    BFGS,
+    LevenbergMarquardt,
     MarkerSet,
     Pose,
     animation_vertices,
@@ -28,7 +30,16 @@ from fxspace.mesh import (
 )
 from fxspace.results import RESULTS
 
-__all__ = ["IKController", "load_ik_mesh"]
+__all__ = ["IKController", "load_ik_mesh", "IK_SOLVERS"]
+
+#: The solvers the studio offers (name → what it uses). Levenberg–Marquardt, the default,
+#: steps on the analytic Jacobian of the marker residuals (not eq. 13); the paper's
+#: gradient path is BFGS driven by eq. (13), its naive form eq. (9) beside it.
+IK_SOLVERS = {
+    "lm": "Levenberg–Marquardt, analytic Jacobian (default)",
+    "bfgs_factored": "BFGS on the factored gradient, eq. (13) (the paper's gradient)",
+    "bfgs_naive": "BFGS on the naive gradient, eq. (9)",
+}
 
 
 def load_ik_mesh(target):
@@ -88,6 +99,7 @@ class IKController:
         self.floor_height = float(self.vertices[:, 1].min())  # the rest pose's lowest point
         self._normals = None
         self._lock = threading.RLock()
+        self.solver = "lm"  # see IK_SOLVERS
 
     # ------------------------------------------------------------------ markers
     @property
@@ -225,9 +237,23 @@ class IKController:
             )
         return ik_constraints(model, marker_weights=w, normal=nc, contact=ct), tn
 
+    def set_solver(self, name: str) -> None:
+        """Choose the solver (`IK_SOLVERS`: ``"lm"``, the default; ``"bfgs_factored"``,
+        the paper's gradient path; ``"bfgs_naive"``) for the next solves."""
+        if name not in IK_SOLVERS:
+            raise FxspaceError(f"solver must be one of {list(IK_SOLVERS)}, got {name!r}")
+        with self._lock:
+            self.solver = name
+            self.message = f"solver: {IK_SOLVERS[name]}"
+
+    def _solver(self):
+        if self.solver == "lm":
+            return LevenbergMarquardt()
+        return BFGS(gradient=self.solver.removeprefix("bfgs_"))
+
     def solve(self):
         """One warm-started IK solve towards the current targets (and the markers'
-        constraints); updates the pose."""
+        constraints) with the chosen solver (`set_solver`); updates the pose."""
         with self._lock:
             if not self.num_markers:
                 self.message = "add a marker first"
@@ -240,6 +266,7 @@ class IKController:
                 self.pose,
                 constraints=cons,
                 target_normals=tn,
+                solver=self._solver(),
             )
             if res.result not in (RESULTS.nonfinite_input, RESULTS.nonfinite_output):
                 self.pose = res.pose
@@ -247,7 +274,7 @@ class IKController:
             self.last_result = res
             ms = 1e3 * (time.perf_counter() - t0)
             self.message = (
-                f"solved in {int(res.num_steps)} steps, {ms:.1f} ms, marker RMS "
+                f"{self.solver}: solved in {int(res.num_steps)} steps, {ms:.1f} ms, marker RMS "
                 f"{float(res.residual):.3g}"
             )
             return res
@@ -361,6 +388,7 @@ class IKController:
             "constraints": dict(sorted(self.constraints.items())),
             "playing": bool(self.playing),
             "time": float(self.time),
+            "solver": self.solver,
             "num_steps": None if r is None else int(r.num_steps),
             "residual": None if r is None else float(r.residual),
             "message": self.message,

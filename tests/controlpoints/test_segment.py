@@ -73,3 +73,18 @@ def test_count_chosen_from_the_data(rng):
         fx.fit_scene(X.reshape(120, 4, 3), 2, n_segments=2.5)
     with pytest.raises(fx.FxspaceError, match="criterion"):
         fx.segment_motion(X, "auto", criterion="aic")
+
+
+def test_one_segment_default_everywhere():
+    """Issue 47.5: one default for the automatic count, the elbow, under one name in
+    `segment_motion` (``criterion``), `fit_scene` (``segment_criterion``) and the
+    reconstruction config; the count itself defaults to the paper's 8 in both."""
+    import inspect
+
+    from fxspace.pipelines.reconstruction import Config
+
+    seg = inspect.signature(fx.segment_motion).parameters
+    scene = inspect.signature(fx.fit_scene).parameters
+    assert seg["criterion"].default == scene["segment_criterion"].default == "elbow"
+    assert Config().segment_criterion == "elbow"
+    assert seg["n_segments"].default == scene["n_segments"].default == 8
