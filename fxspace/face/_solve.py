@@ -475,7 +475,7 @@ def _notes(b: Binding, fit, outl, ratio, few, fit_tol, outlier_tol, Y, seen, w, 
             for m in np.flatnonzero(outl[t]):
                 d = np.linalg.norm(model - Y[t, m], axis=1)
                 j = int(np.argmin(d))
-                if j != m and d[j] <= outlier_tol * b.size:
+                if j != m and d[j] < 0.5 * d[m]:  # nearer another's place than its own
                     pairs[(int(m), j)] = pairs.get((int(m), j), 0) + 1
         for (m, j), n in sorted(pairs.items(), key=lambda kv: -kv[1])[:5]:
             notes.append(f"marker {b.names[m]!r} sits where {b.names[j]!r} belongs in {n} "

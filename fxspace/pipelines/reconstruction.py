@@ -70,6 +70,8 @@ from fxspace.controlpoints import (
     thin_frames,
 )
 from fxspace.data import data_path
+from fxspace.errors import DataNotFoundError
+from fxspace.results import RESULTS
 from fxspace.runs import cached, cached_arrays, save_figure_atomic, save_npz_atomic
 
 __all__ = ["Config", "run", "prepare_app", "PAPER", "STAGES", "data_files"]
@@ -177,11 +179,22 @@ def _path(name: str) -> Path:
     return data_path(name)
 
 
+def _head_path(cfg: Config) -> Path:
+    """The rig folder ``head``; when it is absent the error says how to run without it."""
+    try:
+        return data_path(cfg.head)
+    except DataNotFoundError as e:
+        raise DataNotFoundError(
+            f"head: {e}; set head = \"\" in the config to run without the head (no "
+            "head.glb, no head metrics), or point head at a rig folder"
+        ) from None
+
+
 def data_files(cfg: Config) -> list[Path]:
     """The files a run reads (for its content key)."""
     files = [] if cfg.file == SYNTHETIC else [_path(cfg.file)]
-    if cfg.head and cfg.file != SYNTHETIC and _path(cfg.head).is_dir():
-        files += sorted(p for p in _path(cfg.head).iterdir() if p.is_file())
+    if cfg.head and cfg.file != SYNTHETIC and _head_path(cfg).is_dir():
+        files += sorted(p for p in _head_path(cfg).iterdir() if p.is_file())
     for f in (cfg.character if cfg.character not in ("", "standin") else "",
               cfg.character_markers, cfg.character_first, cfg.character_last):  # fmt: skip
         if f:
@@ -189,9 +202,18 @@ def data_files(cfg: Config) -> list[Path]:
     return files
 
 
+#: the RMS radius of a face's markers about their centroid, in mm, that a capture must
+#: have (AnimFace: 66 mm; the synthetic face: 56 mm); outside it the units are wrong
+FACE_RADIUS_MM = (20.0, 400.0)
+
+
 def _read_capture(cfg: Config, seed: int) -> tuple[np.ndarray, tuple[str, ...], float, str]:
-    """``(markers (T, M, 3) thinned, names, rate, units)`` of the configured capture."""
-    from fxspace.io import read_markers
+    """``(markers (T, M, 3) thinned, names, rate, units)`` of the configured capture, in
+    millimetres (every ``*_mm`` metric and the edit's ``edit_offset_mm`` are in mm): a
+    capture in other length units is converted (its unit kept as ``file_units``), one
+    whose unit is not a length, or whose face is not of a face's size in mm (metre
+    values labelled mm), is refused with the fix."""
+    from fxspace.io import UNIT_SCALES, read_markers
     from fxspace.synthetic import synthetic_face
 
     if cfg.file == SYNTHETIC:
@@ -199,6 +221,13 @@ def _read_capture(cfg: Config, seed: int) -> tuple[np.ndarray, tuple[str, ...], 
         seq = sf.sequence
     else:
         seq = read_markers(_path(cfg.file))
+    if seq.units not in UNIT_SCALES:
+        raise ConfigError(
+            f"file {cfg.file}: its units {seq.units!r} are not a length unit "
+            f"{sorted(UNIT_SCALES)}; fix the file's unit label"
+        )
+    file_units = seq.file_units or seq.units
+    seq = seq.to_units("mm") if seq.units != "mm" else seq
     P = np.asarray(seq.positions, dtype=np.float64)
     if cfg.start + cfg.n_frames > P.shape[0]:
         raise ConfigError(
@@ -210,7 +239,17 @@ def _read_capture(cfg: Config, seed: int) -> tuple[np.ndarray, tuple[str, ...], 
         raise ConfigError(
             f"{cfg.file} frames {cfg.start}… have missing markers; pick another start"
         )
-    return M, tuple(seq.names), seq.rate / cfg.thin, getattr(seq, "units", "mm")
+    radius = float(np.sqrt(np.mean(np.sum((M[0] - M[0].mean(0)) ** 2, axis=1))))
+    lo, hi = FACE_RADIUS_MM
+    if not lo <= radius <= hi:
+        raise ConfigError(
+            f"file {cfg.file}: the face's markers spread {radius:.3g} mm about their centre "
+            f"(a face: {lo:g}–{hi:g} mm) with its units read as {file_units!r}: the values "
+            "are in another unit than the file says (metres labelled mm?); fix the file's "
+            "unit label"
+        )
+    _edit_marker(cfg, seq.names)  # a misspelt edit_marker stops the run before any stage
+    return M, tuple(seq.names), seq.rate / cfg.thin, file_units
 
 
 def _dense(cfg: Config, M: np.ndarray) -> dict:
@@ -233,7 +272,7 @@ def _dense_head(cfg: Config, M: np.ndarray, names) -> dict:
     excluded); each marker's vertex is its bound triangle's nearest corner."""
     from fxspace.face import bind_markers, posed_vertices, read_rig, solve_weights
 
-    rig = read_rig(_path(cfg.head))
+    rig = read_rig(_head_path(cfg))
     vs = np.asarray(rig.vertex_sets.get("face", np.arange(rig.num_vertices)))
     local = np.full(rig.num_vertices, -1, np.int64)
     local[vs] = np.arange(len(vs))
@@ -241,11 +280,13 @@ def _dense_head(cfg: Config, M: np.ndarray, names) -> dict:
     times = []
     for _ in range(2):  # the first call compiles
         t = time.perf_counter()
-        b = bind_markers(rig, M[0], list(names))
-        sol = solve_weights(rig, b, M)
+        b = bind_markers(rig, M[0], list(names), units="mm")
+        sol = solve_weights(rig, b, M, names=list(names), units="mm")
         X = posed_vertices(rig, b, sol, vertices=vs)
         X.block_until_ready()
         times.append(time.perf_counter() - t)
+    for line in sol.notes:
+        print(f"[reconstruction] the head (dense source): {line}", flush=True)
     mv = local[b.corners[np.arange(len(names)), np.argmax(b.barycentric, axis=1)]]
     return {"X": np.asarray(X, np.float64), "faces": faces, "marker_vertex": mv.astype(np.int64),
             "times": np.asarray(times)}  # fmt: skip
@@ -555,7 +596,7 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
         if cfg.gltf_mesh
         else {}
     )
-    both = cfg.head and cfg.file != SYNTHETIC and _path(cfg.head).exists()
+    both = cfg.head and cfg.file != SYNTHETIC and _head_path(cfg).exists()
     oth = (cached(run_dir, "other_source",
                   _say("other_source", lambda: _other_source(cfg, M, names, c, g, key)))
            if both else {})  # fmt: skip
@@ -580,11 +621,18 @@ def _head_outputs(cfg: Config, run_dir: Path, M, Me, names, rate: float, keys) -
     )
 
     print("[reconstruction] the head: binding the markers, solving the weights …", flush=True)
-    rig = read_rig(_path(cfg.head))
-    b = bind_markers(rig, M[0], names)
-    edited = solve_weights(rig, b, Me)
-    plain = solve_weights(rig, b, M)
-    rigid = solve_weights(rig, b, M, expressions=False)
+    rig = read_rig(_head_path(cfg))
+    b = bind_markers(rig, M[0], names, units="mm")
+    kw = {"names": list(names), "units": "mm"}
+    plain = solve_weights(rig, b, M, **kw)
+    # the edited take starts from the unedited weights (a warm start: the edit moves a
+    # few markers in a few frames)
+    init = np.nan_to_num(np.asarray(plain.weights), nan=0.0)
+    edited = solve_weights(rig, b, Me, init=init, **kw)
+    rigid = solve_weights(rig, b, M, expressions=False, **kw)
+    for what, sol in (("unedited", plain), ("edited", edited)):
+        for line in sol.notes:
+            print(f"[reconstruction] the head, {what} take: {line}", flush=True)
     write_rig_gltf(run_dir / "head.glb", rig, edited.weights, fps=rate, name="edited")
     write_weights_csv(run_dir / "head_weights.csv", edited.weights, rig.names, fps=rate)
     f = keys[0].frame
@@ -598,17 +646,49 @@ def _head_outputs(cfg: Config, run_dir: Path, M, Me, names, rate: float, keys) -
         "residual_mean": float(np.nanmean(np.asarray(plain.residual))),
         "residual_rigid_only_mean": float(np.nanmean(np.asarray(rigid.residual))),
         "converged_fraction": float(np.mean(np.asarray(plain.converged))),
+        "poor_fit_frames": [int(i) for i in np.flatnonzero(
+            np.asarray(plain.result == RESULTS.poor_fit))],
+        "poor_fit_frames_edited": [int(i) for i in np.flatnonzero(
+            np.asarray(edited.result == RESULTS.poor_fit))],
+        "fit_notes": list(plain.notes), "fit_notes_edited": list(edited.notes),
+        "solve_steps_unedited": int(np.sum(np.asarray(plain.num_steps))),
+        "solve_steps_edited_warm": int(np.sum(np.asarray(edited.num_steps))),
         "edit_frame": int(f), "edit_weight_change_max": float(dw.max()),
         "edit_weight_changed_most": rig.names[int(np.argmax(dw))],
-        "units": "the capture's (residuals and binding distances)",
+        "units": "mm (residuals and binding distances)",
     }  # fmt: skip
+
+
+def _edit_marker(cfg: Config, names) -> int:
+    """The index of ``edit_marker`` among the capture's markers (exact, else ignoring
+    case; the default ``Mouth_Lend`` is the synthetic face's ``mouth_corner_l``); an
+    unknown name is refused, listing the near matches."""
+    import difflib
+
+    names = [str(n) for n in names]
+    want = cfg.edit_marker
+    if cfg.file == SYNTHETIC and want == Config.edit_marker:
+        want = "mouth_corner_l"  # the same marker, the synthetic face's name
+    if want in names:
+        return names.index(want)
+    low = [n.lower() for n in names]
+    if want.lower() in low:
+        return low.index(want.lower())
+    near = difflib.get_close_matches(want.lower(), low, n=4, cutoff=0.5)
+    near = [names[low.index(n)] for n in near]
+    raise ConfigError(
+        f"edit_marker {cfg.edit_marker!r} is not a marker of {cfg.file}"
+        + (f"; did you mean {near}?" if near else "")
+        + f" (its markers: {names[:8]}{' …' if len(names) > 8 else ''})"
+    )
 
 
 def _edit_keys(cfg: Config, scene, names, mv, si: int) -> list:
     """The demonstration edit: a key at the middle of the most complex segment moving the
-    region under ``edit_marker`` by ``edit_offset_mm`` (the editor's saved keys)."""
+    region under ``edit_marker`` by ``edit_offset_mm`` (mm: the capture is read in mm;
+    the editor's saved keys)."""
     a, b = segments_from_boundaries(scene.boundaries)[si]
-    vi = int(mv[names.index(cfg.edit_marker)]) if cfg.edit_marker in names else int(mv[0])
+    vi = int(mv[_edit_marker(cfg, names)])
     return [FaceKey(a + (b - a) // 2, vi, tuple(float(v) for v in cfg.edit_offset_mm))]
 
 
@@ -628,7 +708,7 @@ def _write_outputs(ctx: dict) -> dict:
     Me = M + (Xe - Xh)[:, mv]
     save_npz_atomic(run_dir / "edited_sequence.npz", vertices=Xe.astype(np.float32),
                     faces=dense["faces"], boundaries=scene.boundaries, markers=Me)  # fmt: skip
-    write_trc(run_dir / "edited_markers.trc", MarkerSequence(Me, names, ctx["rate"], ctx["units"]))
+    write_trc(run_dir / "edited_markers.trc", MarkerSequence(Me, names, ctx["rate"], "mm"))
     out = {"keys": keys, "moved": int(moved.sum()), "Xe": Xe, "vi": vi}
     if cfg.head and cfg.file != SYNTHETIC:
         out["head"] = _head_outputs(cfg, run_dir, M, Me, names, ctx["rate"], keys)
@@ -762,7 +842,9 @@ def _metrics(ctx: dict, out: dict) -> dict:
         "dense_transfer_first_call_s": float(dense_t[0]),
         "pipeline_with_dense_transfer_s": pipe_s + float(dense_t[-1]),
         "fit_time_s": float(ctx["rf"]["time_s"]),
-        "edit": {"anchor_vertex": out["vi"], "marker": cfg.edit_marker,
+        "units": "mm", "file_units": ctx["units"],
+        "edit": {"anchor_vertex": out["vi"],
+                 "marker": ctx["names"][_edit_marker(cfg, ctx["names"])],
                  "keys": [k._asdict() for k in out["keys"]], "vertices_moved": out["moved"]},
         "targets": {"ratio_scene_le_0.11": errs.ratio_scene <= 0.11,
                     "ratio_segments_le_0.11": bool(np.all(errs.ratio <= 0.11)),

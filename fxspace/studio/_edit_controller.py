@@ -228,7 +228,16 @@ class EditorController:
                 ref = "control points" if mode == "edited" else "original"
                 mv = np.asarray(d.marker_vertex)
                 moved = self.sequence(mode)[:, mv] - self.sequence(ref)[:, mv]
-                self._cache[key] = self.face.solve(np.asarray(d.markers, np.float64) + moved)
+                markers = np.asarray(d.markers, np.float64) + moved
+                if mode == "edited":  # warm start from the unedited model's weights
+                    from fxspace.face import solve_weights
+
+                    base = self.head_solve("control points")
+                    init = np.nan_to_num(np.asarray(base.weights), nan=0.0)
+                    self._cache[key] = solve_weights(self.face.rig, self.face.binding,
+                                                     markers, init=init)  # fmt: skip
+                else:
+                    self._cache[key] = self.face.solve(markers)
             return self._cache[key]
 
     def head_weights(self, mode: str | None = None) -> np.ndarray | None:

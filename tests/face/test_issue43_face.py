@@ -305,3 +305,34 @@ def test_trc_and_obj_errors_never_echo_file_content(tmp_path):
         with pytest.raises(CorruptFileError, match="m.obj") as e:
             fx.io.read_obj_mesh(o)
         assert "TOPSECRET" not in str(e.value)
+
+
+@pytest.mark.slow
+def test_editor_edited_head_solve_warm_starts(ict, data_dir):
+    """Issue 47.8: the editor's edited head solve starts from the unedited weights: fewer
+    steps to the tolerance than from zero, the same weights."""
+    import jax
+
+    from fxspace.studio import EditorController, EditorData
+    from fxspace.studio._server import RigFace
+
+    seq = fx.io.read_markers(data_dir / "face" / "animface_cheeks.c3d")
+    M = np.asarray(seq.positions[300:380:2], np.float64)
+    surf = fx.face_surface(M[0], 600)
+    X = np.asarray(fx.rbf_deform(surf.vertices, M[0], M))
+    fit = fx.fit_scene(X, 6, boundaries=[0, 20, 39], key=jax.random.PRNGKey(0), n_init=2)
+    data = EditorData(X, surf.faces, fit.model, rate=30.0, gamma=0.5,
+                      marker_vertex=np.asarray(surf.marker_vertex), marker_names=seq.names,
+                      markers=M)  # fmt: skip
+    ctl = EditorController(data, face=RigFace(ict, M[0], seq.names))
+    ctl.set_frame(10)
+    assert ctl.nudge_control(2, (0.25, -0.3, 0.0))
+    warm = ctl.head_solve("edited")
+    markers = M + (ctl.sequence("edited") - ctl.sequence("control points"))[:, data.marker_vertex]
+    cold = fx.face.solve_weights(ict, ctl.face.binding, markers)
+    n_warm = int(np.sum(np.asarray(warm.num_steps)))
+    n_cold = int(np.sum(np.asarray(cold.num_steps)))
+    print(f"editor edited head solve: {n_cold} steps from zero, {n_warm} warm-started")
+    assert n_warm < n_cold
+    # the same fit (the weights need not be equal: the rig's shapes are redundant)
+    assert float(warm.stats["objective"]) <= 1.01 * float(cold.stats["objective"])
