@@ -1,30 +1,52 @@
 """``fxspace sweep``: the runs of a ``[sweep]`` as tasks on a Dask cluster (or processes).
 
 Each run of the config is one task: a worker resolves the config again, takes the run
-folder's lock (`fxspace.runs.run_lock`, waiting while another worker or another
-``fxspace sweep`` holds it), and runs it exactly as the serial ``fxspace run`` does, so
-the results are the same bit for bit and a finished run is skipped. The embedded
-default is a local Dask distributed cluster (``dask.distributed.LocalCluster`` with one
-thread per worker process); where Dask is not installed, a
+folder's lock (`fxspace.runs.run_lock`) and runs it exactly as the serial ``fxspace run``
+does, so the results are the same bit for bit and a finished run is skipped. A run folder
+locked by another process (another worker, another ``fxspace sweep``, another host) is
+reported at once, naming the holder and the lock file, and waited for at most
+``lock_wait`` seconds (the serial engine first runs every other run); then it is
+reported as failed with the fix, never waited for without a word. The embedded default
+is a local Dask distributed cluster (``dask.distributed.LocalCluster`` with one thread
+per worker process); where Dask is not installed, a
 ``concurrent.futures.ProcessPoolExecutor``; ``scheduler="tcp://HOST:PORT"`` sends the
 tasks to a running cluster (``dask scheduler`` / ``dask worker`` on machines sharing the
-run folder, or ``dask-jobqueue``'s SLURM/PBS clusters). Every worker runs XLA with one
-intra-op thread (so N workers do not oversubscribe the cores) and keeps the persistent
-compilation cache of `fxspace._compile_cache`. Local workers are forked from a process
-that has not started JAX (they begin with fxspace imported) and take the runs in
-consecutive blocks of the config's order, so each compiles its shapes once.
+run folder, or ``dask-jobqueue``'s SLURM/PBS clusters). The address is checked first: a
+malformed one, a closed port, or a port that does not greet like a Dask scheduler (an
+HTTP server) is an error within `SCHEDULER_TIMEOUT_S` seconds. Local workers are capped
+at the number of runs and of CPU cores (with a message). Every worker runs XLA with one
+intra-op thread (so N workers do not oversubscribe the cores), prefixes its output lines
+with its run's name (progress bars left out) and keeps the persistent compilation cache
+of `fxspace._compile_cache`. Local workers are forked from a process that has not
+started JAX (they begin with fxspace imported) and take the runs in consecutive blocks
+of the config's order, so each compiles its shapes once.
 """
 
 from __future__ import annotations
 
+import io
 import os
+import re
+import sys
+import threading
 import time
 import traceback
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
-__all__ = ["sweep_config", "SweepResult", "WORKER_ENV"]
+from fxspace.errors import FxspaceError
+
+__all__ = [
+    "sweep_config",
+    "SweepResult",
+    "WORKER_ENV",
+    "SchedulerError",
+    "check_scheduler",
+    "cap_workers",
+    "LOCK_WAIT_S",
+    "SCHEDULER_TIMEOUT_S",
+]
 
 #: The environment each worker runs with: one XLA/Eigen thread per worker process.
 WORKER_ENV = {
@@ -34,25 +56,125 @@ WORKER_ENV = {
     "MKL_NUM_THREADS": "1",
     "TF_CPP_MIN_LOG_LEVEL": "2",
 }
+#: How long (seconds) a sweep waits for a run folder another process holds, by default.
+LOCK_WAIT_S = 600.0
+#: How long (seconds) ``--scheduler`` may take to connect and greet like a Dask scheduler.
+SCHEDULER_TIMEOUT_S = 10.0
+_ENGINES = ("auto", "dask", "processes", "serial")
 
 
 class SweepResult(dict):
     """One run's outcome: ``run_dir``, ``status`` (complete/failed), ``error``, ``metrics``."""
 
 
-def _task(config: str, out: str, run_dir: str, force: bool) -> dict[str, Any]:
+class SchedulerError(FxspaceError, ConnectionError):
+    """``--scheduler`` is malformed, unreachable, or not a Dask scheduler (names which)."""
+
+
+# ------------------------------------------------------------------ worker side
+
+
+class _Prefixed(io.TextIOBase):
+    """A text stream that writes each whole line to ``stream`` behind ``prefix``; a line
+    redrawn with ``\r`` (a progress bar) keeps only its last state, a blank one is
+    dropped, so N workers' bars never interleave into garbage."""
+
+    def __init__(self, stream: Any, prefix: str) -> None:
+        self._stream, self._prefix, self._buf = stream, prefix, ""
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, s: str) -> int:
+        self._buf += s
+        *lines, rest = self._buf.split("\n")
+        self._buf = rest.rsplit("\r", 1)[-1]
+        lines = [ln.rsplit("\r", 1)[-1] for ln in lines]
+        for ln in lines:
+            if ln.strip():
+                self._stream.write(f"{self._prefix}{ln}\n")
+        if lines:
+            self._stream.flush()
+        return len(s)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def finish(self) -> None:
+        if self._buf.strip():
+            self._stream.write(f"{self._prefix}{self._buf}\n")
+            self._buf = ""
+        self._stream.flush()
+
+
+@contextmanager
+def named_output(name: str | None):
+    """Within this block, every line printed to stdout or stderr starts with ``[name]``
+    (a worker's lines among other workers'; progress bars reduced to nothing, the
+    sweep's own progress lines say how far it is); ``None``: unchanged."""
+    if name is None:
+        yield
+        return
+    out = _Prefixed(sys.stdout, f"[{name}] ")
+    err = _Prefixed(sys.stderr, f"[{name}] ")
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            yield
+    finally:
+        out.finish()
+        err.finish()
+
+
+def _run_waiting(entry: Any, experiment: str, force: bool, lock_wait: float | None,
+                 defer: bool) -> str:  # fmt: skip
+    """Run ``entry`` under its folder's lock; a lock another process holds is reported
+    (who holds it: `fxspace.runs.run_lock` says) and waited for at most ``lock_wait`` s
+    (``None``: until it is free), then a `RunLockedError` with the fix. Returns
+    ``"ran"``, or ``"locked"`` when ``defer`` and it is held now."""
+    from fxspace.pipelines import _run_one
+    from fxspace.runs import RunLockedError
+
+    args = (entry.pipeline, entry.run_dir, entry.config, entry.seed, entry.text, experiment,
+            force)  # fmt: skip
+    try:
+        _run_one(*args, wait=0.0)
+        return "ran"
+    except RunLockedError as e:
+        if defer:
+            print(f"[sweep] {entry.run_dir}: {e}; coming back to it after the other runs",
+                  flush=True)  # fmt: skip
+            return "locked"
+        if lock_wait is not None and lock_wait <= 0:
+            raise RunLockedError(f"skipped: {e}") from None
+    limit = "until it is free" if lock_wait is None else f"up to {lock_wait:g} s (--lock-wait)"
+    print(f"[sweep] {entry.run_dir} is held by another process; waiting {limit}", flush=True)
+    try:
+        _run_one(*args, wait=lock_wait)
+    except RunLockedError as e:
+        raise RunLockedError(
+            f"still locked after {lock_wait:g} s, skipped: {e} (rerun later, or give "
+            "--lock-wait SECONDS)"
+        ) from None
+    return "ran"
+
+
+def _task(config: str, out: str, run_dir: str, force: bool, lock_wait: float | None = LOCK_WAIT_S,
+          named: bool = False, defer: bool = False) -> dict[str, Any]:  # fmt: skip
     """Run one run of ``config`` (the one whose folder is ``run_dir``) in this process."""
     import json
 
     from fxspace.config import load_toml
-    from fxspace.pipelines import _plan, _run_one
+    from fxspace.pipelines import _plan
 
+    name = Path(run_dir).name or run_dir
     try:
         raw = load_toml(config)
         plan = _plan(raw, Path(out), Path(config).resolve().parent)
         (entry,) = [p for p in plan if str(p.run_dir) == run_dir]
-        _run_one(entry.pipeline, entry.run_dir, entry.config, entry.seed, entry.text,
-                 raw["experiment"], force, wait=None)  # fmt: skip
+        with named_output(name if named else None):
+            how = _run_waiting(entry, raw["experiment"], force, lock_wait, defer)
+        if how == "locked":
+            return SweepResult(run_dir=run_dir, status="locked", error=None)
         metrics = json.loads((entry.run_dir / "metrics.json").read_text())
         return SweepResult(run_dir=run_dir, status="complete", error=None, metrics=metrics)
     except Exception as e:  # noqa: BLE001 - reported per run, the sweep goes on
@@ -84,9 +206,144 @@ def _worker_env(env: dict[str, str]):
 def _progress(done: int, running: int, failed: int, total: int, last: dict | None) -> None:
     tail = ""
     if last is not None:
-        name = Path(last["run_dir"]).name or last["run_dir"]
+        name = last.get("name") or Path(last["run_dir"]).name or last["run_dir"]
         tail = f" — {name}: {last['status']}" + (f" ({last['error']})" if last["error"] else "")
     print(f"[sweep] done {done}/{total}, running {running}, failed {failed}{tail}", flush=True)
+
+
+# ------------------------------------------------------------------ checks
+
+
+def _cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def cap_workers(workers: int, jobs: int, what: str = "runs") -> int:
+    """The local worker count: ``workers`` capped at ``jobs`` (the runs or trials to do)
+    and at the CPU cores this process may use, with a message when capped (each worker is
+    a process with its own JAX: more workers than either only costs memory)."""
+    cpus = _cpu_count()
+    n = max(1, min(workers, jobs, cpus))
+    if n < workers:
+        why = [f"{jobs} {what}"] if jobs < workers else []
+        why += [f"{cpus} CPU cores"] if cpus < workers else []
+        print(f"[sweep] --workers {workers} capped at {n} ({' and '.join(why)}): more local "
+              "workers would only cost memory", flush=True)  # fmt: skip
+    return n
+
+
+_ADDRESS = re.compile(
+    r"^(?:(?P<scheme>[A-Za-z][A-Za-z0-9+.-]*)://)?"
+    r"(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>[0-9]+)/?$"
+)
+_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
+
+
+def check_scheduler(address: Any) -> tuple[str, str, int]:
+    """``(scheme, host, port)`` of a ``--scheduler`` address (``tcp://HOST:PORT``,
+    ``tls://…``, or ``HOST:PORT`` for tcp), or a `SchedulerError` saying what is wrong."""
+    ex = "e.g. tcp://10.0.0.5:8786 (the address `dask scheduler` prints)"
+    if not isinstance(address, str) or not address.strip():
+        raise SchedulerError(f"--scheduler must be an address like tcp://HOST:PORT, got "
+                             f"{address!r}; {ex}")  # fmt: skip
+    a = address.strip()
+    m = _ADDRESS.match(a)
+    scheme = (m.group("scheme") if m else a.partition("://")[0] if "://" in a else "") or "tcp"
+    if scheme.lower() in ("http", "https"):
+        raise SchedulerError(
+            f"--scheduler {a}: an http:// address is the Dask dashboard (port 8787), not the "
+            f"scheduler; give tcp://HOST:PORT, {ex}"
+        )
+    if scheme.lower() not in _SCHEMES:
+        raise SchedulerError(f"--scheduler {a}: unknown protocol {scheme!r}; one of "
+                             f"{', '.join(s + '://' for s in _SCHEMES)}, {ex}")  # fmt: skip
+    if m is None:
+        raise SchedulerError(f"--scheduler {a}: not HOST:PORT after {scheme}://; {ex}")
+    port = int(m.group("port"))
+    if not 0 < port < 65536:
+        raise SchedulerError(f"--scheduler {a}: port {port} is not in 1-65535; {ex}")
+    return scheme.lower(), m.group("host"), port
+
+
+def _probe_scheduler(address: str, host: str, port: int, timeout: float) -> None:
+    """Connect to ``host:port`` within ``timeout`` s and read the greeting a Dask
+    scheduler sends unasked (a length-prefixed handshake); a `SchedulerError` otherwise."""
+    import socket
+
+    h = host[1:-1] if host.startswith("[") else host
+    try:
+        sock = socket.create_connection((h, port), timeout=timeout)
+    except socket.gaierror as e:
+        raise SchedulerError(f"--scheduler {address}: unknown host {h!r} ({e.strerror}); "
+                             "check the name") from None  # fmt: skip
+    except ConnectionRefusedError:
+        raise SchedulerError(
+            f"--scheduler {address}: nothing listens on port {port} of {h} (connection "
+            f"refused); start `dask scheduler --port {port}` there, or check the address"
+        ) from None
+    except TimeoutError:
+        raise SchedulerError(f"--scheduler {address}: no answer within {timeout:g} s (the host "
+                             "is down or a firewall drops the port)") from None  # fmt: skip
+    except OSError as e:
+        raise SchedulerError(f"--scheduler {address}: cannot connect ({e.strerror or e})") from None
+    head = b""
+    with sock:
+        sock.settimeout(timeout)
+        try:
+            while len(head) < 8:
+                chunk = sock.recv(64)
+                if not chunk:
+                    break
+                head += chunk
+        except (TimeoutError, OSError):
+            pass
+    n = int.from_bytes(head[:8], "little") if len(head) >= 8 else 0
+    if not head:
+        raise SchedulerError(
+            f"--scheduler {address}: the port accepted the connection but sent no Dask "
+            f"greeting within {timeout:g} s, so it speaks another protocol (an HTTP server? "
+            "the scheduler listens on 8786 by default, its dashboard on 8787)"
+        )
+    if not 0 < n < 1 << 20:
+        raise SchedulerError(
+            f"--scheduler {address}: the port answered {head[:16]!r}, not a Dask scheduler's "
+            "greeting (another service; the scheduler listens on 8786 by default)"
+        )
+
+
+def _connect(address: str, timeout: float) -> Any:
+    """A ``dask.distributed.Client`` of the scheduler at ``address``, or a
+    `SchedulerError` within about ``timeout`` s (the address checked and, for tcp,
+    probed first; the handshake itself bounded too)."""
+    from dask.distributed import Client
+
+    scheme, host, port = check_scheduler(address)
+    if scheme == "tcp":
+        _probe_scheduler(address, host, port, timeout)
+    box: dict[str, Any] = {}
+
+    def go() -> None:
+        try:
+            box["client"] = Client(address, timeout=timeout)
+        except BaseException as e:  # noqa: BLE001 - handed to the caller
+            box["error"] = e
+
+    t = threading.Thread(target=go, name="fxspace-scheduler-connect", daemon=True)
+    t.start()
+    t.join(timeout + 5.0)
+    if t.is_alive():
+        raise SchedulerError(f"--scheduler {address}: no Dask handshake within "
+                             f"{timeout + 5:g} s; is it a Dask scheduler?")  # fmt: skip
+    if "error" in box:
+        e = box["error"]
+        raise SchedulerError(f"--scheduler {address}: {type(e).__name__}: {e}") from e
+    return box["client"]
+
+
+# ------------------------------------------------------------------ the sweep
 
 
 def sweep_config(
@@ -97,18 +354,35 @@ def sweep_config(
     fail_fast: bool = False,
     force: bool = False,
     engine: str = "auto",
+    lock_wait: float | None = LOCK_WAIT_S,
 ) -> list[SweepResult]:
     """Run every run of the config at ``path`` as parallel tasks; returns their outcomes
     (in the config's order). A failing run is reported and the others go on (unless
     ``fail_fast``). ``engine``: ``"auto"`` (Dask when installed, else processes),
-    ``"dask"``, ``"processes"`` or ``"serial"`` (this process, one after another)."""
+    ``"dask"``, ``"processes"`` or ``"serial"`` (this process, one after another);
+    ``scheduler`` (a running Dask scheduler) goes with ``"auto"`` or ``"dask"`` only.
+    ``workers`` is capped at the runs and the CPU cores (with a message). A run folder
+    another process holds is waited for at most ``lock_wait`` seconds (``None``: until
+    it is free), then reported as failed naming the holder."""
     from fxspace.config import ConfigError, load_toml
     from fxspace.pipelines import _clean_tree, _plan, _refuse_overwrite
 
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers must be an integer >= 1, got {workers!r}")
-    if engine not in ("auto", "dask", "processes", "serial"):
+    if engine not in _ENGINES:
         raise ConfigError(f"engine must be auto, dask, processes or serial, got {engine!r}")
+    if lock_wait is not None and (
+        isinstance(lock_wait, bool) or not isinstance(lock_wait, int | float)
+        or not 0 <= lock_wait < float("inf")
+    ):  # fmt: skip
+        raise ConfigError(f"lock_wait (--lock-wait) must be seconds >= 0, got {lock_wait!r}")
+    if scheduler is not None:
+        check_scheduler(scheduler)
+        if engine in ("serial", "processes"):
+            raise ConfigError(
+                f"--scheduler sends the runs to a Dask cluster, --engine {engine} runs them "
+                f"here: drop --scheduler, or drop --engine {engine} (or give --engine dask)"
+            )
     path = Path(path)
     raw = load_toml(path)
     out = Path(out) if out is not None else Path("runs") / path.stem
@@ -118,55 +392,81 @@ def sweep_config(
     _refuse_overwrite(plan, out, force)
     if force:
         _clean_tree(out, plan)
-    args = [(str(path), str(out), str(p.run_dir), force) for p in plan]
     if scheduler is not None:
         engine = "dask"
     elif engine == "auto":
-        try:
-            import dask.distributed  # noqa: F401
-
-            engine = "dask"
-        except ImportError:
-            engine = "processes"
+        engine = "dask" if _has_dask() else "processes"
+    if engine != "serial" and scheduler is None:
+        workers = cap_workers(workers, len(plan))
+    named = engine != "serial"
+    args = [(str(path), str(out), str(p.run_dir), force, lock_wait, named) for p in plan]
     where = f"scheduler {scheduler}" if scheduler else f"{engine}, {workers} workers"
     if engine in ("dask", "processes") and scheduler is None:
         where += f", started by {_start_method()}"
     print(f"[sweep] {len(args)} runs under {out} ({where})", flush=True)
     if engine == "serial":
-        results = []
-        for i, a in enumerate(args):
-            r = _task(*a)
-            results.append(r)
-            nf = sum(x["status"] == "failed" for x in results)
-            _progress(i + 1 - nf, 0, nf, len(args), r)
-            if fail_fast and r["status"] == "failed":
-                break
-        return results
+        return _run_serial(args, fail_fast)
     if engine == "dask":
         return _run_dask(args, workers, scheduler, fail_fast)
     return _run_processes(args, workers, fail_fast)
 
 
+def _run_serial(args: list[tuple], fail_fast: bool) -> list[SweepResult]:
+    """One run after another in this process; a run another process holds is put off to
+    the end (the other runs go first), then waited for (bounded)."""
+    got: dict[str, SweepResult] = {}
+    later = []
+    done = failed = 0
+    for pass_ in (0, 1):
+        for a in args if pass_ == 0 else later:
+            r = _task(*a, defer=pass_ == 0)
+            if r["status"] == "locked":
+                later.append(a)
+                continue
+            got[a[2]] = r
+            failed += r["status"] == "failed"
+            done += r["status"] != "failed"
+            _progress(done, 0, failed, len(args), r)
+            if fail_fast and r["status"] == "failed":
+                return [got[a[2]] for a in args if a[2] in got]
+    return [got[a[2]] for a in args if a[2] in got]
+
+
 def _search(path: Path, raw: dict, out: Path, workers: int, scheduler, fail_fast: bool,
             force: bool, engine: str) -> list[SweepResult]:  # fmt: skip
-    """A ``[search]``: ``workers`` loops of `search_worker` (asking and telling one
-    Optuna study in ``out/search.db``); returns one outcome per trial run."""
-    from fxspace.pipelines._search import check_search, search_worker
+    """A ``[search]``: its study prepared once here (`prepare_search`: created, stale
+    trials failed, failed ones queued again), then ``workers`` loops of `search_worker`
+    (asking and telling one Optuna study in ``out/search.db``); returns one outcome per
+    trial of the study (`search_outcomes`)."""
+    from fxspace.pipelines._search import (
+        check_search,
+        prepare_search,
+        search_outcomes,
+        search_worker,
+    )
 
     s = check_search(raw["search"])
-    n = 1 if engine == "serial" else min(workers, s["trials"])
-    print(f"[sweep] search ({s['method']}, {s['trials']} trials, {s['direction']} "
-          f"{s['metric']}) under {out}, {n} workers", flush=True)  # fmt: skip
-    args = [(str(path), str(out), i, force) for i in range(n)]
-    if engine == "serial" or n == 1:
-        got = [search_worker(*a) for a in args]
-    elif scheduler is not None or engine in ("dask", "auto") and _has_dask():
-        got = _run_dask(args, n, scheduler, fail_fast, fn=search_worker)
+    todo = prepare_search(path, out, s, force)
+    if engine == "serial" or todo <= 1:
+        n = 1
+    elif scheduler is not None:
+        n = min(workers, todo)
     else:
-        got = _run_processes(args, n, fail_fast, fn=search_worker)
-    trials = sorted((t for g in got for t in g.get("trials", ())), key=lambda t: t["trial"])
-    lost = [g for g in got if g["status"] == "failed" and not g.get("trials")]
-    return [SweepResult(t) for t in trials] + [SweepResult(g) for g in lost]
+        n = cap_workers(workers, todo, "trials to run")
+    print(f"[sweep] search ({s['method']}, {s['trials']} trials, {s['direction']} "
+          f"{s['metric']}) under {out}: {todo} to run, {n} worker{'s' * (n > 1)}",
+          flush=True)  # fmt: skip
+    got: list[dict] = []
+    if todo:
+        named = n > 1
+        args = [(str(path), str(out), i, False, named) for i in range(n)]
+        if n == 1 and scheduler is None:
+            got = [search_worker(*a) for a in args]
+        elif scheduler is not None or engine in ("dask", "auto") and _has_dask():
+            got = _run_dask(args, n, scheduler, fail_fast, fn=search_worker)
+        else:
+            got = _run_processes(args, n, fail_fast, fn=search_worker)
+    return [SweepResult(r) for r in search_outcomes(path, out, s, got)]
 
 
 def _has_dask() -> bool:
@@ -208,7 +508,7 @@ def _run_processes(args: list[tuple], workers: int, fail_fast: bool, fn=_task) -
             max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(WORKER_ENV,)
         ) as ex,
     ):
-        futures = {ex.submit(fn, *a): str(a[2]) for a in args}
+        futures = {ex.submit(fn, *a): _key(a, fn) for a in args}
 
         def cancel():
             for f in futures:
@@ -218,19 +518,26 @@ def _run_processes(args: list[tuple], workers: int, fail_fast: bool, fn=_task) -
     return _ordered(got, args, fn)
 
 
+def _key(a: tuple, fn) -> str:
+    """The ``run_dir`` a task's outcome carries (a search worker: ``OUT#workerN``)."""
+    return str(a[2]) if fn is _task else f"{a[1]}#worker{a[2]}"
+
+
 def _run_dask(
     args: list[tuple], workers: int, scheduler: str | None, fail_fast: bool, fn=_task
 ) -> list[SweepResult]:
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import LocalCluster, as_completed
     except ImportError:
         raise ImportError(
             "fxspace sweep --scheduler needs Dask: pip install 'fxspace[cluster]' "
             "(or drop --scheduler to use local processes)"
         ) from None
     cluster = None
-    with _worker_env(WORKER_ENV):
-        if scheduler is None:
+    if scheduler is None:
+        from dask.distributed import Client
+
+        with _worker_env(WORKER_ENV):
             import dask
 
             with dask.config.set({"distributed.worker.multiprocessing-method": _start_method()}):
@@ -239,8 +546,11 @@ def _run_dask(
                     dashboard_address=None, env=dict(WORKER_ENV),
                 )  # fmt: skip
             client = Client(cluster)
-        else:
-            client = Client(scheduler)
+    else:
+        client = _connect(scheduler, SCHEDULER_TIMEOUT_S)
+        if not client.scheduler_info().get("workers"):
+            print(f"[sweep] the scheduler at {scheduler} has no workers yet: the runs wait for "
+                  f"one (start `dask worker {scheduler} --nthreads 1`)", flush=True)  # fmt: skip
     try:
         # pure=False: every run is its own task; retries: a task lost with a killed
         # worker is rerun elsewhere (it resumes from its cached stages)
@@ -252,7 +562,7 @@ def _run_dask(
         # allow_other_workers: a block is a preference; a lost or idle worker's runs move
         futures = {
             client.submit(fn, *a, key=f"fxspace-run-{i}-{time.time_ns()}", retries=3,
-                          workers=w, allow_other_workers=w is not None): str(a[2])
+                          workers=w, allow_other_workers=w is not None): _key(a, fn)
             for i, (a, w) in enumerate(zip(args, where, strict=True))
         }  # fmt: skip
 
