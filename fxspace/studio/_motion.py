@@ -285,7 +285,11 @@ class MotionView:
             hint="turning rate, deg/s (+ left)", disabled=ctl.table is None,
         )  # fmt: skip
         left, right = g.add_button("◀ Left"), g.add_button("Right ▶")
-        joy = g.add_slider("Joy", 0.0, 1.0, 0.01, ctl.joy, disabled=ctl.parametric)
+        info = getattr(ctl.setup, "info", None) or {}  # the mood clips' labels (config)
+        mood = (info.get("upper_labels") or ["joy"])[0]
+        joy = g.add_slider(str(mood).capitalize(), 0.0, 1.0, 0.01, ctl.joy,
+                           hint=info.get("upper_axis") or f"{mood} weight",
+                           disabled=ctl.parametric)  # fmt: skip
         alpha = g.add_slider("Alpha", 0.0, 1.0, 0.01, ctl.alpha)
         self.show = g.add_checkbox("Show samples", True)
         rec, stop = g.add_button("Record"), g.add_button("Stop and write BVH")

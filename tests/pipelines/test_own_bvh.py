@@ -133,6 +133,22 @@ def test_config_names_clips_by_path_and_the_resolved_config_records_them(tmp_pat
     assert [str(p) for p in ps.data_files(spec.config)] == [g[0] for g in got]
 
 
+@pytest.mark.parametrize("name", ["mood_walk", "block_walk", "block_kick"])
+def test_the_shipped_configs_show_keys_that_parse(tmp_path, name):
+    """Each set-up's config shows its own-files block commented out: uncommented, its keys
+    are known and only the example files are missing (named)."""
+    text = (Path(__file__).resolve().parents[2] / "configs" / f"{name}.toml").read_text()
+    lines = text.splitlines()
+    start = lines.index("# [data]")
+    end = next(i for i in range(start, len(lines)) if lines[i].startswith("# map ="))
+    own = [ln[2:] if ln.startswith("# ") else ln for ln in lines[start : end + 1]]
+    head = [ln for ln in lines[:start] if ln not in ("[data]",) and not ln.startswith("source")]
+    cfg_p = tmp_path / f"{name}.toml"
+    cfg_p.write_text("\n".join(head + own) + "\n")
+    with pytest.raises(ConfigError, match="does not exist"):
+        fx.pipelines.resolve_config(cfg_p)
+
+
 @pytest.mark.parametrize(
     ("change", "match"),
     [
