@@ -318,8 +318,11 @@ def joint_map_for(
     jm["left_upper_leg"]   # 'mixamorig:LeftUpLeg'
     ```
     """
-    names = tuple(getattr(names, "names", names))
-    if isinstance(names, str) or not all(isinstance(n, str) for n in names):
+    raw = getattr(names, "names", names)
+    if isinstance(raw, str) or not isinstance(raw, Iterable):
+        raise JointMapError(f"names must be a sequence of joint names (str), got {raw!r}")
+    names = tuple(raw)
+    if not all(isinstance(n, str) for n in names):
         raise JointMapError(f"names must be a sequence of joint names (str), got {names!r}")
     req = (required,) if isinstance(required, str) else tuple(required)
     bad = [r for r in req if r not in ROLES]
@@ -414,8 +417,18 @@ def infer_length_unit(
     and lower-leg bones, averaged over both legs) nearest an adult's 0.82 m. Raises
     `JointMapError` when no unit gives a leg within a factor 1.4 of that (a child, a
     stylised character: declare the unit instead)."""
+    if joint_map is not None and not isinstance(joint_map, JointMap):
+        raise JointMapError(f"joint_map must be a JointMap, got {type(joint_map).__name__}")
     jm = joint_map if joint_map is not None else joint_map_for(names, required=())
-    off = np.asarray(offsets, np.float64)
+    try:
+        off = np.asarray(offsets, np.float64)
+    except (TypeError, ValueError):
+        off = np.zeros(0)
+    if off.shape != (len(jm.names), 3):
+        raise JointMapError(
+            f"offsets must be ({len(jm.names)}, 3) rest offsets, one per joint name, got "
+            f"shape {off.shape}"
+        )
     legs = []
     for side in _SIDES:
         if f"{side}_lower_leg" in jm and f"{side}_foot" in jm:

@@ -355,6 +355,10 @@ def setup_roles(skeleton, joints=None, what: str = "the set-up's skeleton") -> d
     ``lfoot``, ``rtoe`` (``right_toes``, else ``right_foot``), ``feet`` (both toes, else
     feet), ``lower`` / ``upper`` (the registration features' joints) and ``map`` (the
     `JointMap`). ``joints``: a config's `SkeletonSpec`, a `JointMap` or ``{role: name}``."""
+    if not all(hasattr(skeleton, a) for a in ("names", "parents")):
+        raise FxspaceError(
+            f"skeleton must be a Motion (joint names and parents), got {type(skeleton).__name__}"
+        )
     jm = _as_spec(joints).joint_map(skeleton.names, required=BODY_ROLES, what=what)
     parents = skeleton.parents
     hips, j = jm.index("hips"), jm.index("head")
