@@ -249,13 +249,17 @@ def _shared_markers(seqs: list[tuple], reading: dict) -> list[str]:
             f"the takes share only {len(names)} marker names ({names}); need at least 4 — "
             "check that every take uses the same marker names"
         )
-    dropped = {}
+    dropped: dict[str, list[str]] = {}
+    lacking: dict[str, list[str]] = {}
     for take, s, *_ in seqs:
         unused = [n for n in s.names if n not in names]
         lacks = [n for n in first if n not in s.names]
         if not unused and not lacks:
             continue
-        dropped[take] = unused
+        if unused:
+            dropped[take] = unused
+        if lacks:
+            lacking[take] = lacks
         parts = []
         if lacks:
             parts.append(f"lacks {len(lacks)} of {seqs[0][0]}'s markers ({', '.join(lacks)})")
@@ -266,7 +270,8 @@ def _shared_markers(seqs: list[tuple], reading: dict) -> list[str]:
     if dropped:
         _say(reading, f"markers: using the {len(names)} shared by every take")
     reading["markers_used"] = list(names)
-    reading["markers_dropped"] = dropped
+    reading["markers_dropped"] = dropped  # per take: its markers left out
+    reading["markers_lacking"] = lacking  # per take: the first take's markers it lacks
     return names
 
 
@@ -329,7 +334,9 @@ def load_face(cfg: FaceData, seed: int = 0) -> FaceFrames:
     Every marker cut, rate resample (mixed rates are refused unless ``resample_hz`` is
     set), unit conversion, frame fill, drop and thinning is said on the console as it
     happens and recorded in ``FaceFrames.reading`` (``notes``, ``files``,
-    ``markers_dropped``, ``resampled``, ``converted``)."""
+    ``markers_used``, ``markers_dropped`` (a take's markers left out),
+    ``markers_lacking`` (the first take's markers a take lacks), ``rates_hz``,
+    ``resampled``, ``converted``)."""
     reading: dict = {"notes": []}
     seqs = _sequences(cfg, seed)
     if cfg.source != "synthetic":

@@ -140,3 +140,102 @@ def test_expression_space_on_synthetic_face():
     assert path[0] == 0 and path[-1] == 149
     with pytest.raises(fx.DisconnectedGraphError, match="connected components"):
         fx.expression_space(pos, 0.5 * t0)
+
+
+# -- issue 44: ε held together by a bridge -------------------------------------------------
+def _bridge_parts_by_removal(P, eps):
+    """Reference: remove each edge of the ε-graph in turn and count what it cuts off."""
+    from scipy.sparse.csgraph import connected_components
+
+    A = (P <= eps) & ~np.eye(len(P), dtype=bool)
+    if connected_components(A, directed=False)[0] > 1:
+        return 0
+    best = 0
+    for i, j in zip(*np.nonzero(np.triu(A)), strict=True):
+        B = A.copy()
+        B[i, j] = B[j, i] = False
+        k, lab = connected_components(B, directed=False)
+        if k > 1:
+            best = max(best, int(np.bincount(lab).min()))
+    return best
+
+
+def _trajectory(n=240, seed=0):
+    """A smooth 8-D trajectory sampled in time: at small ε its graph is the time chain."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, n)[:, None]
+    X = np.sin(2 * np.pi * rng.uniform(0.5, 3.0, 8) * t + rng.uniform(0, 6.3, 8)) * 10
+    return np.linalg.norm(X[:, None] - X[None], axis=-1)
+
+
+def test_bridge_parts_match_edge_removal(rng):
+    X = np.concatenate([rng.normal(0, 1, (14, 3)), np.linspace(0, 1, 8)[:, None] * [9, 0, 0],
+                        rng.normal(0, 1, (12, 3)) + [9, 0, 0]])  # fmt: skip
+    P = np.linalg.norm(X[:, None] - X[None], axis=-1)
+    th = float(fx.connecting_threshold(P)) * np.array([0.9, 1.0, 1.2, 1.5, 2.0, 3.0, 6.0])
+    got = fx.expression.bridge_parts(P, th)
+    want = [_bridge_parts_by_removal(P, e) for e in th]
+    np.testing.assert_array_equal(got, want)
+    assert max(want) >= 12  # the chain between the blobs is a bridge somewhere
+
+
+def test_choose_threshold_skips_bridged_eps_fast():
+    """The rule on a hand-made sweep: the best r sits on a graph a bridge splits 40/60."""
+    z = np.zeros(4)
+    sw = fx.expression.SweepResult(
+        np.array([1.0, 2.0, 3.0, 4.0]), np.array([np.nan, 0.9999, 0.98, 0.99]),
+        np.array([False, True, True, True]), np.array([2, 1, 1, 1]), z, np.zeros((4, 2)),
+        100, np.array([0, 40, 1, 0]),
+    )  # fmt: skip
+    assert fx.choose_threshold(sw, min_bridge_part=None)["threshold"] == 2.0
+    best = fx.choose_threshold(sw)
+    assert best["threshold"] == 4.0  # ε = 3 has a bridge too, but it cuts off one frame
+    assert best["skipped_bridged"] == [{"threshold": 2.0, "score": 0.9999, "bridge_part": 40}]
+    assert fx.choose_threshold(sw, min_bridge_part=0.5)["threshold"] == 2.0  # none that big
+    no_info = sw._replace(bridge_part=None)  # a result built without it: nothing skipped
+    assert fx.choose_threshold(no_info)["threshold"] == 2.0
+
+
+@pytest.mark.slow
+def test_max_r_skips_an_eps_held_together_by_a_bridge():
+    """Issue 44: max_r picked the smallest ε (r = 0.9999) on a take whose graph there is
+    held together by single edges; its r measured the chain, not the manifold."""
+    P = _trajectory()
+    sw = fx.threshold_sweep(P, fx.threshold_grid(P, 8))
+    plain = fx.choose_threshold(sw, min_bridge_part=None)
+    assert plain["index"] == 0 and int(sw.bridge_part[0]) == 120  # half the frames
+    best = fx.choose_threshold(sw)
+    assert int(sw.bridge_part[best["index"]]) == 0 and best["index"] > 0
+    assert [d["bridge_part"] for d in best["skipped_bridged"]] == [
+        int(b) for b in np.asarray(sw.bridge_part) if b >= 12
+    ]
+    assert "held together by a bridge at ε=" in fx.expression.sweep_message(sw)
+    only_bridged = sw._replace(**{f: np.asarray(getattr(sw, f))[:2] for f in (
+        "thresholds", "scores", "connected", "n_components", "mean_degree", "eigenvalues",
+        "bridge_part")})  # fmt: skip
+    with pytest.raises(fx.FxspaceError, match=r"held together by one edge \(a bridge\).*"
+                                              r"min_bridge_part=None"):
+        fx.choose_threshold(only_bridged)
+    assert fx.choose_threshold(only_bridged, min_bridge_part=None)["index"] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.data
+def test_long_filled_gaps_case_on_a_shared_take(data_dir):
+    """The reported case on a cut of a shared capture: 962 frames of the AnimFace jaw take
+    with six 40-frame gaps of the whole face, filled with max_gap = 40 (linear chains)."""
+    from fxspace.pipelines.threshold_sweep import state_distances
+
+    seq = fx.io.read_markers(data_dir / "face" / "animface_jaw.c3d")
+    pos = np.array(seq.positions[:962])
+    for a in np.linspace(50, 862, 6).astype(int):
+        pos[a : a + 40] = np.nan
+    pos = fx.fill_gaps(pos, 40).positions
+    P = state_distances(pos, "float64")
+    grid = fx.threshold_grid(P, 16)[[0, 1, 5, 10]]
+    sw = fx.threshold_sweep(P, grid)
+    plain = fx.choose_threshold(sw, min_bridge_part=None)
+    assert plain["index"] == 0 and plain["score"] > 0.998  # the smallest ε, r ≈ 1
+    assert int(sw.bridge_part[0]) > 0.4 * 962  # a bridge splits the take in two halves
+    best = fx.choose_threshold(sw)
+    assert best["index"] > 0 and int(sw.bridge_part[best["index"]]) == 0
