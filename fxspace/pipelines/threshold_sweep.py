@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._progress import progress, stage
+from fxspace._progress import note, progress, stage
 from fxspace.config import ConfigError
 from fxspace.datasets import FaceData, load_face
 from fxspace.expression import (
@@ -221,6 +221,10 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
 
     t0 = time.perf_counter()
     eps = chosen["threshold"]
+    for sk in chosen.get("skipped_bridged", []):  # issue 44: said, not silently passed over
+        note(f"ε = {sk['threshold']:.4g} (r = {sk['score']:.4f}) skipped: its graph is held "
+             f"together by one edge that splits off {sk['bridge_part']} frames, so its r "
+             "measures that chain (fxspace.choose_threshold, min_bridge_part)")  # fmt: skip
     stage(f"ε = {eps:.4g} ({cfg.select.criterion}, r = {chosen['score']:.4f}): final space")
     sp = _stage(run_dir, "space", lambda: _space_arrays(P, eps, cfg.dim))
     timings["final_space_s"] = time.perf_counter() - t0
