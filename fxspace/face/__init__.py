@@ -7,7 +7,9 @@ layout, or a glTF file's morph targets), binds a capture's markers to it
 (`bind_markers`: similarity from landmark markers, refined by closest points, every
 marker on a face triangle), solves per-frame expression weights in ``[0, 1]`` and the
 head's rigid motion (`solve_weights`: bounded least squares with a temporal term, all
-frames in one jitted batch, differentiable), and writes the weights out
+frames in one jitted batch, differentiable; a frame's ``result`` says whether the fit
+is good: ``RESULTS.poor_fit`` with the markers named when it is not), and writes the
+weights out
 (`write_rig_gltf`: morph targets + weight animation; `write_weights_csv`;
 `transfer_weights` onto any rig with the same shape names), and poses the head where
 the capture is (`posed_vertices`: what the apps show).
@@ -20,8 +22,10 @@ Example:
 ```python
 rig = fx.face.read_rig(fx.data.data_path("face", "ict"))
 take = fx.io.read_markers(fx.data.data_path("face", "animface_jaw.c3d"))
-b = fx.face.bind_markers(rig, take.positions[0], take.names)
-s = fx.face.solve_weights(rig, b, take.positions)        # .weights (T, 53), .residual (T, 41)
+b = fx.face.bind_markers(rig, take.positions[0], take.names, units=take.units)
+s = fx.face.solve_weights(rig, b, take)                  # .weights (T, 53), .residual (T, 41)
+s.result == fx.RESULTS.successful                        # per frame: the fit is good
+s.notes                                                  # which frames and markers are not
 fx.face.write_rig_gltf("jaw.glb", rig, s.weights, fps=take.fps)
 V = fx.face.posed_vertices(rig, b, s, frames=0)         # (N, 3): the head where the markers are
 ```
