@@ -51,8 +51,14 @@ from fxspace.motion._locomotion import locomotion_stepper as locomotion_stepper
 from fxspace.motion._locomotion import turn_table as turn_table
 from fxspace.motion._locomotion import turn_to_lower_param as turn_to_lower_param
 from fxspace.motion._locomotion import world_positions as world_positions
+from fxspace.motion._metrics import CycleCoupling as CycleCoupling
+from fxspace.motion._metrics import cadence as cadence
+from fxspace.motion._metrics import cycle_coupling as cycle_coupling
+from fxspace.motion._metrics import cycle_events as cycle_events
 from fxspace.motion._metrics import foot_sliding as foot_sliding
 from fxspace.motion._metrics import ground_speed as ground_speed
+from fxspace.motion._metrics import joint_speeds as joint_speeds
+from fxspace.motion._metrics import swing_signal as swing_signal
 from fxspace.motion._register import RegistrationResult as RegistrationResult
 from fxspace.motion._register import alignment_curve as alignment_curve
 from fxspace.motion._register import drop_root as drop_root
@@ -89,6 +95,8 @@ from fxspace.motion._synthesis import Pose as Pose
 from fxspace.motion._synthesis import SynthesisSpaces as SynthesisSpaces
 from fxspace.motion._synthesis import SynthState as SynthState
 from fxspace.motion._synthesis import build_spaces as build_spaces
+from fxspace.motion._synthesis import clock_bounds as clock_bounds
+from fxspace.motion._synthesis import clock_cycle_rate as clock_cycle_rate
 from fxspace.motion._synthesis import exact_upper_params as exact_upper_params
 from fxspace.motion._synthesis import init_state as init_state
 from fxspace.motion._synthesis import lower_param_of as lower_param_of
@@ -177,6 +185,14 @@ __all__ = [
     "upper_body_mask",
     "foot_sliding",
     "ground_speed",
+    "CycleCoupling",
+    "cadence",
+    "cycle_coupling",
+    "cycle_events",
+    "joint_speeds",
+    "swing_signal",
+    "clock_bounds",
+    "clock_cycle_rate",
     "alignment_curve",
     "drop_root",
     "gait_window",

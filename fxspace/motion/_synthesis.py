@@ -13,6 +13,7 @@ stores ``ṗ_i`` ("translated and rotated so that the root frame coincides with 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -21,11 +22,18 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from fxspace._validate import check_scalar, checked
+from fxspace.errors import FxspaceError
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._horn import absolute_orientation, absolute_rotation, apply_rigid
 from fxspace.motion._splice import heading_quat, heck_splice, splice_pose, torso_joints
-from fxspace.motion._timewarp import advance_clock, align_clocks, interp_curve, invert_curve
+from fxspace.motion._timewarp import (
+    advance_clock,
+    align_clocks,
+    interp_curve,
+    invert_curve,
+    warp_slopes,
+)
 from fxspace.rotations import quat_conj, quat_rotate
 
 __all__ = [
@@ -40,6 +48,8 @@ __all__ = [
     "exact_upper_params",
     "upper_param_of",
     "lower_param_of",
+    "clock_bounds",
+    "clock_cycle_rate",
 ]
 
 
@@ -55,10 +65,13 @@ class SynthesisSpaces:
     where each parameter is measured), ``posture_transfer``. Static: ``parents``, ``mask``
     (upper-body joints), ``spine`` (splice joint), ``lower_joint``/``lower_dims``,
     ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
-    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``max_clock_rate`` (after
-    eqs. 2–3 neither clock advances more than this × its own eq.-(1) advance: the clocks
-    align by slowing the one ahead, not by rushing the one behind, which would play a
-    body faster than any example; ``inf``: eqs. 2–3 as printed), ``splice`` (``"heck"``:
+    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``max_clock_rate`` (the
+    bound on eqs. 2–3: after the alignment neither clock advances more than this × the
+    eq.-(1) advance of the *fastest example of its own set at that phase*,
+    ``max_i Δt / C_i'(T)`` — so α moves a body's tempo anywhere between its own blend's
+    and the other's, but never past a captured clip's; ``inf``: eqs. 2–3 as printed,
+    see `clock_bounds`), ``aligned`` (``False``: eq. 1 only, each body half on its own
+    clock — Fig. 3(a), for measurement), ``splice`` (``"heck"``:
     `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
     ``torso`` (`torso_joints`, used by ``"heck"``), ``replace`` (§3.2's re-placement:
     ``"rotation"``, one rotation about the root as printed; ``"rigid"``, rotation and
@@ -90,6 +103,7 @@ class SynthesisSpaces:
     torso: tuple[int, ...] = ()
     replace: str = "rotation"
     max_clock_rate: float = 1.0
+    aligned: bool = True
 
 
 jax.tree_util.register_dataclass(
@@ -100,7 +114,7 @@ jax.tree_util.register_dataclass(
     ],
     meta_fields=[
         "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
-        "knn_k", "min_slope", "splice", "torso", "replace", "max_clock_rate",
+        "knn_k", "min_slope", "splice", "torso", "replace", "max_clock_rate", "aligned",
     ],
 )  # fmt: skip
 
@@ -238,30 +252,64 @@ def _spliced(sp: SynthesisSpaces, wL, wU, t_lower, t_upper):
     return splice_frame(sp, qL, qU), rL
 
 
+def clock_bounds(sp: SynthesisSpaces, t_lower, t_upper, dt=1.0):
+    """The bound on eqs. 2–3 (``sp.max_clock_rate``, ``r``): the largest advance each clock
+    may make in one frame, ``r · max_i Δt / max(C_i'(T), min_slope)`` over the examples
+    ``i`` of its own set at its own phase ``T`` — the eq.-(1) advance of the fastest
+    captured example there. Eq. (1)'s own advance (a weighted mean over the same
+    examples) never exceeds it, so the bound only holds back what the alignment adds:
+    α keeps its effect (a body half may take the other half's tempo) as long as some
+    captured clip of that half moved that fast. ``inf`` (eqs. 2–3 as printed): no bound.
+
+    **Returns:** ``(bound_lower, bound_upper)`` in reference frames per output frame."""
+    ms = sp.min_slope
+
+    def fastest(warps, t):
+        return jnp.max(1.0 / jnp.maximum(warp_slopes(warps, t), ms)) * dt
+
+    r = sp.max_clock_rate
+    return r * fastest(sp.lower.warps, t_lower), r * fastest(sp.upper.warps, t_upper)
+
+
 def _advance(sp: SynthesisSpaces, state: SynthState, wL, wU, alpha, dt, wrap: bool):
-    """Step 5: eq. (1) for each set, then eqs. (2)–(3). ``wrap=False`` stops ``T_L`` at the
-    lower reference clip's end; ``wrap=True`` wraps it (and ``T_U`` by the span of ``λ``)
-    so the cycle repeats. Returns ``(t_lower, t_upper, wrapped)``."""
+    """Step 5: eq. (1) for each set, then eqs. (2)–(3) bounded by `clock_bounds`
+    (``sp.aligned = False``: eq. 1 only). ``wrap=False`` stops ``T_L`` at the lower
+    reference clip's end; ``wrap=True`` wraps it (and ``T_U`` by the span of ``λ``) so the
+    cycle repeats. Returns ``(t_lower, t_upper, wrapped)``."""
     ms = sp.min_slope
     end = sp.lam.shape[0] - 1.0
     dl = advance_clock(state.t_lower, sp.lower.warps, wL, dt, ms)  # eq. 1
     du = advance_clock(state.t_upper, sp.upper.warps, wU, dt, ms)
     tl, tu = state.t_lower + dl, state.t_upper + du
-    # the rate cap: neither clock may run faster than max_clock_rate × its own eq.-(1)
-    # advance; eqs. 2–3 then align the clocks by slowing the one ahead, never by rushing
-    # the one behind (rushing plays a body faster than any example: a pop)
+    # the bound: after eqs. 2–3 neither clock runs faster than the fastest example of
+    # its own set at its phase (rushing a body past every capture is the pop it cures)
     cap = None
     if sp.max_clock_rate != float("inf"):
-        cap = (state.t_lower + sp.max_clock_rate * dl, state.t_upper + sp.max_clock_rate * du)
+        bl, bu = clock_bounds(sp, state.t_lower, state.t_upper, dt)
+        cap = (state.t_lower + jnp.maximum(bl, dl), state.t_upper + jnp.maximum(bu, du))
     if wrap:
+        if not sp.aligned:
+            return _wrap_apart(sp.lam, tl, tu)
         return _align_periodic(sp.lam, tl, tu, alpha, cap)
     wrapped = jnp.zeros((), bool)
     tl = jnp.minimum(tl, end)
+    if not sp.aligned:
+        return tl, jnp.minimum(tu, sp.lam[-1]), wrapped
     tl, tu = align_clocks(tl, tu, sp.lam, alpha)  # eqs. 2–3
     if cap is not None:
         tl, tu = _capped(tl, tu, cap, lambda t: interp_curve(sp.lam, t),
                          lambda y: invert_curve(sp.lam, y))  # fmt: skip
     return tl, tu, wrapped
+
+
+def _wrap_apart(lam, tl, tu):
+    """Fig. 3(a): each clock wraps at the end of its own reference cycle (``N − 1`` and
+    ``λ(N−1)``), never aligned; ``wrapped`` follows the lower clock."""
+    P = lam.shape[0] - 1.0
+    S = jnp.maximum(lam[-1] - lam[0], 1e-9)
+    k = jnp.maximum(jnp.floor(tl / P), 0.0)
+    ku = jnp.maximum(jnp.floor((tu - lam[0]) / S), 0.0)
+    return tl - k * P, tu - ku * S, k > 0
 
 
 def _capped(tl, tu, cap, lam, inv):
@@ -296,6 +344,43 @@ def _align_periodic(lam, tl, tu, alpha, cap=None):
         tl, tu = _capped(tl, tu, cap, lam_ext, inv_ext)
     k = jnp.maximum(jnp.floor(tl / P), 0.0)
     return tl - k * P, tu - k * S, k > 0
+
+
+@checked
+def clock_cycle_rate(
+    sp: SynthesisSpaces,
+    lower_weights: Float[Array, " EL"],
+    upper_weights: Float[Array, " EU"],
+    alpha: float | Float[Array, ""] = 0.5,
+    n_frames: int = 600,
+    dt: float = 1.0,
+) -> Float[Array, ""]:
+    """What eqs. (1)–(3) predict for the lower body's tempo, from the clocks alone (no
+    pose): lower reference cycles per output frame over ``n_frames`` frames of the
+    periodic clocks (`locomotion`'s), both blends held fixed, with the spaces' bound
+    (`clock_bounds`; ``max_clock_rate = inf`` for eqs. 2–3 as printed). ``α = 1`` gives
+    the lower blend's own eq.-(1) tempo, ``α = 0`` the upper blend's mapped through
+    ``λ`` (where the bound allows it). Jittable; O(n_frames)."""
+    check_step_controls(alpha, dt)
+    return _clock_cycle_rate(sp, lower_weights, upper_weights, alpha, n_frames, dt)
+
+
+@functools.partial(jax.jit, static_argnums=(4,))
+def _clock_cycle_rate(sp, wL, wU, alpha, n_frames, dt):
+    dtype = sp.lam.dtype
+    wL, wU = jnp.asarray(wL, dtype), jnp.asarray(wU, dtype)
+    alpha = jnp.asarray(alpha, dtype)
+    z = jnp.zeros((), dtype)
+    st0 = SynthState(z, sp.lam[0] + z, jnp.zeros(len(sp.lower_dims), dtype),
+                     sp.upper_params, wL)  # fmt: skip
+
+    def body(c, _):
+        st, cycles = c
+        tl, tu, wrapped = _advance(sp, st, wL, wU, alpha, dt, wrap=True)
+        return (st._replace(t_lower=tl, t_upper=tu), cycles + wrapped), None
+
+    (st, cycles), _ = jax.lax.scan(body, (st0, z), None, length=n_frames)
+    return (cycles + st.t_lower / (sp.lam.shape[0] - 1.0)) / n_frames
 
 
 def check_step_controls(alpha, dt) -> None:
@@ -410,7 +495,7 @@ def build_spaces(
     max_active: int = 3,
     min_slope: float = 0.05,
     replace: str = "rotation",
-    max_clock_rate: float = 1.0,
+    max_clock_rate: float | int = 1.0,  # not ``float``: ``inf`` (eqs. 2–3 as printed) is valid
 ) -> SynthesisSpaces:
     """Sample both parameter spaces (Kovar & Gleicher 2004: ``n_samples`` random sparse
     blends, the examples first) and evaluate their parameters in one vmapped call each: the
@@ -428,9 +513,7 @@ def build_spaces(
         raise ValueError(
             f"replace must be 'rotation' (§3.2 as printed) or 'rigid', got {replace!r}"
         )
-    if not float(max_clock_rate) > 0:
-        raise ValueError(f"max_clock_rate must be > 0 (inf: eqs. 2–3 uncapped), got "
-                         f"{max_clock_rate!r}")  # fmt: skip
+    max_clock_rate = _check_clock_rate(max_clock_rate)
     if upper_joint >= 0 and not 3 <= k_replace <= WU.shape[0]:
         raise ValueError(f"k_replace must lie in [3, {WU.shape[0]}], got {k_replace}")
     dtype = jnp.result_type(float)
@@ -463,6 +546,16 @@ def build_spaces(
         replace=replace,
     )
     return _sample_params(sp)
+
+
+def _check_clock_rate(r) -> float:
+    """``max_clock_rate``: a real number > 0; ``inf`` (eqs. 2–3 as printed) is accepted."""
+    if isinstance(r, bool) or not isinstance(r, int | float | np.floating | np.integer):
+        raise FxspaceError(f"max_clock_rate must be a number > 0 (inf: eqs. 2–3 as printed), "
+                           f"got {r!r}")  # fmt: skip
+    if not float(r) > 0:  # NaN too
+        raise FxspaceError(f"max_clock_rate must be > 0 (inf: eqs. 2–3 as printed), got {r!r}")
+    return float(r)
 
 
 @jax.jit

@@ -6,7 +6,9 @@ spaces and serves a viser page with:
 
 - the character playing, one `fxspace.motion.synthesize_step` per frame (the clip
   loops when the lower clock reaches its end);
-- sliders for the joy/sad weight (the mood walk) and for α (eqs. 2–3);
+- sliders for the joy/sad weight (the mood walk) and for α (eqs. 2–3: 1 keeps the lower
+  body's tempo, 0 gives it the upper body's; the status line says the bound — neither
+  half runs faster than its fastest captured example at that phase);
 - draggable targets (transform gizmos): the foot (the lower parameter: final left-foot
   position, or the right toe at the strike) and the hand (the upper parameter, left-hand
   position at the key time, taken relative to the character's current root frame);
@@ -55,13 +57,25 @@ START_DELAY_S = 1.0
 """Seconds the first page is given to draw the scene before the walker starts walking."""
 
 
+def alpha_help(max_clock_rate: float) -> str:
+    """What α does and what bounds it (eqs. 2–3 and `fxspace.motion.clock_bounds`)."""
+    base = "α: 1 keeps the lower body's tempo, 0 gives it the upper body's"
+    if max_clock_rate == float("inf"):
+        return base + " (eqs. 2–3 as printed: no bound, a body half may outrun every capture)"
+    rate = "" if max_clock_rate == 1 else f" × {max_clock_rate:g}"
+    return (base + f"; bounded: neither half runs faster than its fastest captured "
+            f"example at that phase{rate}")  # fmt: skip
+
+
 def status_text(st: dict) -> str:
-    """The status line's Markdown from `MotionController.status` (data in, text out)."""
+    """The status line's Markdown from `MotionController.status` (data in, text out),
+    with a help line on α and the bound on eqs. 2–3."""
     up = (f"joy {st['joy']:.2f}" if st["hand"] is None
           else "hand " + " ".join(f"{v:+.2f}" for v in st["hand"]))  # fmt: skip
     turn = f" · turn {st['turn']:+.0f}°/s" if st["turn"] is not None else ""
+    bound = st.get("max_clock_rate")
     return status_markdown(
-        st["setup"], [], st["message"],
+        st["setup"], [alpha_help(bound)] if bound is not None else [], st["message"],
         after_title=(f" · frame {st['frame']} · T_L {st['t_lower']:.1f} · T_U "
                      f"{st['t_upper']:.1f} · α {st['alpha']:.2f} · {up}{turn}"),
     )  # fmt: skip

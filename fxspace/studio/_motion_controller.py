@@ -212,7 +212,9 @@ class MotionController:
         """What the status line shows, as data (`MotionView` renders it): the ``setup``'s
         name, ``frame``, the clocks ``t_lower`` and ``t_upper``, ``alpha``, the upper
         control (``joy``, or ``hand``: the hand parameter; the other is None), ``turn``
-        (°/s; None without steering), ``recording`` and the last ``message``."""
+        (°/s; None without steering), ``recording``, ``max_clock_rate`` (the bound on
+        eqs. 2–3, `fxspace.motion.clock_bounds`; inf: as printed) and the last
+        ``message``."""
         s = self.state.synth
         return {
             "setup": self.setup.name,
@@ -224,6 +226,7 @@ class MotionController:
             "hand": [float(v) for v in self.hand_param] if self.parametric else None,
             "turn": float(self.turn) if self.table is not None else None,
             "recording": self.recording is not None,
+            "max_clock_rate": float(self.setup.spaces.max_clock_rate),
             "message": self.message,
         }
 

@@ -148,24 +148,33 @@ def test_direct_weights_upper_space(sp):
 
 
 @pytest.mark.parametrize("wrap", [False, True])
-def test_clock_alignment_slows_the_leader_never_rushes(sp, wrap):
-    """Eqs. 2–3 pull the two clocks together; with the rate cap (``max_clock_rate = 1``,
-    the default) neither advances more than its own eq.-(1) step, so no body half plays
-    faster than its examples (the pop of issue 31.8), and the pair stays aligned
-    (``T_L = λ⁻¹(T_U)``). ``inf`` gives eqs. 2–3 as printed (`align_clocks`)."""
+def test_clock_alignment_bounded_by_the_fastest_example(sp, wrap):
+    """Eqs. 2–3 pull the two clocks together; the default bound (issue 47.1) lets neither
+    advance past the fastest example of its own set at its phase (`clock_bounds`), so
+    a body half never plays faster than some capture of it — but it may run faster than
+    its own blend's eq.-(1) step, so α keeps its effect. The pair stays aligned
+    (``T_L = λ⁻¹(T_U)``); ``inf`` gives eqs. 2–3 as printed (`align_clocks`)."""
     from fxspace.motion._synthesis import SynthState, _advance
 
     wL = sp.lower_w0
     wU = jnp.zeros(sp.upper.warps.shape[0]).at[0].set(1.0)
     lam = np.asarray(sp.lam)
+    rushed = 0
     for tl0, tu0 in ((8.0, 1.0), (2.0, 12.0), (6.0, float(np.interp(6.0, np.arange(20), lam)))):
         st = SynthState(jnp.asarray(tl0), jnp.asarray(tu0), sp.lower_params[0],
                         sp.upper_params, wL)  # fmt: skip
         dl = float(fx.motion.advance_clock(st.t_lower, sp.lower.warps, wL, 1.0, sp.min_slope))
         du = float(fx.motion.advance_clock(st.t_upper, sp.upper.warps, wU, 1.0, sp.min_slope))
+        # the fastest example of each set at this phase, by hand
+        slopes_l = np.diff(np.asarray(sp.lower.warps), axis=1)[:, min(int(tl0), 18)]
+        slopes_u = np.diff(np.asarray(sp.upper.warps), axis=1)[:, min(int(tu0), 14)]
+        bl, bu = 1.0 / slopes_l.min(), 1.0 / slopes_u.min()
+        np.testing.assert_allclose(fx.motion.clock_bounds(sp, st.t_lower, st.t_upper),
+                                   [bl, bu], rtol=1e-5)  # fmt: skip
         tl, tu, _ = _advance(sp, st, wL, wU, 0.5, 1.0, wrap)
         tl, tu = float(tl), float(tu)
-        assert tl - tl0 <= dl + 1e-5 and tu - tu0 <= du + 1e-5
+        assert tl - tl0 <= bl + 1e-5 and tu - tu0 <= bu + 1e-5
+        rushed += (tl - tl0 > dl + 1e-3) or (tu - tu0 > du + 1e-3)
         assert tl == pytest.approx(float(fx.motion.invert_curve(sp.lam, tu)), abs=1e-4)
         free = dataclasses.replace(sp, max_clock_rate=float("inf"))
         tl_p, tu_p, _ = _advance(free, st, wL, wU, 0.5, 1.0, wrap)
@@ -173,9 +182,31 @@ def test_clock_alignment_slows_the_leader_never_rushes(sp, wrap):
             ref = fx.motion.align_clocks(jnp.asarray(tl0 + dl), jnp.asarray(tu0 + du), sp.lam, 0.5)
             np.testing.assert_allclose([tl_p, tu_p], ref, atol=1e-5)
         if tl0 == 8.0:  # the upper clock far behind: as printed, eq. 2 rushes it forward
-            assert float(tu_p) - tu0 > du + 0.5  # (the cap holds it to du, above)
+            assert float(tu_p) - tu0 > bu + 0.5  # (the bound holds it to bu, above)
+    assert rushed  # a clock did pass its own blend's step: the bound is not the old cap
     with pytest.raises(ValueError, match="max_clock_rate"):
         _spaces_with(max_clock_rate=0.0)
+    # eqs. 2–3 as printed are a valid setting (issue 47.1: inf was refused as "not finite")
+    assert _spaces_with(max_clock_rate=float("inf")).max_clock_rate == float("inf")
+
+
+def test_alpha_moves_the_lower_tempo_under_the_default_bound(sp):
+    """α is alive (issue 47.1): with an upper blend of a faster tempo, the lower cycle
+    rate that eqs. 1–3 give (`clock_cycle_rate`) rises from the lower blend's own tempo
+    at α = 1 towards the upper blend's at α = 0 — up to the fastest lower example (the
+    bound), where eqs. 2–3 as printed would go on to the upper tempo. Under the old cap
+    (each clock at most its own eq.-1 step) it stayed at the lower blend's tempo."""
+    wL = sp.lower_w0  # the reference lower example: 19 reference frames per cycle
+    wU = jnp.zeros(sp.upper.warps.shape[0]).at[1].set(1.0)  # upper example 1: C' = 0.7
+    r1 = float(fx.motion.clock_cycle_rate(sp, wL, wU, 1.0, 400))
+    r0 = float(fx.motion.clock_cycle_rate(sp, wL, wU, 0.0, 400))
+    r_half = float(fx.motion.clock_cycle_rate(sp, wL, wU, 0.5, 400))
+    assert r1 == pytest.approx(1 / 19, rel=0.02)  # the lower blend's own tempo
+    assert r0 == pytest.approx(1 / 0.8 / 19, rel=0.02)  # the fastest lower example (C' 0.8)
+    assert r1 < r_half <= r0
+    free = dataclasses.replace(sp, max_clock_rate=float("inf"))
+    r0_free = float(fx.motion.clock_cycle_rate(free, wL, wU, 0.0, 400))
+    assert r0_free == pytest.approx(1 / (15 * 0.7), rel=0.03)  # the upper tempo, as printed
 
 
 def _spaces_with(**kw):

@@ -153,11 +153,14 @@ def test_experiment_quick(data_dir, tmp_path):
     m = json.loads((run / "metrics.json").read_text())["block_kick"]
     assert m["clocks_monotone_all_alphas"] is True
     assert m["n_samples"] == 100 and np.isfinite(m["lower_target_error_mean_m"])
-    # §3.2's rotation about the root from k = 3 samples on this tiny set: no worse than the
-    # stale samples beyond 1 % (measured 0.3 %: 1.113 vs 1.110 mm); both variants reported
-    assert m["upper_target_error_replaced_mean_m"] <= 1.01 * m["upper_target_error_stale_mean_m"]
+    # §3.2 on this tiny set is only reported (both variants); that re-placement lowers the
+    # error is shown on the shipped block walk (test_replacement_real.py)
     assert m["replace"] == "rotation" and "replacement_error_rigid_mean_m" in m
-    assert m["fig3_phase_error_aligned"] < m["fig3_phase_error_unaligned"]
+    assert m["upper_target_error_replaced_mean_m"] > 0
+    # Fig. 3 is read off a walk's arm swing against its strides: a kick has neither, so
+    # its Fig. 3 metrics are missing (NaN), never 0 (test_fig3_clocks.py has the walks)
+    assert all(np.isnan(m[f"fig3_{q}_{k}"]) for q in ("phase_drift", "cycle_ratio")
+               for k in ("unaligned", "aligned", "aligned_as_printed", "examples"))  # fmt: skip
     for f in (
         "block_kick.bvh",
         "block_kick_steer.bvh",
