@@ -840,112 +840,187 @@ def _figures(st: M.Setup, cfg: Config, run_dir: Path, qL, extra: dict, curves: d
         ),
         run_dir / f"{name}_registration_timewarp.png",
     )
-    f3 = _fig3_clocks(st, cfg)
-    save_figure_atomic(_plot_fig3(st, f3), run_dir / f"{name}_fig3.png")
+    if extra.get("fig3"):
+        save_figure_atomic(_plot_fig3(st, extra["fig3"]), run_dir / f"{name}_fig3.png")
 
 
-def _fig3_clocks(st: M.Setup, cfg: Config) -> dict:
-    """Ha & Han Fig. 3 as printed: the *spliced* motion (reference upper example on the
-    reference lower example), (a) each body half on its own clock (eq. 1 only) and (b) the
-    clocks aligned by eqs. 2–3 (α = ``synth.alpha``). Phase of each half: ``T_L/(N−1)`` and
-    ``λ⁻¹(T_U)/(N−1)`` (where the upper clock sits in the lower cycle); frames until each
-    clock ends its cycle (``N−1`` and ``λ(N−1)``)."""
-    sp, sk = st.spaces, st.skeleton
-    dt_ = sp.lam.dtype
-    wL = sp.lower_w0
-    wU = jnp.zeros(sp.upper.warps.shape[0], dt_).at[0].set(1.0)
-    lam = sp.lam
-    n = int(lam.shape[0])
-    endL, endU = n - 1.0, float(lam[-1])
-    F = 3 * n
+#: (left, right) joint names of the feet, hands and hips, per skeleton convention
+_GAIT_JOINTS = (
+    (("Toes_L", "Toes_R"), ("Hand_L", "Hand_R"), ("UpperLeg_L", "UpperLeg_R")),  # Bandai
+    (("ltoes", "rtoes"), ("lhand", "rhand"), ("lfemur", "rfemur")),  # CMU ASF
+)
 
-    def clocks(aligned: bool):
-        def body(c, _):
-            tl, tu = c
-            tl2 = tl + M.advance_clock(tl, sp.lower.warps, wL, 1.0, sp.min_slope)
-            tu2 = tu + M.advance_clock(tu, sp.upper.warps, wU, 1.0, sp.min_slope)
-            tl2 = jnp.minimum(tl2, endL)
-            if aligned:
-                tl2, tu2 = M.align_clocks(tl2, tu2, lam, cfg.synth.alpha)
-            return (tl2, tu2), jnp.stack([tl, tu])
 
-        c0 = (jnp.zeros((), dt_), lam[0])
-        return np.asarray(jax.lax.scan(body, c0, None, length=F)[1])
+def _gait_joints(skel) -> tuple | None:
+    """``(feet, hands, hips)`` index pairs of a skeleton (None: names not found)."""
+    names = list(skel.names)
+    for conv in _GAIT_JOINTS:
+        if all(n in names for pair in conv for n in pair):
+            return tuple(tuple(names.index(n) for n in pair) for pair in conv)
+    return None
 
+
+def _walks(st: M.Setup) -> bool:
+    return st.name in ("mood_walk", "block_walk")
+
+
+_FIG3_KINDS = {  # metric suffix: how the clocks run
+    "unaligned": dict(aligned=False),  # (a): eq. 1 only, each half on its own clock
+    "aligned_as_printed": dict(max_clock_rate=float("inf")),  # (b): eqs. 2–3 as printed
+    "aligned": {},  # (b): eqs. 2–3 with the default bound (`clock_bounds`)
+}
+
+
+def _fig3_sessions(st: M.Setup, cfg: Config, seed: int) -> dict:
+    """Ha & Han Fig. 3 read off the synthesised joints: one long scripted session of a
+    walk (``synth.session_s``, 60 s when 0; every control but α changed every
+    ``synth.session_every_s``, α = ``synth.alpha``) played (a) with each body half on its
+    own clock and (b) aligned by eqs. 2–3, as printed and with the default bound; on each,
+    the upper body's arm swing against the strides read off the feet
+    (`fxspace.motion.cycle_coupling`), and the same on the captured takes."""
+    joints = _gait_joints(st.skeleton)
+    if not _walks(st) or joints is None:
+        return {}
+    feet, hands, hips = joints
+    sy = cfg.synth
+    seconds = sy.session_s if sy.session_s > 0 else 60.0
+    table = M.session_turn_table(st)
+    controls = M.session_controls(st, table)
+    sched = [(t, {**c, "alpha": sy.alpha}) for t, c in
+             _schedule(controls, seconds, sy.session_every_s, seed)]  # fmt: skip
     out: dict = {}
-    for key, aligned in (("unaligned", False), ("aligned", True)):
-        c = clocks(aligned)
-        doneL = np.nonzero(c[:, 0] >= endL - 1e-6)[0]
-        doneU = np.nonzero(c[:, 1] >= endU - 1e-6)[0]
-        nL = int(doneL[0]) if doneL.size else F
-        nU = int(doneU[0]) if doneU.size else F
-        m = max(min(nL, nU), 1) + 1  # both halves inside their first cycle
-        phL = c[:m, 0] / endL
-        inv = jax.vmap(lambda y: M.invert_curve(lam, y))
-        phU = np.asarray(inv(jnp.asarray(np.minimum(c[:m, 1], endU), dt_))) / endL
-        q = jax.vmap(
-            lambda tl, tu: M.splice_frame(
-                sp, M.blend_pose(sp.lower, wL, tl)[0], M.blend_pose(sp.upper, wU, tu)[0]
-            )
-        )(jnp.asarray(c[:m, 0], dt_), jnp.asarray(c[:m, 1], dt_))
-        r = jax.vmap(lambda tl: M.blend_pose(sp.lower, wL, tl)[1])(jnp.asarray(c[:m, 0], dt_))
-        X = np.asarray(M.fk_arrays(sk.parents, sp.offsets, r, q)[0])
-        out[key] = {
-            "phase_error": float(np.mean(np.abs(phU - phL))),
-            "length_difference_s": abs(nL - nU) / float(sk.rate),
-            "clocks": c[:m],
-            "phases": (phL, phU),
-            "X": X,
-        }
+    for kind, change in _FIG3_KINDS.items():
+        st2 = st._replace(spaces=dataclasses.replace(st.spaces, **change))
+        X, fps, _, _ = M.run_session(st2, sched, seconds, table=table)
+        out[kind] = (M.cycle_coupling(X, feet, hands, hips, fps), X)
+    ex = []
+    for take in st.upper_names + st.lower_names:
+        mot = load_take(take, cfg.stride)
+        Xe = np.asarray(M.fk_arrays(mot.parents, mot.offsets, mot.root_translation,
+                                    mot.rotations)[0])  # fmt: skip
+        ex.append(M.cycle_coupling(Xe, feet, hands, hips, mot.rate))
+    out["examples"] = ex
     return out
+
+
+def _fig3_metrics_of(f3: dict) -> dict:
+    if not f3:
+        nan = float("nan")
+        return {f"fig3_{m}_{k}": nan for m in ("phase_drift", "cycle_ratio")
+                for k in (*_FIG3_KINDS, "examples")}  # fmt: skip
+    m: dict = {}
+    for k in _FIG3_KINDS:
+        c = f3[k][0]
+        m[f"fig3_phase_drift_{k}"] = c.phase_drift
+        m[f"fig3_cycle_ratio_{k}"] = c.cycle_ratio
+    ex = f3["examples"]
+    m["fig3_phase_drift_examples"] = float(np.nanmean([c.phase_drift for c in ex]))
+    m["fig3_cycle_ratio_examples"] = float(np.nanmean([c.cycle_ratio for c in ex]))
+    m["fig3_phase_drift_examples_max"] = float(np.nanmax([c.phase_drift for c in ex]))
+    m["fig3_units"] = (
+        "read off the joints: cycle_ratio = mean arm-swing cycle / mean stride (left foot "
+        "against right); phase_drift = how fast the arm swing's phase at each stride slips, "
+        "cycles per minute; examples = the captured takes (mean)"
+    )
+    return m
 
 
 def _plot_fig3(st: M.Setup, f3: dict):
     import matplotlib.pyplot as plt
 
-    parents = st.skeleton.parents
-    fig = plt.figure(figsize=(13, 7))
-    for row, key in enumerate(("unaligned", "aligned")):
-        d = f3[key]
-        X = d["X"]
-        frames = np.linspace(0, X.shape[0] - 1, 6).round().astype(int)
-        for j, f in enumerate(frames):
-            ax = fig.add_subplot(3, 6, 6 * row + j + 1)
-            P = X[f] - X[f, :1] * np.array([1.0, 0.0, 1.0])
-            for c, p in enumerate(parents):
-                if p >= 0:
-                    ax.plot(P[[p, c], 0], P[[p, c], 1], c="C0" if row == 0 else "C1", lw=1.2)
-            ax.set_aspect("equal")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            ax.set_title(f"{'(a)' if row == 0 else '(b)'} frame {f}", fontsize=8)
-    ax = fig.add_subplot(3, 1, 3)
-    for i, key in enumerate(("unaligned", "aligned")):
-        phL, phU = f3[key]["phases"]
-        ax.plot(phL, c=f"C{i}", ls="--", label=f"{key}: lower body T_L/(N-1)")
-        ax.plot(phU, c=f"C{i}", label=f"{key}: upper body λ⁻¹(T_U)/(N-1)")
-    ax.set_xlabel("output frame")
-    ax.set_ylabel("phase in the lower cycle")
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8))
+    ax = axes[0]
+    for i, (k, lab) in enumerate((("unaligned", "(a) clocks apart"),
+                                  ("aligned_as_printed", "(b) eqs. 2–3 as printed"),
+                                  ("aligned", "(b) eqs. 2–3, bounded (default)"))):  # fmt: skip
+        c = f3[k][0]
+        inside = c.lower_events[(c.lower_events >= c.upper_events[0])
+                                & (c.lower_events <= c.upper_events[-1])]  # fmt: skip
+        ax.plot(inside[: c.relative_phase.size], c.relative_phase, f"C{i}.-",
+                label=f"{lab}: ratio {c.cycle_ratio:.3f}, drift {c.phase_drift:.2f}/min")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("arm-swing phase at each stride (cycles)")
     ax.legend(fontsize=7)
-    fig.suptitle(
-        f"{st.name}: Fig. 3, spliced motion (a) on separate clocks (phase error "
-        f"{f3['unaligned']['phase_error']:.3f}) and (b) aligned by eqs. 2-3 "
-        f"({f3['aligned']['phase_error']:.3f})"
-    )
+    feet, hands, hips = _gait_joints(st.skeleton)
+    rate = float(st.skeleton.rate)
+    for ax, k in zip(axes[1:], ("unaligned", "aligned"), strict=True):
+        X = f3[k][1][: int(8 * rate)]
+        t = np.arange(X.shape[0]) / rate
+        ax.plot(t, M.swing_signal(X, feet[0], feet[1], hips), label="left foot − right foot")
+        ax.plot(t, M.swing_signal(X, hands[1], hands[0], hips), label="right hand − left hand")
+        ax.set_title(f"{'(a) clocks apart' if k == 'unaligned' else '(b) aligned'}: "
+                     "forward offsets, first 8 s", fontsize=9)  # fmt: skip
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("m")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"{st.name}: Fig. 3 read off the joints (arm swing against the strides)")
+    fig.tight_layout()
     return fig
 
 
-def fig3_metrics(st: M.Setup, cfg: Config) -> dict:
-    """``fig3_phase_error_unaligned`` / ``fig3_phase_error_aligned`` (mean |phase of the
-    upper body − phase of the lower body|, a fraction of the cycle) and the length
-    differences (s) of the spliced motion of `_fig3_clocks`."""
-    f3 = _fig3_clocks(st, cfg)
-    return {
-        "fig3_phase_error_unaligned": f3["unaligned"]["phase_error"],
-        "fig3_phase_error_aligned": f3["aligned"]["phase_error"],
-        "fig3_length_difference_unaligned_s": f3["unaligned"]["length_difference_s"],
-        "fig3_length_difference_aligned_s": f3["aligned"]["length_difference_s"],
-    }
+def fig3_metrics(st: M.Setup, cfg: Config, seed: int = 0) -> dict:
+    """Ha & Han Fig. 3 measured on the synthesised joints (`_fig3_sessions`):
+    ``fig3_phase_drift_{unaligned,aligned_as_printed,aligned,examples}`` (cycles per
+    minute the arm swing's phase slips against the strides) and ``fig3_cycle_ratio_*``
+    (mean arm-swing cycle / mean stride); NaN for a set-up that is not a walk."""
+    return _fig3_metrics_of(_fig3_sessions(st, cfg, seed))
+
+
+def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.0) -> dict:
+    """Issue 47's check that α is alive under the default bound: per scripted session
+    (``seeds``: random turns — and hand positions — every ``synth.session_every_s``; joy
+    held at 1 on the mood walk), the lower body's cadence read off the feet
+    (`fxspace.motion.cadence`, strides per second) at α = 0 and at α = 1, beside what
+    eqs. 1–3 predict from the clocks alone (`fxspace.motion.clock_cycle_rate` per
+    control segment, blends held; with the bound, and as printed); and each joint's
+    fastest speed against the fastest captured clip's same joint (body heights per
+    second, `fxspace.motion.joint_speeds`)."""
+    sp, sk = st.spaces, st.skeleton
+    feet, _, hips = _gait_joints(sk)
+    fps = float(sk.rate)
+    table = M.session_turn_table(st)
+    controls = M.session_controls(st, table)
+    names = list(controls)
+    Xe = _examples_X(st, sp.lower) + _examples_X(st, sp.upper)
+    height = float(np.ptp(Xe[0][0, :, 1]))
+    ex_speed = np.max([M.joint_speeds(x, fps, height) for x in Xe], axis=0)
+    free = dataclasses.replace(sp, max_clock_rate=float("inf"))
+    knnL = jax.jit(lambda p: M.knn_blend_weights(p, sp.lower_params, sp.lower_weights,
+                                                 sp.knn_k).weights)  # fmt: skip
+    rows = []
+    for seed in seeds:
+        sched = _schedule(controls, seconds, cfg.synth.session_every_s, 1000 + seed)
+        if "joy" in controls:
+            sched = [(t, {**c, "joy": 1.0}) for t, c in sched]
+        row: dict = {"seed": int(seed)}
+        for a in (0.0, 1.0):
+            s_a = [(t, {**c, "alpha": a}) for t, c in sched]
+            X, _, _, _ = M.run_session(st, s_a, seconds, table=table)
+            row[f"cadence_alpha{a:g}"] = M.cadence(X, feet, hips, fps)
+            row[f"joint_speed_ratio_alpha{a:g}"] = float(
+                np.max(M.joint_speeds(X, fps, height) / ex_speed))
+            pred, pred_free = [], []
+            for _t, c in sched:  # per control segment, blends held (no smoothing)
+                v = np.asarray([[{**c, "alpha": a}[n] for n in names]], np.float64)
+                up, low, _ = M.controls_to_params(st, names, v, table)
+                wL = knnL(jnp.asarray(low[0], sp.lam.dtype))
+                if sp.upper_joint >= 0:
+                    params = M.replace_samples(sp, wL)
+                    wU = M.knn_blend_weights(jnp.asarray(up[0], sp.lam.dtype), params,
+                                             sp.upper_weights, sp.knn_k).weights  # fmt: skip
+                else:
+                    wU = jnp.asarray(up[0] / up[0].sum(), sp.lam.dtype)
+                pred.append(float(M.clock_cycle_rate(sp, wL, wU, a)))
+                pred_free.append(float(M.clock_cycle_rate(free, wL, wU, a)))
+            row[f"predicted_alpha{a:g}"] = float(np.mean(pred)) * fps
+            row[f"predicted_as_printed_alpha{a:g}"] = float(np.mean(pred_free)) * fps
+        row["ratio_measured"] = row["cadence_alpha0"] / row["cadence_alpha1"]
+        row["ratio_predicted"] = row["predicted_alpha0"] / row["predicted_alpha1"]
+        row["ratio_predicted_as_printed"] = (row["predicted_as_printed_alpha0"]
+                                             / row["predicted_as_printed_alpha1"])  # fmt: skip
+        rows.append(row)
+    return {"sessions": rows, "examples_joint_speed_max_bh_per_s": ex_speed.tolist(),
+            "body_height_m": height}  # fmt: skip
 
 
 def _joy_sweep(st: M.Setup, cfg: Config, run_dir: Path, qL) -> dict:
@@ -1015,10 +1090,12 @@ def _run_setup(name: str, cfg: Config, run_dir: Path, key, seed: int) -> dict:
     reg = cached(run_dir, f"{name}_timewarp", timewarp)
     curves = reg.pop("curves")
     m.update(reg)
-    m.update(fig3_metrics(st, cfg))
+    f3 = _fig3_sessions(st, cfg, seed)
+    m.update(_fig3_metrics_of(f3))
     if name != "block_kick" and cfg.synth.session_s > 0:
         m.update(cached(run_dir, f"{name}_session", lambda: _stage_session(st, cfg, seed, run_dir)))
     more, extra = _clips_and_timing(st, cfg, run_dir, qL, wq_u)
+    extra["fig3"] = f3
     m.update(more)
     _figures(st, cfg, run_dir, qL, extra, curves)
     if st.spaces.upper_joint < 0:
