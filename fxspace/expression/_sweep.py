@@ -210,7 +210,12 @@ def _spanning_tree(P: np.ndarray) -> np.ndarray | None:
     return parent
 
 
-def bridge_parts(pairwise, thresholds, connected=None) -> np.ndarray:
+@checked
+def bridge_parts(
+    pairwise: Float[Array, "n n"],
+    thresholds: Float[Array, " S"],
+    connected: Bool[Array, " S"] | None = None,
+) -> np.ndarray:
     """Per ε, the frames in the smaller part cut off by the ε-graph's largest bridge.
 
     Bridges of a connected graph are edges of every spanning tree, so only the ``n − 1``
@@ -227,7 +232,17 @@ def bridge_parts(pairwise, thresholds, connected=None) -> np.ndarray:
     **Returns:** ``(S,)`` int32, 0 where no edge is a bridge.
     """
     P = np.asarray(pairwise, np.float64)
+    if P.ndim != 2 or P.shape[0] != P.shape[1]:
+        raise FxspaceError(f"pairwise must be a square (n, n) matrix, got shape {P.shape}")
+    check_distance_matrix(P, "pairwise", allow_inf=True)
     th = np.asarray(thresholds, np.float64).reshape(-1)
+    if np.isnan(th).any():
+        raise FxspaceError("thresholds must be numbers (ε), got NaN")
+    if connected is not None and np.asarray(connected).reshape(-1).shape != th.shape:
+        raise FxspaceError(
+            f"connected must hold one flag per threshold ({th.shape[0]}), got shape "
+            f"{np.shape(connected)}"
+        )
     n = len(P)
     out = np.zeros(th.shape, np.int32)
     if n < 3:
