@@ -84,6 +84,10 @@ from fxspace.mesh._markers import triangle_normals as triangle_normals
 from fxspace.mesh._markers import visible_triangles as visible_triangles
 from fxspace.mesh._procedural import chain_mesh as chain_mesh
 from fxspace.mesh._procedural import subdivide_mesh as subdivide_mesh
+from fxspace.mesh._retarget import Retargeted as Retargeted
+from fxspace.mesh._retarget import RetargetError as RetargetError
+from fxspace.mesh._retarget import joint_positions as joint_positions
+from fxspace.mesh._retarget import retarget as retarget
 from fxspace.mesh._skinning import Pose as Pose
 from fxspace.mesh._skinning import SkinTables as SkinTables
 from fxspace.mesh._skinning import ancestor_table as ancestor_table
@@ -159,6 +163,10 @@ __all__ = [
     "visible_triangles",
     "subdivide_mesh",
     "chain_mesh",
+    "Retargeted",
+    "RetargetError",
+    "retarget",
+    "joint_positions",
     "Pose",
     "SkinTables",
     "skin_tables",

@@ -18,7 +18,9 @@ role (`CONVENTIONS`):
 - ``smpl``: SMPL / SMPL-X joints (``L_Hip``, ``L_Knee``, ``L_Ankle``, ``L_Foot`` = toes,
   ``L_Collar``, ``L_Shoulder`` = upper arm, …);
 - ``unreal``: the Unreal mannequin (``thigh_l``, ``calf_l``, ``foot_l``, ``ball_l``, …);
-- ``biped``: 3ds Max Biped (``Bip01 L Thigh``, ``Bip01 L Calf``, ``Bip01 L Toe0``, …).
+- ``biped``: 3ds Max Biped (``Bip01 L Thigh``, ``Bip01 L Calf``, ``Bip01 L Toe0``, …);
+- ``cesium``: the glTF sample CesiumMan (``Skeleton_torso_joint_1``, ``leg_joint_L_1``,
+  ``Skeleton_arm_joint_L__4_``, …).
 
 Names are compared without case, separators (``_ - . space``) and namespace prefixes
 (``mixamorig:``, ``Armature|``, ``Bip01``). The convention that resolves the most roles
@@ -86,6 +88,9 @@ _TRUNK: dict[str, dict[str, tuple[str, ...]]] = {
                    upper_chest=("spine_03",), neck=("neck_01",), head=("head",)),
     "biped": dict(hips=("Pelvis",), spine=("Spine",), chest=("Spine1",), upper_chest=("Spine2",),
                   neck=("Neck",), head=("Head",)),
+    "cesium": dict(hips=("Skeleton_torso_joint_1",), spine=("Skeleton_torso_joint_2",),
+                   chest=("torso_joint_3",), neck=("Skeleton_neck_joint_1",),
+                   head=("Skeleton_neck_joint_2",)),
 }  # fmt: skip
 # limbs: "{s}" is the side's letter (l/r), "{S}" its capital (L/R), "{Side}" Left/Right
 _LIMB: dict[str, dict[str, tuple[str, ...]]] = {
@@ -118,7 +123,18 @@ _LIMB: dict[str, dict[str, tuple[str, ...]]] = {
     "biped": dict(shoulder=("{S} Clavicle",), upper_arm=("{S} UpperArm",),
                   lower_arm=("{S} Forearm",), hand=("{S} Hand",), upper_leg=("{S} Thigh",),
                   lower_leg=("{S} Calf",), foot=("{S} Foot",), toes=("{S} Toe0",)),
+    # CesiumMan (glTF sample): the arm joints are numbered differently per side
+    "cesium": dict(upper_arm=("Skeleton_arm_joint_{cz_ua}",),
+                   lower_arm=("Skeleton_arm_joint_{cz_la}",),
+                   hand=("Skeleton_arm_joint_{cz_ha}",), upper_leg=("leg_joint_{S}_1",),
+                   lower_leg=("leg_joint_{S}_2",), foot=("leg_joint_{S}_3",),
+                   toes=("leg_joint_{S}_5",)),
 }  # fmt: skip
+# per-side spellings of conventions whose sides are not mirror images of each other
+_SIDE_TOKENS = {
+    "left": {"cz_ua": "L__4_", "cz_la": "L__3_", "cz_ha": "L__2_"},
+    "right": {"cz_ua": "R", "cz_la": "R__2_", "cz_ha": "R__3_"},
+}
 
 
 def _expand() -> dict[str, Mapping[str, tuple[str, ...]]]:
@@ -127,6 +143,7 @@ def _expand() -> dict[str, Mapping[str, tuple[str, ...]]]:
         roles = dict(trunk)
         for side in _SIDES:
             tok = {"s": side[0], "S": side[0].upper(), "side": side, "Side": side.capitalize()}
+            tok |= _SIDE_TOKENS[side]
             for limb, aliases in _LIMB[conv].items():
                 roles[f"{side}_{limb}"] = tuple(a.format(**tok) for a in aliases)
         out[conv] = MappingProxyType({r: roles[r] for r in ROLES if r in roles})
