@@ -72,10 +72,12 @@ def _cmd_docs(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from fxspace.runs import write_report
+    from fxspace.runs import manifest_files, write_report
 
-    rows, folder = write_report(args.dir, out=args.out, force=args.force)
-    print(f"fxspace report: {len(rows)} runs; table and figures in {folder}")
+    rows, folder = write_report(args.dir, out=args.out, force=args.force, show_all=args.all)
+    figs = len([f for f in manifest_files(folder) if "_vs_" in f and f.endswith(".png")])
+    print(f"fxspace report: {len(rows)} runs; every column in {folder / 'runs.csv'} and "
+          f"runs.md, {figs} figure{'s' * (figs != 1)} in {folder}")
     return 0
 
 
@@ -233,6 +235,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument(
         "--force", action="store_true",
         help="replace files in the report folder that fxspace did not write",
+    )  # fmt: skip
+    rp.add_argument(
+        "--all", action="store_true",
+        help="print every column (default: the swept keys and the metrics that differ)",
     )  # fmt: skip
     rp.set_defaults(func=_cmd_report)
 

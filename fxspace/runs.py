@@ -81,8 +81,8 @@ __all__ = [
     "read_json",
     "run_lock",
     "LOCK",
-    "collect",
-    "write_report",
+    "collect",  # noqa: F822 - fxspace._report's, resolved by __getattr__ below
+    "write_report",  # noqa: F822
     "machine",
     "BENCH_FIELDS",
     "write_bench",
@@ -1000,248 +1000,18 @@ def cached_arrays(
 
 
 # ------------------------------------------------------------------ comparing runs
+# `collect` and `write_report` live in fxspace._report (the report draws its figures with
+# fxspace.plot, a layer above this module): resolved here on first use, so
+# ``fxspace.runs.collect`` / ``from fxspace.runs import write_report`` keep working.
+_REPORT_NAMES = ("collect", "write_report")
 
 
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
+def __getattr__(name: str) -> Any:
+    if name in _REPORT_NAMES:
+        import importlib
 
-
-def _scalar(v: Any) -> bool:
-    return isinstance(v, int | float | str) and not isinstance(v, bool) or isinstance(v, bool)
-
-
-def _run_folders(root: Path) -> list[Path]:
-    found = []
-    for dirpath, dirnames, filenames in os.walk(root):
-        d = Path(dirpath)
-        dirnames[:] = sorted(n for n in dirnames if n != "report" and not n.startswith("."))
-        if "status.json" in filenames or "metrics.json" in filenames:
-            found.append(d)
-    return sorted(found)
-
-
-def collect(run_dir: str | Path, as_frame: bool = False) -> Any:
-    """One row per run under ``run_dir`` (every folder holding ``status.json`` or
-    ``metrics.json``): ``run`` (its path relative to ``run_dir``), the swept keys (the
-    config keys whose values differ between the runs, dotted), the scalar metrics,
-    ``wall_s`` / ``compile_s`` (``meta.json`` timing), ``status`` and ``error``.
-
-    Returns a list of dicts, or a pandas DataFrame with ``as_frame=True`` (needs pandas).
-    A missing value is ``None`` (NaN in the frame), never 0.
-    """
-    rows, _, _ = _collect(run_dir)
-    if as_frame:
-        try:
-            import pandas as pd
-        except ImportError:
-            raise ImportError("collect(as_frame=True) needs pandas: pip install pandas") from None
-        return pd.DataFrame(rows, columns=list(rows[0]) if rows else None)
-    return rows
-
-
-def _collect(run_dir: str | Path) -> tuple[list[dict[str, Any]], list[str], list[str]]:
-    """The rows of `collect` plus the swept keys and the metric columns."""
-    import tomllib
-
-    root = Path(run_dir)
-    if not root.is_dir():
-        raise FileNotFoundError(f"run_dir {root} is not a folder; pass a sweep's --out folder")
-    runs = []
-    for d in _run_folders(root):
-        problems: list[str] = []
-
-        def load(name: str, d: Path = d, problems: list[str] = problems) -> dict[str, Any]:
-            try:
-                v = read_json(d / name)
-            except (CorruptFileError, UnsafePathError) as e:
-                problems.append(str(e))
-                return {}
-            except OSError as e:
-                problems.append(f"{d / name}: {e.strerror or e}")
-                return {}
-            return v or {}
-
-        try:
-            cfg_text = (read_regular(d / "config.toml") or b"").decode("utf-8")
-            cfg = _flatten(tomllib.loads(cfg_text))
-        except (OSError, UnsafePathError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-            problems.append(f"{d / 'config.toml'} is unreadable ({e})")
-            cfg = {}
-        metrics = load("metrics.json")
-        timing = load("meta.json").get("timing")
-        if not isinstance(timing, dict):
-            timing = {}
-        st = load("status.json")
-        if problems:
-            st = {"status": "corrupt", "error": "; ".join(problems)
-                  + " (rerun that run with --force, or move the file away)"}  # fmt: skip
-        runs.append((d, cfg, metrics, timing, st))
-    keys = sorted({k for _, c, *_ in runs for k in c})
-    swept = [
-        k for k in keys
-        if len({json.dumps(c.get(k), sort_keys=True) for _, c, *_ in runs}) > 1
-    ]  # fmt: skip
-    rows = []
-    for d, cfg, metrics, timing, st in runs:
-        row: dict[str, Any] = {"run": d.relative_to(root).as_posix() or "."}
-        for k in swept:
-            v = cfg.get(k)
-            row[k] = v if _scalar(v) or v is None else json.dumps(v)
-        for k, v in _flatten(metrics).items():
-            if _scalar(v) and k not in row:
-                row[k] = v
-        row["wall_s"] = _num(timing.get("wall_s", metrics.get("wall_time_s")))
-        row["compile_s"] = _num(timing.get("compile_s"))
-        status = st.get("status") or ("complete" if metrics else "unknown")
-        row["status"] = status if isinstance(status, str) else json.dumps(status)
-        err = st.get("error")
-        row["error"] = err if err is None or isinstance(err, str) else json.dumps(err)
-        rows.append(row)
-    cols: list[str] = []
-    for r in rows:
-        cols += [k for k in r if k not in cols]
-    rows = [{k: r.get(k) for k in cols} for r in rows]
-    fixed = {"run", "wall_s", "compile_s", "status", "error", *swept}
-    metric_cols = [
-        k for k in cols if k not in fixed and any(r[k] is not None for r in rows) and all(
-            r[k] is None or (isinstance(r[k], int | float) and not isinstance(r[k], bool))
-            for r in rows
-        )
-    ]  # fmt: skip
-    return rows, swept, metric_cols
-
-
-def _num(v: Any) -> float | int | None:
-    return v if isinstance(v, int | float) and not isinstance(v, bool) else None
-
-
-def _fmt_cell(v: Any) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    return str(v).replace("|", "\\|").replace("\n", " ")
-
-
-def write_report(
-    run_dir: str | Path, out: str | Path | None = None, force: bool = False
-) -> tuple[list[dict[str, Any]], Path]:
-    """``fxspace report DIR``: `collect` the runs under ``run_dir`` and write
-    ``DIR/report/runs.csv``, ``runs.md`` and one figure per (metric, swept key) — the
-    metric against that key, one line per combination of the other swept keys, the best
-    run marked (the highest ``r`` / score / accuracy, else the lowest value; constant
-    metrics and timings get no figure) — then print the table. Returns (rows, report folder).
-
-    ``out``: the report folder (default ``DIR/report``). The report folder is the
-    report's own: its files are listed in its manifest and replaced (an older report's
-    figures removed) on the next report; a file there that fxspace did not write (the
-    user's own ``runs.md``) is refused (`OverwriteRefusedError`) unless ``force``. A run
-    whose ``metrics.json`` / ``status.json`` / ``meta.json`` is damaged is a row with
-    status ``corrupt`` and the reason, said on stderr too."""
-    rows, swept, metrics = _collect(run_dir)
-    out = Path(run_dir) / "report" if out is None else Path(out)
-    if not rows:
-        raise FileNotFoundError(
-            f"no runs under {run_dir} (no folder holds status.json or metrics.json); "
-            "pass the --out folder of a run or sweep"
-        )
-    for r in rows:
-        if r["status"] == "corrupt":
-            print(f"fxspace report: {r['run']}: {r['error']}", file=sys.stderr)
-    check_writable(out, [out / "runs.csv", out / "runs.md"], force=force)
-    if not any(os.path.lexists(out / n) for n in ("status.json", "metrics.json", "config.toml")):
-        # the previous report's files (only those fxspace wrote, only a report's names),
-        # never in a folder that holds a run (``--out`` pointed at one)
-        clean_run(out, keep=lambda rel: not _report_file(rel))
-    with active_run(out, force=force):
-        return _write_report(rows, swept, metrics, out)
-
-
-def _report_file(rel: str) -> bool:
-    return rel in ("runs.csv", "runs.md") or ("/" not in rel and "_vs_" in rel
-                                               and rel.endswith(".png"))  # fmt: skip
-
-
-def _write_report(
-    rows: list[dict[str, Any]], swept: list[str], metrics: list[str], out: Path
-) -> tuple[list[dict[str, Any]], Path]:
-    import csv
-    import io
-
-    cols = list(rows[0])
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: "" if v is None else v for k, v in r.items()})
-    write_text_atomic(out / "runs.csv", buf.getvalue())
-    md = "| " + " | ".join(cols) + " |\n|" + "---|" * len(cols) + "\n"
-    md += "".join("| " + " | ".join(_fmt_cell(r[k]) for k in cols) + " |\n" for r in rows)
-    write_text_atomic(out / "runs.md", md)
-    print(md, end="")
-    _report_figures(rows, swept, metrics, out)
-    return rows, out
-
-
-def _is_bookkeeping(metric: str) -> bool:
-    last = metric.rsplit(".", 1)[-1]
-    return metric.startswith("timings.") or last.endswith("_s") or last in ("index", "seed")
-
-
-def _higher_is_better(metric: str) -> bool:
-    """The best run of a metric: the highest for a correlation / score / accuracy
-    (``r``, ``r_*``, ``*score*``, ``*accuracy*``), else the lowest (errors, costs)."""
-    last = metric.rsplit(".", 1)[-1]
-    return last == "r" or last.startswith("r_") or "score" in last or "accuracy" in last
-
-
-def _report_figures(
-    rows: list[dict[str, Any]], swept: list[str], metrics: list[str], out: Path
-) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    ok = [r for r in rows if r["status"] == "complete"]
-    files = []
-    for m in metrics:
-        vals = [r for r in ok if isinstance(r[m], int | float) and np.isfinite(r[m])]
-        if len({r[m] for r in vals}) < 2 or _is_bookkeeping(m):
-            continue  # a constant, a timing or an index: nothing to compare
-        up = _higher_is_better(m)
-        best = (max if up else min)(vals, key=lambda r: r[m])
-        for x in swept:
-            others = [k for k in swept if k != x]
-            fig, ax = plt.subplots(figsize=(5, 3.5))
-            groups: dict[tuple, list] = {}
-            for r in vals:
-                groups.setdefault(tuple(r[k] for k in others), []).append(r)
-            numeric = all(isinstance(r[x], int | float) for r in vals)
-            cats = sorted({str(r[x]) for r in vals})
-            for g, rs in sorted(groups.items(), key=lambda t: str(t[0])):
-                rs = sorted(rs, key=lambda r: r[x] if numeric else str(r[x]))
-                xs = [r[x] if numeric else cats.index(str(r[x])) for r in rs]
-                lab = ", ".join(f"{k}={v}" for k, v in zip(others, g, strict=True)) or None
-                ax.plot(xs, [r[m] for r in rs], "o-", label=lab)
-            bx = best[x] if numeric else cats.index(str(best[x]))
-            tag = f"best ({'max' if up else 'min'}: {best['run']})"
-            ax.plot([bx], [best[m]], "*", ms=16, color="crimson", label=tag)
-            if not numeric:
-                ax.set_xticks(range(len(cats)), cats, rotation=30, ha="right", fontsize=7)
-            ax.set_xlabel(x)
-            ax.set_ylabel(m)
-            ax.set_title(f"{m} vs {x}", fontsize=9)
-            ax.legend(fontsize=6)
-            safe = f"{m}_vs_{x}".replace("/", "-")[:120]
-            files.append(save_figure_atomic(fig, out / f"{safe}.png"))
-    return files
+        return getattr(importlib.import_module("fxspace._report"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 #: The fields of one benchmark comparison (a row of `write_bench`).

@@ -527,10 +527,11 @@ def _stored_setup(run_dir: Path, name: str, cfg: Config) -> M.Setup | None:
     if kp.read_text().strip() != key:
         return None
     try:
-        with np.load(sp, allow_pickle=False) as z:
+        with open(sp, "rb") as f, np.load(f, allow_pickle=False) as z:  # f closed if torn
             return _setup_from_arrays({k: z[k] for k in z.files})
-    except (OSError, ValueError, EOFError, KeyError):
-        return None  # damaged: rebuilt
+    except Exception as e:  # noqa: BLE001 - BadZipFile (torn), zlib.error, EOFError, KeyError...
+        print(f"[fxspace] {sp} is damaged ({type(e).__name__}); rebuilding the {name} set-up")
+        return None
 
 
 def _stage_setup(name: str, cfg: Config, run_dir: Path, key) -> M.Setup:

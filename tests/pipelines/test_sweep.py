@@ -86,7 +86,7 @@ def test_report_table_figures_and_failed_row(tmp_path, toy, capsys):
     md = (folder / "runs.md").read_text()
     assert md.count("| failed |") == 2 and "broken on purpose" in printed
     figs = sorted(p.name for p in folder.glob("*.png"))
-    assert figs == ["err_vs_k.png", "err_vs_n.png", "r_vs_k.png", "r_vs_n.png"]
+    assert figs == ["err_vs_n_by_k.png", "r_vs_n_by_k.png"]  # one per differing metric
     frame = collect(tmp_path / "o", as_frame=True)
     assert list(frame.columns) == list(rows[0]) and len(frame) == 8
     with pytest.raises(FileNotFoundError, match="run_dir"):
