@@ -516,8 +516,10 @@ def _x_key(rows: list[dict[str, Any]], swept: list[str]) -> str:
 
 
 def _report_figures(rows: list[dict[str, Any]], plan: _Plan, out: Path) -> list[Path]:
-    """One figure per differing numeric metric, against the swept key(s)."""
-    from fxspace.plot import plot_report_metric
+    """One figure per differing numeric metric, against the swept key(s): lines per
+    combination of the other keys, or one panel per key when the runs vary several keys
+    at once (more than 6 combinations, or none repeated: a search)."""
+    from fxspace.plot import plot_report_grid, plot_report_metric
 
     ok = [r for r in rows if r["status"] == "complete"]
     if not plan.swept or not ok:
@@ -530,20 +532,28 @@ def _report_figures(rows: list[dict[str, Any]], plan: _Plan, out: Path) -> list[
         x = _x_key(vals, plan.swept)
         others = [k for k in plan.swept if k != x]
         d = describe(m, exp)
-        if len(others) == 1:
-            u = describe(others[0], exp).unit
-            group = [f"{r[others[0]]}" + (f" {u}" if u else "") for r in vals]
-            glabel = describe(others[0], exp).words
-        else:
-            group = [", ".join(f"{k} = {r[k]}" for k in others) for r in vals]
-            glabel = ""
         best = _best_index(vals, m, d.better)
-        fig = plot_report_metric(
-            [r[x] for r in vals], [r[m] for r in vals],
-            x_label=_axis_label(x, exp), y_label=_axis_label(m, exp),
-            group=group if others else None, group_label=glabel, title=m,
-            best=best or None, better=d.better if best else None,
-        )  # fmt: skip
-        name = f"{m}_vs_{x}" + (f"_by_{'_'.join(others)}" if others else "")
+        kw = dict(y_label=_axis_label(m, exp), title=m, best=best or None,
+                  better=d.better if best else None)  # fmt: skip
+        combos = [tuple(json.dumps(r[k]) for k in others) for r in vals]
+        sizes = [combos.count(c) for c in set(combos)]
+        if others and (len(sizes) > 6 or max(sizes) < 2):
+            # several keys vary at once (a search, a large grid): one panel per key
+            xs = {_axis_label(k, exp): [r[k] for r in vals] for k in plan.swept}
+            fig = plot_report_grid(xs, [r[m] for r in vals], **kw)
+            name = f"{m}_vs_{'_'.join(plan.swept)}"
+        else:
+            if len(others) == 1:
+                u = describe(others[0], exp).unit
+                group = [f"{r[others[0]]}" + (f" {u}" if u else "") for r in vals]
+                glabel = describe(others[0], exp).words
+            else:
+                group = [", ".join(f"{k} = {r[k]}" for k in others) for r in vals]
+                glabel = ""
+            fig = plot_report_metric(
+                [r[x] for r in vals], [r[m] for r in vals], x_label=_axis_label(x, exp),
+                group=group if others else None, group_label=glabel, **kw,
+            )  # fmt: skip
+            name = f"{m}_vs_{x}" + (f"_by_{'_'.join(others)}" if others else "")
         files.append(save_figure_atomic(fig, out / f"{name.replace('/', '-')[:120]}.png"))
     return files

@@ -36,6 +36,7 @@ from fxspace.plot._navigation import plot_level as plot_level
 from fxspace.plot._navigation import plot_levels_grid as plot_levels_grid
 from fxspace.plot._navigation import plot_link_radius_sweep as plot_link_radius_sweep
 from fxspace.plot._navigation import write_navigation_animation as write_navigation_animation
+from fxspace.plot._report import plot_report_grid as plot_report_grid
 from fxspace.plot._report import plot_report_metric as plot_report_metric
 
 __all__ = [
@@ -63,4 +64,5 @@ __all__ = [
     "plot_link_radius_sweep",
     "write_navigation_animation",
     "plot_report_metric",
+    "plot_report_grid",
 ]

@@ -214,3 +214,29 @@ def test_report_of_the_example_sweep(tmp_path, capsys):
     assert head.splitlines()[-2].split()[:2] == ["dim", "num_thresholds"]
     assert "[mm]" in head and "timings" not in head and len(body) == 4
     assert 1 <= len(list(folder.glob("*.png"))) <= 12
+
+
+def test_runs_that_vary_every_key_at_once_get_one_panel_per_key(tmp_path, toy, monkeypatch):
+    """Search trials (no combination of the other keys repeated): small multiples."""
+    from fxspace.pipelines import run_dict
+
+    got = []
+
+    def spy(*a, **kw):
+        fig = fxspace.plot._report.plot_report_grid(*a, **kw)
+        got.append((kw, fig))
+        return fig
+
+    monkeypatch.setattr(fxspace.plot, "plot_report_grid", spy)
+    for i, (n, k) in enumerate([(2, 1.0), (3, 3.5), (5, 2.0), (4, 1.5)]):
+        run_dict({"experiment": toy, "n": n, "k": k}, tmp_path / "o" / f"trial_{i}")
+    _, folder = runs.write_report(tmp_path / "o")
+    pngs = sorted(p.name for p in folder.glob("*.png"))
+    assert pngs == [f"{m}_vs_k_n.png" for m in ("fit_error_mm", "r", "spread_deg")]
+    assert len(got) == 3
+    for kw, fig in got:
+        k_ax, n_ax = [ax for ax in fig.axes if ax.get_visible()]
+        assert k_ax.get_xlabel() == "k" and n_ax.get_xlabel() == "n"
+        assert [t.get_text() for t in n_ax.get_xticklabels()] == ["2", "3", "4", "5"]
+        stars = [ln for ln in n_ax.get_lines() if ln.get_marker() == "*"]
+        assert bool(stars) == (kw["title"] != "spread_deg")
