@@ -408,7 +408,7 @@ def retarget(
     feet: Sequence[str] | None = None,
     solver: Any | None = None,
     contact_weight: float = 100.0,
-    foot_weight: float = 10.0,
+    foot_weight: float = 100.0,
     limit: float = 0.8 * np.pi,
     prior_weight: float = 1e-4,
     max_error: float = 0.1,
@@ -429,8 +429,8 @@ def retarget(
     - ``feet``: the source joints whose contacts hold the character's feet on the floor
       (default: the ``foot``/``toes`` roles, or joints named foot/toe/ankle/ball).
     - ``solver``: an IK solver object (default ``LevenbergMarquardt(rtol=1e-3,
-      xtol=1e-4)``); ``contact_weight``: the floor plane's weight; ``foot_weight``: the
-      marker weight of a planted foot joint (others 1); ``limit``: joint limit on every
+      xtol=1e-3, max_steps=20)``); ``contact_weight``: the floor plane's weight;
+      ``foot_weight``: the marker weight of a planted foot joint (others 1); ``limit``: joint limit on every
       Euler angle (radians); ``prior_weight``: pull towards the rest pose; ``max_error``:
       the median joint error (character heights) above which the take is ``poor_fit``;
       ``baseline``: also compute rotation copying (``.baseline``).
@@ -524,7 +524,7 @@ def retarget(
     # the solve
     model = _joint_model(mesh, ci, height)
     dtype = model.local_rest.dtype
-    solver = _pick_solver(solver or LevenbergMarquardt(rtol=1e-3, xtol=1e-4))
+    solver = _pick_solver(solver or LevenbergMarquardt(rtol=1e-3, xtol=1e-3, max_steps=20))
     base = IKConstraints(
         limits=joint_limits(model, float(limit), 1.0),
         prior=joint_prior(model, float(prior_weight), "rest") if prior_weight > 0 else None,
