@@ -430,8 +430,8 @@ def retarget(
       (default: the ``foot``/``toes`` roles, or joints named foot/toe/ankle/ball).
     - ``solver``: an IK solver object (default ``LevenbergMarquardt(rtol=1e-3,
       xtol=1e-3, max_steps=20)``); ``contact_weight``: the floor plane's weight;
-      ``foot_weight``: the marker weight of a planted foot joint (others 1); ``limit``: joint limit on every
-      Euler angle (radians); ``prior_weight``: pull towards the rest pose; ``max_error``:
+      ``foot_weight``: the marker weight of a planted foot joint (others 1); ``limit``:
+      joint limit on every Euler angle (radians); ``prior_weight``: pull towards the rest pose; ``max_error``:
       the median joint error (character heights) above which the take is ``poor_fit``;
       ``baseline``: also compute rotation copying (``.baseline``).
 
