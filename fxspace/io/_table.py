@@ -22,6 +22,9 @@ A lab's marker export is often a text table, one row per frame::
   rate comes from the time column, or from ``rate=``.
 - **other columns** (a label, a sub-frame, a marker with only two axes) are ignored and
   named in a note.
+- **two-row headers** (a Vicon Nexus "Trajectories" CSV: a preamble with the rate, a row
+  of marker names ``Subject:LFHD`` over ``X,Y,Z`` columns, a units row) are read too; a
+  subject prefix shared by every marker is dropped.
 - **units**: ``units=`` declares them; else a bracketed unit in the header; else they are
   inferred from the data's extent (`infer_units`) and the inference is said.
 
@@ -170,17 +173,59 @@ def _detect_sep(path: Path, rows: list[tuple[int, str]], sep: str | None) -> str
             raise FxspaceError(f"sep must be one of ',', ';' or '\\t' (tab), got {sep!r}")
         return sep
     head = [ln for _, ln in rows[:20]]
-    for cand in ("\t", ";", ","):
-        n = head[0].count(cand)
-        if n >= 2 and all(ln.count(cand) == n for ln in head[1:]):
-            return cand
-    for cand in ("\t", ";", ","):  # a ragged file: the separator the header uses most
-        if head[0].count(cand) >= 2:
-            return cand
-    raise CorruptFileError(
-        f"{path}, line {rows[0][0]}: no ',', ';' or tab separates the header into columns "
-        "(a marker table needs NAME_x, NAME_y, NAME_z columns)"
-    )
+    best, best_score = None, 0
+    for cand in ("\t", ";", ","):  # the one that splits most rows into the same count
+        counts = [ln.count(cand) for ln in head]
+        many = [c for c in counts if c >= 2]
+        if not many:
+            continue
+        mode = max(set(many), key=many.count)
+        score = counts.count(mode)
+        if score > best_score:
+            best, best_score = cand, score
+    if best is None:
+        raise CorruptFileError(
+            f"{path}, line {rows[0][0]}: no ',', ';' or tab separates the header into columns "
+            "(a marker table needs NAME_x, NAME_y, NAME_z columns)"
+        )
+    return best
+
+
+def _two_row_header(rows: list[tuple[int, str]], s: str):
+    """A header of two rows — marker names over their X/Y/Z columns (a Vicon Nexus
+    "Trajectories" export: a preamble, ``,,Sub:LFHD,,,Sub:RFHD``, ``Frame,Sub Frame,X,Y,Z``,
+    an optional units row): ``(header, first data row, rate, unit)`` or ``None``."""
+    for k in range(min(len(rows) - 1, 12)):
+        names = [c.strip().strip('"') for c in rows[k][1].split(s)]
+        axes = [c.strip().strip('"').upper() for c in rows[k + 1][1].split(s)]
+        starts = [i for i in range(len(axes) - 2) if axes[i : i + 3] == ["X", "Y", "Z"]
+                  and i < len(names) and names[i]]  # fmt: skip
+        if not starts:
+            continue
+        prefix = {n.split(":", 1)[0] for n in (names[i] for i in starts) if ":" in n}
+        strip = len(prefix) == 1 and all(":" in names[i] for i in starts)
+        header = [c for c in (x.strip().strip('"') for x in rows[k + 1][1].split(s))]
+        for i in starts:
+            name = names[i].split(":", 1)[1] if strip else names[i]
+            for j, a in enumerate("xyz"):
+                header[i + j] = f"{name}_{a}"
+        first, unit = k + 2, None
+        if first < len(rows):
+            cells = [c.strip().strip('"') for c in rows[first][1].split(s)]
+            units = {cells[i] for i in starts if i < len(cells) and cells[i]}
+            if units and all(re.fullmatch(r"[A-Za-z]+", u) for u in units):
+                unit = units.pop() if len(units) == 1 else None
+                first += 1
+        rate = None
+        for _, ln in rows[:k]:
+            cells = [c.strip() for c in ln.split(s) if c.strip()]
+            if len(cells) == 1:
+                try:
+                    rate = float(cells[0])
+                except ValueError:
+                    continue
+        return header, first, rate, unit
+    return None
 
 
 def _classify(header: list[str]):
@@ -271,6 +316,18 @@ def read_table(
     s = _detect_sep(path, rows, sep)
     header = rows[0][1].split(s)
     markers, frame_col, time_col, hdr_units, other = _classify(header)
+    said = []
+    two = None if markers else _two_row_header(rows, s)
+    if two is not None:
+        header, first, file_rate, file_unit = two
+        markers, frame_col, time_col, hdr_units, other = _classify(header)
+        rows = [rows[first - 1], *rows[first:]]  # a stand-in header row, then the data
+        said.append("two-row header (names over X/Y/Z)")
+        if file_unit:
+            hdr_units = {file_unit}
+        if rate is None and file_rate is not None and time_col is None:
+            rate = file_rate
+            said.append(f"rate {rate:g} Hz from the preamble")
     if not markers:
         raise CorruptFileError(
             f"{path}, line {rows[0][0]}: no marker columns: a marker needs three columns "
@@ -298,7 +355,6 @@ def read_table(
     names = list(markers)
     cols = [i for ix in markers.values() for i in ix]
     xyz = _numbers(path, cells, cols, lines, comma, header).reshape(len(cells), len(names), 3)
-    said = []
     if comma:
         said.append("decimal commas read as points")
 

@@ -287,3 +287,25 @@ def test_bandai_bvh_is_in_cm(data_dir, caplog):
     assert any("lengths inferred to be cm" in n for n in _notes(caplog))
     ref = fx.io.read_bvh(p, scale=0.01)
     np.testing.assert_allclose(np.asarray(m.offsets), np.asarray(ref.offsets))
+
+
+def test_two_row_header_vicon_trajectories_export(tmp_path, caplog):
+    """A Vicon Nexus "Trajectories" CSV: preamble with the rate, names over X/Y/Z."""
+    p = tmp_path / "nexus.csv"
+    p.write_text(
+        "Trajectories\n"
+        "100\n"
+        ",,Anna:LFHD,,,Anna:RFHD,,,Anna:CHIN,,\n"
+        "Frame,Sub Frame,X,Y,Z,X,Y,Z,X,Y,Z\n"
+        ",,mm,mm,mm,mm,mm,mm,mm,mm,mm\n"
+        "1,0,-70.1,80.2,1500.3,70.4,80.5,1500.6,0.0,-90.0,1420.0\n"
+        "2,0,-70.2,80.2,1500.3,,,,0.1,-90.1,1420.1\n"
+    )
+    with caplog.at_level(logging.INFO, logger=LOG):
+        got = read_markers(p)
+    assert got.names == ("LFHD", "RFHD", "CHIN") and got.rate == 100.0 and got.units == "mm"
+    assert got.missing_mask().tolist() == [[False, False, False], [False, True, False]]
+    np.testing.assert_allclose(got.positions[1, 2], [0.1, -90.1, 1420.1])
+    (msg,) = _notes(caplog)
+    assert "two-row header" in msg and "rate 100 Hz from the preamble" in msg
+    assert "units 'mm' from the header" in msg and "'Sub Frame'" in msg
