@@ -101,7 +101,8 @@ def swing_signal(
 
 
 def _moving_mean(s: np.ndarray, n: int) -> np.ndarray:
-    k = np.ones(max(n, 1))
+    """Mean over a window of ``n`` frames (shortened to the signal; NaN frames skipped)."""
+    k = np.ones(min(max(n, 1), s.size))
     num = np.convolve(np.where(np.isfinite(s), s, 0.0), k, mode="same")
     den = np.convolve(np.isfinite(s).astype(float), k, mode="same")
     return num / np.maximum(den, 1.0)
