@@ -209,10 +209,13 @@ def main(argv=None) -> int:
 
         h = None
         with Stage("hierarchy + links"):
-            h = build_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed))
+            h = build_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed),
+                                nearest=8, finest=False)  # fmt: skip
             h = list(h.levels)
             out["levels"] = [int(lv.n_clusters) for lv in h]
-            out["links"] = [int(lv.links.nnz // 2) for lv in h]
+            out["links"] = [lv.n_links for lv in h]
+            out["links_bridged"] = sum(lv.n_bridges for lv in h)
+            out["levels_converged"] = f"{sum(lv.converged for lv in h)}/{len(h)}"
         with Stage("route"):
             lv = h[-1]
             keys = lv.center_frames[np.linspace(0, lv.n_clusters - 1, 4).astype(int)]
@@ -220,9 +223,13 @@ def main(argv=None) -> int:
         if not a.no_finest and h is not None:
             fine = None
             with Stage("finest level (all frames) + links"):
-                fine = finest_level(mds.embedding, g)
-                out["links_finest"] = int(fine.links.nnz // 2)
-                out["links_finest_bridges"] = int(fine.bridges.nnz // 2)
+                from fxspace.navigation import default_link_radius
+
+                Y = np.asarray(mds.embedding, np.float64)
+                scale = h[-1].radius / default_link_radius(Y[h[-1].center_frames], 1.0)
+                fine = finest_level(Y, g, rho=default_link_radius(Y, scale))  # ρ's scale
+                out["links_finest"] = fine.n_links
+                out["links_finest_bridges"] = fine.n_bridges
             with Stage("route: 4 keys, coarsest → frames"):
                 hl = Hierarchy((*h, fine), np.asarray(mds.embedding, np.float64))
                 picks = np.linspace(0, h[0].n_clusters - 1, 4).astype(int).tolist()

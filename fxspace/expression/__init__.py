@@ -33,6 +33,7 @@ from fxspace.expression._missing import require_complete as require_complete
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
 from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
+from fxspace.expression._paths import Paths as Paths
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
 from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr
@@ -73,6 +74,7 @@ __all__ = [
     "landmark_score",
     "place_frames",
     "NeighbourGraph",
+    "Paths",
     "check_sparse_connected",
     "graph_from_dense",
     "neighbourhood_graph",

@@ -67,6 +67,34 @@ class Geodesics(NamedTuple):
     distances: Float[Array, "n n"]
     next_hop: Int[Array, "n n"]
 
+    # the paths interface of navigation (fxspace.expression._paths.Paths)
+    @property
+    def num_frames(self) -> int:
+        return int(self.distances.shape[0])
+
+    def path(self, i: int, j: int, limit: float | None = None) -> np.ndarray:
+        """Frames of a shortest path i → j (the next hops; `limit` is not needed)."""
+        return shortest_path(self, i, j)
+
+    def lengths(self, i, j) -> np.ndarray:
+        """Geodesic lengths of the pairs ``(i[p], j[p])``."""
+        from fxspace.expression._paths import geodesic_lengths
+
+        return geodesic_lengths(self, i, j)
+
+    def toward(self, targets) -> tuple[np.ndarray, np.ndarray]:
+        """``(dist, hop)`` ``(k, T)``: each frame's distance to ``targets[r]`` and its next
+        frame on a shortest path there (the target itself at it, -1 when unreachable)."""
+        from fxspace.expression._paths import geodesic_toward
+
+        return geodesic_toward(self, targets)
+
+    def steps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(i, j, length)`` of the pairs i < j whose shortest path is the direct step."""
+        from fxspace.expression._paths import geodesic_steps
+
+        return geodesic_steps(self)
+
 
 def _check_square(x, name: str) -> Array:
     """``x`` as a non-empty square ``(n, n)`` float array (NaN/inf kept), else a `FxspaceError`."""

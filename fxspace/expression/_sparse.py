@@ -63,6 +63,33 @@ class NeighbourGraph(NamedTuple):
         """Number of neighbours of each frame (host array)."""
         return np.sum(np.isfinite(np.asarray(self.weights)), axis=1)
 
+    # the paths interface of navigation (fxspace.expression._paths.Paths)
+    def path(self, i: int, j: int, limit: float | None = None) -> np.ndarray:
+        """Frames of a shortest path i → j (Dijkstra into j, stopped at ``limit`` when
+        that bounds the path's length)."""
+        from fxspace.expression._paths import graph_path
+
+        return graph_path(self, i, j, limit)
+
+    def lengths(self, i, j) -> np.ndarray:
+        """Geodesic lengths of the pairs ``(i[p], j[p])`` (one Dijkstra per distinct i)."""
+        from fxspace.expression._paths import graph_lengths
+
+        return graph_lengths(self, i, j)
+
+    def toward(self, targets) -> tuple[np.ndarray, np.ndarray]:
+        """``(dist, hop)`` ``(k, T)``: each frame's distance to ``targets[r]`` and its next
+        frame on a shortest path there (the target itself at it, -1 when unreachable)."""
+        from fxspace.expression._paths import graph_toward
+
+        return graph_toward(self, targets)
+
+    def steps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(i, j, length)`` of the edges i < j that are themselves shortest paths."""
+        from fxspace.expression._paths import graph_steps
+
+        return graph_steps(self)
+
 
 def _pack(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int, dtype) -> NeighbourGraph:
     """Symmetrise an edge list (keep the shortest copy of each edge) and pad it to (n, K)."""

@@ -1,17 +1,31 @@
-"""Links between the centres of one hierarchy level (seed paper §4).
+"""Links between the centres of one hierarchy level (Kim & Jung §4.2), at every size.
 
-Two centres are *linked* when the geodesic (frame-graph) path between their frames,
-drawn in 2-D, passes within ρ of no other centre; ρ is a scale × the median
-nearest-neighbour spacing of the level's centres, the scale found by the paper's
-experiment (`link_radius_sweep`, `choose_link_scale`). A level the rule leaves in
-pieces stays so unless *bridges* are asked for (the cheapest geodesic link between
-pieces, outside the rule).
+Two centres are *linked* when the shortest path between their frames, drawn in 2-D as
+the polyline through its frames, passes within ρ of no other centre; ρ is a scale × the
+level's median nearest-centre spacing, the scale chosen by the paper's experiment
+(`link_radius_sweep`, `choose_link_scale`). Written once against the frames' *paths*
+(`fxspace.expression.Paths`: `Geodesics` or a `NeighbourGraph`):
+
+- a level of at most `EXACT_CENTRES` centres: every pair, every segment against every
+  centre (exact), walking each pair's path along the shortest-path trees into the
+  centres (`Paths.toward`, in batches of targets);
+- a larger level: each centre's `LinkRule.near` nearest centres as candidate pairs and
+  each segment against the centres nearest it (a near list per frame: conservative,
+  every link passes the rule, some it allows are missing);
+- the level where every frame is a centre: a path with an interior frame passes that
+  frame, itself a centre, so only the graph's steps that are shortest paths
+  (`Paths.steps`) can be links, each tested against every frame near it with a k-d
+  tree (exact).
+
+Bridges (the cheapest geodesic links joining the pieces a level is left in, outside the
+rule) only on request (`LinkRule(bridges=True)`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -21,63 +35,99 @@ from jaxtyping import Array, Float, Int
 from fxspace._validate import checked
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
+from fxspace.navigation._level import _components, pair_csr
 
 if TYPE_CHECKING:
-    from fxspace.navigation._hierarchy import Hierarchy, Level
+    from fxspace.navigation._level import Hierarchy
 
 __all__ = [
     "EXACT_CENTRES",
     "LINK_SCALES",
+    "LinkRule",
     "LinkRadiusSweep",
     "center_links",
     "choose_link_scale",
     "default_link_radius",
     "link_clearance",
-    "link_components",
-    "link_graph_connected",
-    "link_pairs",
     "link_radius_sweep",
 ]
 
 LINK_SCALES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 """The ρ scales `link_radius_sweep` tries by default (× each level's centre spacing)."""
 
+EXACT_CENTRES = 320
+"""Levels of at most this many centres test every pair, every segment against every
+centre (exact); larger ones the `LinkRule.near` nearest (see the module docstring)."""
+
+_PAIR_CHUNK = 16384
+_HOP_BUDGET = 1 << 25  # entries of the (targets × frames) next-hop rows held at once
+
+
+@dataclasses.dataclass(frozen=True)
+class LinkRule:
+    """How a level's links are made (Kim & Jung §4.2).
+
+    **Fields:**
+
+    - `rho`: ρ = `rho` × the level's median nearest-centre spacing; ``"experiment"``
+      (default): the paper's experiment chooses the scale (`link_radius_sweep` over
+      `scales` on the levels of at most `sweep_max_centres` centres, `choose_link_scale`:
+      the largest scale that keeps them all in one piece).
+    - `bridges`: False (default): the rule alone (a level may fall into pieces that no
+      route joins); True: the pieces are joined by their geodesically cheapest pairs
+      (``Level.bridges``, outside the rule).
+    - `exact_centres`: levels up to this size are exact (every pair, every centre);
+      `near`: above it, candidate pairs and near lists of this many centres.
+    - `max_centres`: levels with more centres get no links (None: every level).
+    """
+
+    rho: float | Literal["experiment"] = "experiment"
+    scales: tuple[float, ...] = LINK_SCALES
+    sweep_max_centres: int = 320
+    bridges: bool = False
+    exact_centres: int = EXACT_CENTRES
+    near: int = 64
+    max_centres: int | None = None
+
+    def __post_init__(self):
+        if isinstance(self.rho, str):
+            if self.rho != "experiment":
+                raise FxspaceError(
+                    f"rho_scale / LinkRule.rho must be a number >= 0 or 'experiment', got "
+                    f"{self.rho!r}"
+                )
+        elif not float(self.rho) >= 0:
+            raise FxspaceError(f"LinkRule.rho must be >= 0 or 'experiment', got {self.rho}")
+        if int(self.near) < 1 or int(self.exact_centres) < 2:
+            raise FxspaceError("LinkRule: need near >= 1 and exact_centres >= 2")
+
 
 @checked
 def default_link_radius(points: Float[Array, "c 2"], scale: float = 0.5) -> float:
     """ρ = ``scale`` × median nearest-neighbour distance between the centres' positions
-    (the level's spacing)."""
+    (the level's spacing; coincident centres aside)."""
+    from scipy.spatial import cKDTree
+
     p = np.asarray(points, dtype=np.float64)
     if scale < 0:
         raise FxspaceError(f"scale must be >= 0, got {scale}")
     if len(p) < 2:
         return 0.0
-    d2 = np.sum((p[:, None, :] - p[None, :, :]) ** 2, axis=-1) if len(p) <= 512 else None
-    if d2 is None:
-        d2 = np.array(_sq_dists(jnp.asarray(p), jnp.asarray(p)))
-    np.fill_diagonal(d2, np.inf)
-    nn = np.sqrt(np.min(d2, axis=1))
+    nn = cKDTree(p).query(p, k=2)[0][:, 1]
     nn = nn[np.isfinite(nn) & (nn > 0)]
     return float(scale * np.median(nn)) if len(nn) else 0.0
 
 
-_NEAR_K = 64  # centres listed per frame above EXACT_CENTRES
-EXACT_CENTRES = 320
-"""Levels of at most this many centres test every segment against every centre (exact);
-larger ones against the `_NEAR_K` nearest (see `center_links`)."""
-_PAIR_CHUNK = 16384
-
-
 @partial(jax.jit, static_argnames=("max_len", "chunk", "near"))
-def _clearance_kernel(xy, next_hop, center_frames, iu, ju, floor, max_len: int, chunk: int,
+def _clearance_kernel(xy, hop, center_frames, iu, ju, jr, floor, max_len: int, chunk: int,
                       near: int):  # fmt: skip
-    """Per pair (iu[p], ju[p]): ``(clear, unsure)``. ``clear``: the least 2-D distance
-    from the polyline of the geodesic path between the two centres' frames to a listed
-    centre other than the two (the ``near`` centres nearest each segment's start;
-    ``near >= c`` lists them all); the walk stops once it is below ``floor``, so values
-    ≥ ``floor`` are exact and smaller ones only say so; −inf when unreachable.
-    ``unsure``: some walked segment reached past its list (an unlisted centre might be
-    nearer). Pairs run ``chunk`` at a time."""
+    """Per pair (iu[p], ju[p]): ``(clear, unsure)``. The walk goes from iu's frame along
+    ``hop[jr[p]]`` (the shortest-path tree into ju's frame). ``clear``: the least 2-D
+    distance from the walked polyline to a listed centre other than the two (the
+    ``near`` centres nearest each segment's start; ``near >= c`` lists them all); the
+    walk stops once it is below ``floor``, so values ≥ ``floor`` are exact and smaller
+    ones only say so; −inf when unreachable. ``unsure``: a walked segment reached past
+    its list (an unlisted centre might be nearer)."""
     c = center_frames.shape[0]
     pos = xy[center_frames]
     inf = jnp.asarray(jnp.inf, xy.dtype)
@@ -89,27 +139,23 @@ def _clearance_kernel(xy, next_hop, center_frames, iu, ju, floor, max_len: int, 
         cover = jnp.sqrt(jnp.maximum(-neg[:, -1], 0.0))
 
     def seg_clear(f, g, pi, pj, fi, fj):
-        """Least distance from segment xy[f]→xy[g] to a listed centre other than pi, pj,
-        and whether an unlisted one could be nearer than ``floor``."""
         a, b = xy[f], xy[g]
         ab = b - a
         L2 = jnp.sum(ab * ab, axis=-1)
-        ids = near_idx[f]  # (n, kk)
-        q = pos[ids]  # (n, kk, 2)
+        ids = near_idx[f]
+        q = pos[ids]
         t = jnp.sum((q - a[:, None, :]) * ab[:, None, :], axis=-1)
-        t = t / jnp.where(L2 > 0, L2, 1.0)[:, None]
-        t = jnp.clip(t, 0.0, 1.0)
-        closest = a[:, None, :] + t[..., None] * ab[:, None, :]
-        dist = jnp.sqrt(jnp.sum(jnp.square(q - closest), axis=-1))
+        t = jnp.clip(t / jnp.where(L2 > 0, L2, 1.0)[:, None], 0.0, 1.0)
+        dist = jnp.sqrt(jnp.sum(jnp.square(q - (a[:, None, :] + t[..., None] * ab[:, None, :])),
+                                axis=-1))  # fmt: skip
         of = center_frames[ids]
         other = (ids != pi[:, None]) & (ids != pj[:, None])
         other &= (of != fi[:, None]) & (of != fj[:, None])
-        # a centre within floor of the segment lies within floor + |ab| of its start:
-        # the list settles the segment only when it reaches that far
+        # a centre within floor of the segment lies within floor + |ab| of its start
         return jnp.min(jnp.where(other, dist, inf), axis=1), cover[f] <= floor + jnp.sqrt(L2)
 
     def one_chunk(args):
-        pi, pj = args
+        pi, pj, pr = args
         fi, fj = center_frames[pi], center_frames[pj]
 
         def cond(s):
@@ -117,7 +163,7 @@ def _clearance_kernel(xy, next_hop, center_frames, iu, ju, floor, max_len: int, 
 
         def body(s):
             cur, active, clear, unsure, step = s
-            nxt = next_hop[cur, fj]
+            nxt = hop[pr, cur]
             unreachable = nxt < 0
             nxt = jnp.where(unreachable, cur, nxt)
             d, far = seg_clear(cur, nxt, pi, pj, fi, fj)
@@ -133,166 +179,238 @@ def _clearance_kernel(xy, next_hop, center_frames, iu, ju, floor, max_len: int, 
 
     n = iu.shape[0]
     pad = (-n) % chunk
-    pi = jnp.pad(iu, (0, pad)).reshape(-1, chunk)
-    pj = jnp.pad(ju, (0, pad)).reshape(-1, chunk)
-    clear, unsure = jax.lax.map(one_chunk, (pi, pj))
+    parts = [jnp.pad(v, (0, pad)).reshape(-1, chunk) for v in (iu, ju, jr)]
+    clear, unsure = jax.lax.map(one_chunk, tuple(parts))
     return clear.reshape(-1)[:n], unsure.reshape(-1)[:n]
 
 
-def _pair_clearance(embedding, geodesics, center_frames, floor: float, near: int):
-    """``(iu, ju, clear, unsure)`` over the pairs i < j (`_clearance_kernel`), chunked to
-    ~64 MB per step."""
-    cf = np.asarray(center_frames, np.int32)
+def _pair_clearance(xy, paths, cf, iu, ju, floor: float, near: int, want_d: bool = False):
+    """``(clear, unsure, length)`` of the pairs (iu, ju) (`_clearance_kernel`), walking
+    the shortest-path trees into the ju centres' frames, a batch of targets at a time;
+    with ``want_d`` also the ``(c, c)`` geodesic distances between all centres."""
     c = len(cf)
-    iu, ju = np.triu_indices(c, 1)
+    T = int(paths.num_frames)
     kk = c if near >= c else near
-    chunk = int(max(1, min(_PAIR_CHUNK, len(iu), (1 << 22) // max(kk, 1))))
-    nh = jnp.asarray(geodesics.next_hop)
-    xy = jnp.asarray(embedding)
-    clear, unsure = _clearance_kernel(
-        xy, nh, jnp.asarray(cf), jnp.asarray(iu, jnp.int32), jnp.asarray(ju, jnp.int32),
-        jnp.asarray(floor, xy.dtype), nh.shape[0] + 1, chunk, int(near),
-    )  # fmt: skip
-    return iu, ju, np.asarray(clear, np.float64), np.array(unsure)
+    clear = np.full(len(iu), -np.inf)
+    unsure = np.zeros(len(iu), bool)
+    length = np.full(len(iu), np.inf)
+    D = np.full((c, c), np.inf) if want_d else None
+    xyj = jnp.asarray(xy)
+    cfj = jnp.asarray(cf, jnp.int32)
+    targets = np.unique(ju) if not want_d else np.arange(c)
+    per = max(1, _HOP_BUDGET // max(T, 1))
+    for s in range(0, len(targets), per):
+        batch = targets[s : s + per]
+        dist, hop = paths.toward(cf[batch])
+        if want_d:
+            D[batch] = dist[:, cf]
+        row = np.full(c, -1, np.int64)
+        row[batch] = np.arange(len(batch))
+        sel = np.flatnonzero(row[ju] >= 0)
+        if not len(sel):
+            continue
+        chunk = int(max(1, min(_PAIR_CHUNK, len(sel), (1 << 22) // max(kk, 1))))
+        cl, un = _clearance_kernel(
+            xyj, jnp.asarray(hop), cfj, jnp.asarray(iu[sel], jnp.int32),
+            jnp.asarray(ju[sel], jnp.int32), jnp.asarray(row[ju[sel]], jnp.int32),
+            jnp.asarray(floor, xyj.dtype), T + 1, chunk, int(near),
+        )  # fmt: skip
+        clear[sel] = np.asarray(cl, np.float64)
+        unsure[sel] = np.asarray(un)
+        length[sel] = dist[row[ju[sel]], cf[iu[sel]]]
+    return clear, unsure, length, D
+
+
+def _check(xy, paths, center_frames):
+    xy = np.asarray(xy, np.float64)
+    if not hasattr(paths, "toward"):
+        raise FxspaceError(
+            f"paths must be the frames' Geodesics or NeighbourGraph (fxspace.expression.Paths),"
+            f" got {type(paths).__name__}"
+        )
+    T = int(paths.num_frames)
+    if xy.ndim != 2 or xy.shape[0] != T:
+        raise FxspaceError(
+            f"embedding must be (T, 2) with T = {T} (the paths' frames), got shape {xy.shape}"
+        )
+    cf = np.asarray(center_frames, np.int64).reshape(-1)
+    if cf.size and not (cf.min() >= 0 and cf.max() < T):
+        raise FxspaceError(f"center_frames must index the {T} frames")
+    return xy, cf
 
 
 @checked
 def link_clearance(
-    embedding: Float[Array, "T 2"], geodesics, center_frames: Int[Array, " c"], *,
+    embedding: Float[Array, "T 2"], paths, center_frames: Int[Array, " c"], *,
     floor: float = 0.0,
 ) -> np.ndarray:  # fmt: skip
-    """How far each pair's geodesic path keeps from the other centres (seed §4): for
-    centres i, j the least 2-D distance from the polyline of the path between their
-    frames to a centre other than i and j, exact (every centre looked at). i and j are
-    linked at radius ρ exactly when ``clearance[i, j] >= ρ``, so one pass answers every
-    ρ (`link_radius_sweep`). A pair's walk stops once it is below ``floor``: values ≥
-    ``floor`` are exact, smaller ones only say so. Unreachable pairs and the diagonal
-    are −inf.
+    """How far each pair's shortest path keeps from the other centres (Kim & Jung §4.2):
+    for centres i, j the least 2-D distance from the polyline of the path between their
+    frames to a centre other than i and j, every centre looked at. i and j are linked
+    at radius ρ exactly when ``clearance[i, j] >= ρ``, so one pass answers every ρ
+    (`link_radius_sweep`). A pair's walk stops once it is below ``floor``: values ≥
+    ``floor`` are exact, smaller ones only say so. Unreachable pairs and the diagonal are
+    −inf. ``paths``: the `Geodesics` or `NeighbourGraph` of the frames.
 
     **Returns:** ``(c, c)`` symmetric float64."""
-    c = len(np.asarray(center_frames))
-    out = np.full((c, c), -np.inf)
-    if c < 2:
-        return out
-    iu, ju, clear, _ = _pair_clearance(embedding, geodesics, center_frames, float(floor), c)
-    out[iu, ju] = out[ju, iu] = clear
+    out, _ = _clearances(embedding, paths, center_frames, floor)
     return out
 
 
-def _components(adj: np.ndarray) -> np.ndarray:
-    """Component label of each centre of a symmetric (c, c) bool adjacency."""
-    from scipy.sparse import csr_array
-    from scipy.sparse.csgraph import connected_components
+def _clearances(embedding, paths, center_frames, floor):
+    xy, cf = _check(embedding, paths, center_frames)
+    c = len(cf)
+    out = np.full((c, c), -np.inf)
+    if c < 2:
+        return out, np.full((c, c), np.inf)
+    iu, ju = np.triu_indices(c, 1)
+    clear, _, _, D = _pair_clearance(xy, paths, cf, iu, ju, float(floor), c, want_d=True)
+    out[iu, ju] = out[ju, iu] = clear
+    return out, D
 
-    return connected_components(csr_array(np.asarray(adj, bool)), directed=False)[1]
+
+def _candidate_pairs(pos: np.ndarray, near: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unordered pairs i < j with j among i's ``near`` nearest (2-D) or the reverse."""
+    from scipy.spatial import cKDTree
+
+    c = len(pos)
+    k = min(int(near) + 1, c)
+    nb = cKDTree(pos).query(pos, k=k)[1][:, 1:]
+    i = np.repeat(np.arange(c), nb.shape[1])
+    j = nb.reshape(-1)
+    a, b = np.minimum(i, j), np.maximum(i, j)
+    keep = (a != b) & (b < c)
+    key = np.unique(a[keep] * c + b[keep])
+    return key // c, key % c
+
+
+def _step_links(xy, paths, rho: float):
+    """The links of a level where every frame is a centre: the steps that are shortest
+    paths whose segment passes no other frame within ρ (k-d tree). ``(i, j, length)``."""
+    from scipy.spatial import cKDTree
+
+    if not rho > 0:
+        raise FxspaceError(
+            f"rho must be > 0 on the level where every frame is a centre, got {rho}: the "
+            "embedding's frames coincide"
+        )
+    i, j, w = paths.steps()
+    a, b = xy[i], xy[j]
+    half = 0.5 * np.linalg.norm(b - a, axis=1)
+    tree = cKDTree(xy)
+    ok = np.ones(len(i), bool)
+    for s in range(0, len(i), 1 << 16):
+        sl = slice(s, s + (1 << 16))
+        lists = tree.query_ball_point(0.5 * (a[sl] + b[sl]), half[sl] + rho, return_sorted=False)
+        cnt = np.fromiter((len(x) for x in lists), np.int64, len(lists))
+        flat = np.fromiter((k for x in lists for k in x), np.int64, int(cnt.sum()))
+        own = np.repeat(np.arange(len(lists)), cnt) + s
+        q = xy[flat]
+        ab = b[own] - a[own]
+        L2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+        t = np.clip(np.sum((q - a[own]) * ab, axis=1) / L2, 0.0, 1.0)
+        d = np.linalg.norm(q - (a[own] + t[:, None] * ab), axis=1)
+        hit = (d < rho) & (flat != i[own]) & (flat != j[own])
+        ok[np.unique(own[hit])] = False
+    return i[ok], j[ok], w[ok]
+
+
+def _bridges(c: int, li, lj, ci, cj, cw):
+    """Bridges joining the pieces of the links (li, lj) along candidate pairs (ci, cj) of
+    geodesic length cw: a minimum spanning forest of the pieces (each joined by its
+    cheapest pair). ``(i, j, length)``."""
+    from scipy.sparse import csr_array
+    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+
+    n, lab = connected_components(pair_csr(li, lj, np.ones(len(li), bool), c), directed=False)
+    ok = np.isfinite(cw) & (lab[ci] != lab[cj])
+    ci, cj, cw = ci[ok], cj[ok], cw[ok]
+    if n == 1 or not len(ci):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    lo, hi = np.minimum(lab[ci], lab[cj]), np.maximum(lab[ci], lab[cj])
+    order = np.lexsort((ci, cw, hi, lo))
+    first = np.ones(len(order), bool)
+    first[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
+    e = order[first]  # the cheapest pair between each two pieces
+    rank = np.empty(len(e))
+    rank[np.argsort(cw[e], kind="stable")] = np.arange(1, len(e) + 1)  # no zero weights
+    mst = minimum_spanning_tree(csr_array((rank, (lo[e], hi[e])), shape=(n, n))).tocoo()
+    pick = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(lo[e], hi[e], strict=True))}
+    sel = e[[pick[(int(min(a, b)), int(max(a, b)))] for a, b in zip(mst.row, mst.col,
+                                                                     strict=True)]]  # fmt: skip
+    return ci[sel], cj[sel], cw[sel]
+
+
+def level_links(xy, paths, center_frames, rho: float, rule: LinkRule, clear=None, D=None):
+    """``(links, bridges, lengths)`` ``csr_array``\\ s of one level (see the module
+    docstring); ``clear``/``D``: the level's clearances and centre distances when the ρ
+    experiment has them (the links are then read off them)."""
+    xy, cf = _check(xy, paths, center_frames)
+    c = len(cf)
+    T = int(paths.num_frames)
+    if c == T and np.array_equal(cf, np.arange(T)):  # every frame a centre
+        i, j, w = _step_links(xy, paths, rho)
+        cand = paths.steps() if rule.bridges else None
+    else:
+        if clear is None and c >= 2:
+            exact = c <= rule.exact_centres
+            iu, ju = (np.triu_indices(c, 1) if exact
+                      else _candidate_pairs(xy[cf], rule.near))  # fmt: skip
+            want = rule.bridges and c <= 4096
+            cl, un, ln, D = _pair_clearance(xy, paths, cf, iu, ju, float(rho),
+                                            c if exact else rule.near, want_d=want)  # fmt: skip
+            keep = (cl >= rho) & ~un  # unsure counts as blocked: conservative
+            i, j, w = iu[keep], ju[keep], ln[keep]
+            if rule.bridges and D is None:
+                D = np.full((c, c), np.inf)
+                D[iu, ju] = ln
+        elif c >= 2:
+            iu, ju = np.triu_indices(c, 1)
+            keep = clear[iu, ju] >= rho
+            i, j, w = iu[keep], ju[keep], D[iu[keep], ju[keep]]
+        else:
+            i = j = np.zeros(0, np.int64)
+            w = np.zeros(0)
+        cand = None
+        if rule.bridges and c >= 2:
+            iu, ju = np.triu_indices(c, 1)
+            cand = (iu, ju, np.minimum(D[iu, ju], D[ju, iu]))
+    bi = bj = np.zeros(0, np.int64)
+    bw = np.zeros(0)
+    if rule.bridges and cand is not None:
+        bi, bj, bw = _bridges(c, i, j, *cand)
+    ai, aj = np.concatenate([i, bi]), np.concatenate([j, bj])
+    links = pair_csr(ai, aj, np.ones(len(ai), bool), c)
+    lengths = pair_csr(ai, aj, np.concatenate([w, bw]).astype(np.float64), c)
+    return links, pair_csr(bi, bj, np.ones(len(bi), bool), c), lengths
 
 
 @checked
 def center_links(
     embedding: Float[Array, "T 2"],
-    geodesics,
+    paths,
     center_frames: Int[Array, " c"],
     rho: float,
     *,
     bridge: bool = False,
     exact: bool | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Links between centres (seed §4): i—j when the geodesic path between their frames,
-    drawn in 2-D as the polyline through its frames, passes no other centre within ρ.
-    Pairs whose path is unreachable are never linked.
+) -> tuple[object, object]:
+    """Links between centres (Kim & Jung §4.2): i—j when the shortest path between their
+    frames, drawn in 2-D, passes no other centre within ρ. Unreachable pairs are never
+    linked.
 
-    ``exact`` (default: levels of at most `EXACT_CENTRES` = 320 centres, the ones the
-    ρ experiment sweeps) tests every segment against every centre. Otherwise each
-    segment is tested against the 64 centres nearest its start frame and one reaching
-    past them counts as blocked:
-    conservative, every link passes the rule but some it allows are missing (cost
-    O(c²·64) instead of O(c³); on AnimFace's levels of 640 and 1 280 centres 9 634 of
-    the rule's 24 297 and 19 728 of its 80 224 links, in 0.4 s instead of 2.5 s and
-    1.3 s instead of 13 s).
+    **Arguments:** `embedding` ``(T, 2)``; `paths` the frames' ``Geodesics`` or
+    `NeighbourGraph`; `center_frames` ``(c,)``; `rho`; `bridge` also join the pieces the
+    rule leaves by their cheapest pairs (outside the rule); `exact` (default: levels of
+    at most `EXACT_CENTRES` centres) every pair and every centre, else the conservative
+    near test (module docstring).
 
-    With ``bridge`` the cheapest geodesic link between components is added while the
-    link graph is disconnected but the centres are reachable in the frame graph
-    (outside the paper's rule; off by default in `build_hierarchy`).
-
-    **Returns:** ``(links, bridges)``, both (c, c) symmetric bool with a False diagonal.
-    Vectorised over the c(c−1)/2 pairs; the walk stops when every pair is blocked or
-    arrived, so its length is that of the longest *unblocked* path.
-    """
-    cf = np.asarray(center_frames, dtype=np.int32)
-    c = len(cf)
-    if c < 2:
-        return np.zeros((c, c), bool), np.zeros((c, c), bool)
-    exact = c <= EXACT_CENTRES if exact is None else bool(exact)
-    iu, ju, clear, unsure = _pair_clearance(
-        embedding, geodesics, cf, float(rho), c if exact else _NEAR_K
-    )
-    links = np.zeros((c, c), bool)
-    links[iu, ju] = (clear >= rho) & ~unsure  # unsure counts as blocked: conservative
-    links |= links.T
-    return links, (add_bridges(links, geodesics, cf) if bridge else np.zeros_like(links))
-
-
-def add_bridges(links: np.ndarray, geodesics, center_frames) -> np.ndarray:
-    """Bridges, added in place to ``links`` ``(c, c)``: while the link graph is in pieces
-    that the frame graph joins, the smallest piece is joined to its geodesically nearest
-    centre (outside the paper's rule). **Returns:** the bridges ``(c, c)`` bool."""
-    cf = np.asarray(center_frames, np.int64)
-    bridges = np.zeros_like(links)
-    D = np.asarray(geodesics.distances)[np.ix_(cf, cf)].astype(np.float64)
-    np.fill_diagonal(D, np.inf)
-    comp = _components(links)  # once; each bridge then merges two labels
-    while True:
-        roots, sizes = np.unique(comp, return_counts=True)
-        if len(roots) == 1:
-            break
-        inside = comp == roots[np.argmin(sizes)]
-        sub = D[np.ix_(inside, ~inside)]
-        if not np.isfinite(sub).any():
-            break  # the frame graph itself is disconnected here
-        a, b = np.unravel_index(np.argmin(sub), sub.shape)
-        i, j = np.flatnonzero(inside)[a], np.flatnonzero(~inside)[b]
-        links[i, j] = links[j, i] = True
-        bridges[i, j] = bridges[j, i] = True
-        comp[inside] = comp[j]
-    return bridges
-
-
-@checked
-def link_components(level: Level) -> np.ndarray:
-    """The piece (connected group of the level's links) of each centre, ``(c,)`` int
-    labels 0…: one label when every centre reaches every other through links."""
-    if level.links is None:
-        raise FxspaceError("this level has no links")
-    return _components(level.links)
-
-
-@checked
-def link_graph_connected(level: Level) -> bool:
-    """Whether the level's link graph is connected."""
-    if level.links is None:
-        raise FxspaceError("this level has no links")
-    return len(np.unique(_components(level.links))) == 1
-
-
-@checked
-def link_pairs(links) -> tuple[np.ndarray, np.ndarray]:
-    """The linked pairs ``(i, j)`` with ``i < j`` of a level's links: a dense ``(c, c)``
-    bool matrix (`Level`) or a sparse ``csr_array`` (`SparseLevel`), without densifying
-    the sparse one (for drawing the links of 100 000 centres)."""
-    if links is None:
-        raise FxspaceError("links is None: this level has no links (build it with geodesics)")
-    if hasattr(links, "tocoo"):
-        m = links.tocoo()
-        keep = (m.row < m.col) & (np.asarray(m.data) != 0)
-        return np.asarray(m.row[keep], np.int64), np.asarray(m.col[keep], np.int64)
-    L = np.asarray(links)
-    if L.ndim != 2 or L.shape[0] != L.shape[1] or L.dtype.kind not in "biu":
-        raise FxspaceError(
-            f"links must be a (c, c) bool matrix or a csr_array, got {type(links).__name__} "
-            f"of shape {L.shape}"
-        )
-    i, j = np.nonzero(np.triu(L, 1))
-    return i.astype(np.int64), j.astype(np.int64)
+    **Returns:** ``(links, bridges)``, ``(c, c)`` symmetric ``csr_array`` of bool."""
+    c = len(np.asarray(center_frames).reshape(-1))
+    n_exact = EXACT_CENTRES if exact is None else (max(c, 2) if exact else 2)
+    rule = LinkRule(rho=float(rho), bridges=bool(bridge), exact_centres=n_exact)
+    links, bridges, _ = level_links(embedding, paths, center_frames, float(rho), rule)
+    return links, bridges
 
 
 class LinkRadiusSweep(NamedTuple):
@@ -325,30 +443,32 @@ def _coverage(labels: np.ndarray) -> float:
 @checked
 def link_radius_sweep(
     hierarchy: Hierarchy,
-    geodesics,
+    paths,
     scales=LINK_SCALES,
     *,
     max_centres: int | None = 320,
 ) -> LinkRadiusSweep:
     """Links by the paper's rule (no bridges, exact: one `link_clearance` pass per level)
-    at each ρ of ``scales`` on every level with at most ``max_centres`` centres: how many
-    links, how many groups they leave, and the fraction of centre pairs a route can join
-    (Kim & Jung §4.2: "the circle's radius is set by experiment"); `choose_link_scale`
-    reads the answer off it.
+    at each ρ of ``scales`` on every level with at most ``max_centres`` centres (and
+    fewer centres than frames): how many links, how many groups they leave, and the
+    fraction of centre pairs a route can join (Kim & Jung §4.2: "the circle's radius is
+    set by experiment"); `choose_link_scale` reads the answer off it.
 
     **Example:** ``sw = fx.navigation.link_radius_sweep(h, space.geodesics)``
     """
-    return _sweep(hierarchy, geodesics, scales, max_centres)[0]
+    return _sweep(hierarchy, paths, scales, max_centres)[0]
 
 
-def _sweep(hierarchy, geodesics, scales, max_centres):
-    """`link_radius_sweep` and the swept levels' clearances ``{level: (c, c)}``."""
+def _sweep(hierarchy, paths, scales, max_centres):
+    """`link_radius_sweep` and the swept levels' ``{level: (clearances, distances)}``."""
     sc = np.asarray(scales, np.float64).reshape(-1)
     if not len(sc) or not np.all(np.isfinite(sc)) or np.any(sc < 0):
         raise FxspaceError(f"scales must be finite numbers >= 0, got {scales!r}")
     x = np.asarray(hierarchy.embedding)
+    T = len(x)
     idx = [i for i, lv in enumerate(hierarchy.levels)
-           if max_centres is None or lv.n_clusters <= max_centres]  # fmt: skip
+           if (max_centres is None or lv.n_clusters <= max_centres)
+           and (lv.n_clusters < T or i == 0)]  # fmt: skip
     if not idx:
         raise FxspaceError(f"no level has at most max_centres={max_centres} centres")
     shape = (len(idx), len(sc))
@@ -359,7 +479,8 @@ def _sweep(hierarchy, geodesics, scales, max_centres):
         frames = hierarchy.levels[li].center_frames
         radii[a] = [default_link_radius(x[frames], float(s)) for s in sc]
         # one exact pass answers every ρ: linked at ρ ⇔ clearance ≥ ρ
-        clear = clears[li] = link_clearance(x, geodesics, frames, floor=float(np.min(radii[a])))
+        clear, D = _clearances(x, paths, frames, float(np.min(radii[a])))
+        clears[li] = (clear, D)
         for b, rho in enumerate(radii[a]):
             lk = clear >= rho
             np.fill_diagonal(lk, False)
@@ -377,6 +498,6 @@ def choose_link_scale(sweep: LinkRadiusSweep) -> float:
     (coverage 1): the widest circles, so the fewest links that pass by another centre,
     that still let every centre reach every other. When no scale joins every level, the
     largest scale with the best worst-level coverage (the levels left in pieces then
-    need bridges, ``build_hierarchy(bridges=True)``, to route across them)."""
+    need bridges, ``LinkRule(bridges=True)``, to route across them)."""
     worst = np.round(np.min(np.asarray(sweep.coverage), axis=0), 9)
     return float(sweep.scales[np.flatnonzero(worst == worst.max())[-1]])

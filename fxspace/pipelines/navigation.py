@@ -1,4 +1,12 @@
-"""Hierarchical navigation of the expression space (Kim & Jung §2–4).
+"""Hierarchical navigation of the expression space (Kim & Jung §2–4), at every size.
+
+One pipeline for 10³ to 10⁵ frames and more: ``[graph] kind`` says how the frames are
+joined — ``"epsilon"`` (the paper's ε-graph: ``T × T`` geodesics and next hops, MDS) or
+``"knn"`` (a k-nearest-neighbour graph, landmark geodesics and landmark MDS: memory
+O(T·k)); unset, it is chosen by the number of frames (``epsilon`` up to
+``graph.epsilon_max_frames``). Everything after it — the FCM levels, their links by the
+paper's rule with ρ by its experiment, routes, the navigator — is the same code
+(`fxspace.navigation`, on the frames' *paths*).
 
 Loads facial frames (AnimFace takes or the synthetic face), chooses ε by the paper's rule
 on *these* frames (``threshold = "max_r"``: a threshold sweep from the connecting ε to the
@@ -12,7 +20,8 @@ hierarchy.
 
 Stages (`STAGES`, cached in ``run_dir/cache``; an interrupted run resumes, and the
 navigator app reads them instead of recomputing): ``sweep`` (only when ε comes from a
-criterion), ``space`` (geodesics, next hops, 2-D MDS) and ``hierarchy`` (every level).
+criterion), ``space`` (geodesics, next hops, 2-D MDS; or the k-NN graph and its landmark
+MDS) and ``hierarchy`` (every level).
 """
 
 from __future__ import annotations
@@ -32,17 +41,27 @@ from fxspace.datasets import FaceData, load_face
 from fxspace.errors import FxspaceError
 from fxspace.expression import (
     Geodesics,
+    NeighbourGraph,
     SweepResult,
+    check_sparse_connected,
     choose_threshold,
     connecting_threshold,
+    distance_features,
     epsilon_graph,
     expression_space,
+    farthest_point_landmarks,
+    landmark_mds,
+    landmark_score,
+    neighbourhood_graph,
     threshold_grid,
 )
 from fxspace.navigation import (
     SWEEP_THRESHOLDS,
     THRESHOLD_CRITERIA,
+    FuzzyCMeans,
     Hierarchy,
+    LinkRule,
+    TruncatedFuzzyCMeans,
     build_hierarchy,
     cold_levels,
     hierarchy_from_arrays,
@@ -55,6 +74,7 @@ from fxspace.navigation import (
     threshold_from_run,
 )
 from fxspace.pipelines.threshold_sweep import state_distances, sweep_stage
+from fxspace.results import result_message
 from fxspace.runs import (
     cached,
     cached_arrays,
@@ -75,7 +95,10 @@ __all__ = [
     "load_space",
     "auto_key_centres",
     "build_levels",
+    "graph_kind",
 ]
+
+GRAPH_KINDS = ("epsilon", "knn")
 
 STAGES = ("sweep", "space", "hierarchy", "cold_levels")
 
@@ -87,14 +110,31 @@ class GraphConfig:
     the largest distance, on the navigated frames; a number (mm: the Frobenius distance
     between marker-distance matrices); ``"from:RUN_DIR"`` — the ε a finished
     threshold-sweep run chose; or 0 for ``threshold_factor`` × the smallest threshold that
-    connects the graph. The metrics record which (``threshold_source``)."""
+    connects the graph. The metrics record which (``threshold_source``).
 
+    ``kind``: ``"epsilon"`` (that ε-graph, dense geodesics) or ``"knn"`` (``k`` nearest
+    neighbours per frame on the marker-distance features, ``landmarks`` max-min
+    landmarks for the geodesics and the landmark MDS); unset (""), ``epsilon`` up to
+    ``epsilon_max_frames`` frames, else ``knn``."""
+
+    kind: str = ""
     threshold: float | str = "max_r"
     threshold_factor: float = 1.25
     num_thresholds: int = SWEEP_THRESHOLDS
     dtype: Literal["float32", "float64"] = "float32"
+    k: int = 10
+    landmarks: int = 256
+    epsilon_max_frames: int = 5000
 
     def validate(self) -> None:
+        if self.kind not in ("", *GRAPH_KINDS):
+            raise ConfigError(
+                f"graph.kind must be one of {GRAPH_KINDS} (or unset), got {self.kind!r}"
+            )
+        if self.k < 2:
+            raise ConfigError("graph.k must be >= 2 (neighbours per frame)")
+        if self.landmarks < 3:
+            raise ConfigError("graph.landmarks must be >= 3 (MDS in 2-D needs 3)")
         if isinstance(self.threshold, str):
             if not (self.threshold.startswith("from:") or self.threshold in THRESHOLD_CRITERIA):
                 raise ConfigError(
@@ -113,22 +153,35 @@ class GraphConfig:
 
 @dataclasses.dataclass(frozen=True)
 class HierarchyConfig:
-    """FCM levels c0·2^l (see `fxspace.build_hierarchy`)."""
+    """FCM levels c0·2^l (see `fxspace.build_hierarchy`): ``levels`` of them (0: every
+    one below the number of frames) and, with ``finest``, the level where every frame is
+    a centre. On a ``knn`` graph the memberships keep each frame's ``nearest`` centres
+    (`fxspace.navigation.TruncatedFuzzyCMeans`). ``max_steps`` / ``restarts``
+    left at -1 take the solver's default (300 / 1 for the full FCM, 2000 / 0 for the
+    truncated one); ``max_steps`` is a cap only: a level stopped by it says so
+    in the metrics (``levels[i].result``) and on the navigator's status line."""
 
     c0: int = 10
     m: float = 2.0
     tol: float = 1e-4
-    max_steps: int = 300
-    restarts: int = 1
+    max_steps: int = -1
+    restarts: int = -1
+    levels: int = 0
+    finest: bool = True
+    nearest: int = 8
     rho_scale: float | str = "experiment"  # or a number: ρ = rho_scale × centre spacing
     bridges: bool = False  # true: join the pieces a level is left in (links outside the ρ rule)
     link_sweep_max_centres: int = 320  # levels the ρ experiment looks at
-    compare_cold: bool = True
+    compare_cold: bool = True  # (full FCM only: the epsilon graph's levels)
     max_link_centres: int = 0  # 0: links at every level
 
     def validate(self) -> None:
-        if self.c0 < 1 or self.max_steps < 1 or not self.m > 1 or not self.tol > 0:
-            raise ConfigError("hierarchy: need c0 >= 1, max_steps >= 1, m > 1, tol > 0")
+        if self.c0 < 1 or not self.m > 1 or not self.tol > 0:
+            raise ConfigError("hierarchy: need c0 >= 1, m > 1, tol > 0")
+        if self.max_steps == 0 or self.max_steps < -1:
+            raise ConfigError("hierarchy.max_steps must be >= 1 (or -1: the solver's default)")
+        if self.levels < 0 or self.nearest < 1:
+            raise ConfigError("hierarchy: need levels >= 0 (0: all) and nearest >= 1")
         if isinstance(self.rho_scale, str):
             if self.rho_scale != "experiment":
                 raise ConfigError("hierarchy.rho_scale must be a number > 0 or 'experiment'")
@@ -136,8 +189,8 @@ class HierarchyConfig:
             raise ConfigError("hierarchy.rho_scale must be > 0 (or 'experiment')")
         if self.link_sweep_max_centres < self.c0:
             raise ConfigError("hierarchy.link_sweep_max_centres must be >= c0")
-        if self.restarts < 0:
-            raise ConfigError("hierarchy.restarts must be >= 0")
+        if self.restarts < -1:
+            raise ConfigError("hierarchy.restarts must be >= 0 (or -1: the solver's default)")
         if self.max_link_centres < 0:
             raise ConfigError("hierarchy.max_link_centres must be >= 0 (0: every level)")
 
@@ -155,6 +208,7 @@ class NavConfig:
     animation: Literal["gif", "mp4", "none"] = "gif"
     animation_frames: int = 200
     level_figures: bool = True
+    figure: bool = True  # False: no figures nor animation (routes and metrics only)
 
     def validate(self) -> None:
         if self.num_keys < 2 and not self.key_centres:
@@ -182,10 +236,13 @@ class Config:
 
 
 class NavSpace(NamedTuple):
-    """What navigation (and the navigator app) needs, from the cached stages."""
+    """What navigation (and the navigator app) needs, from the cached stages, for either
+    graph kind: the embedding, the frames' `paths` (``Geodesics`` on the ε-graph, the
+    `NeighbourGraph` on the k-NN one: `fxspace.expression.Paths`), the hierarchy, ε and
+    where it came from (the k-NN graph's ``k`` there), the embedding's r."""
 
     embedding: np.ndarray
-    geodesics: Geodesics
+    paths: Geodesics | NeighbourGraph
     hierarchy: Hierarchy
     threshold: float
     threshold_source: str
@@ -193,6 +250,12 @@ class NavSpace(NamedTuple):
     r: float
     sweep: SweepResult | None
     choice: dict | None
+    kind: str = "epsilon"
+
+    @property
+    def geodesics(self):
+        """The frames' paths (the old name of `paths`)."""
+        return self.paths
 
 
 def _stage(run_dir: Path | None, name: str, compute: Callable[[], dict]) -> dict:
@@ -242,23 +305,88 @@ def _space(P: Callable, eps: float) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def build_levels(cfg: Config, Y, geo, seed: int, restarts: int):
+def graph_kind(cfg: Config, n_frames: int) -> str:
+    """``graph.kind``, or by size when unset: ``epsilon`` up to ``epsilon_max_frames``."""
+    g = cfg.graph
+    return g.kind or ("epsilon" if n_frames <= g.epsilon_max_frames else "knn")
+
+
+def _fcm(hc: HierarchyConfig, kind: str, restarts: int | None = None) -> FuzzyCMeans:
+    """The FCM solver of the ``[hierarchy]`` table: full memberships on the ε-graph,
+    each frame's ``nearest`` centres on the k-NN graph."""
+    kw = {"m": hc.m, "tol": hc.tol}
+    r = hc.restarts if restarts is None else restarts
+    if hc.max_steps > 0:
+        kw["max_steps"] = hc.max_steps
+    if r >= 0:
+        kw["restarts"] = r
+    return TruncatedFuzzyCMeans(nearest=hc.nearest, **kw) if kind == "knn" else FuzzyCMeans(**kw)
+
+
+def build_levels(cfg: Config, Y, paths, seed: int, restarts: int | None = None,
+                 kind: str | None = None) -> Hierarchy:  # fmt: skip
     """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer)."""
     hc = cfg.hierarchy
+    rule = LinkRule(rho=hc.rho_scale, bridges=hc.bridges,
+                    sweep_max_centres=hc.link_sweep_max_centres,
+                    max_centres=hc.max_link_centres or None)  # fmt: skip
     return build_hierarchy(
-        Y, geo, c0=hc.c0, m=hc.m, key=jax.random.PRNGKey(seed), tol=hc.tol,
-        max_steps=hc.max_steps, warm_start=True, restarts=restarts,
-        rho_scale=hc.rho_scale, bridges=hc.bridges,
-        link_sweep_max_centres=hc.link_sweep_max_centres,
-        max_link_centres=hc.max_link_centres or None,
+        Y, paths, c0=hc.c0, key=jax.random.PRNGKey(seed),
+        fcm=_fcm(hc, kind or graph_kind(cfg, len(Y)), restarts), links=rule,
+        levels=hc.levels or None, finest=hc.finest,
     )  # fmt: skip
 
 
+def _knn_space(cfg: GraphConfig, positions) -> dict[str, Any]:
+    """The k-NN graph of the frames' marker-distance features, landmark geodesics and the
+    landmark MDS (memory O(T·k))."""
+    import jax.numpy as jnp
+
+    X = jnp.asarray(positions, jnp.float64 if cfg.dtype == "float64" else jnp.float32)
+    T = int(X.shape[0])
+    F = jax.block_until_ready(jax.jit(distance_features)(X))
+    g = neighbourhood_graph(F, k=cfg.k)
+    jax.block_until_ready(g.weights)
+    del F
+    try:
+        check_sparse_connected(g)
+    except FxspaceError as e:  # the user's fix is the config's k
+        raise ConfigError(f"graph.k = {cfg.k}: {e}; raise graph.k") from e
+    geo = farthest_point_landmarks(g, min(cfg.landmarks, T))
+    mds = landmark_mds(geo, dim=2)
+    return {
+        "indices": np.asarray(g.indices), "weights": np.asarray(g.weights),
+        "embedding": np.asarray(mds.embedding, np.float64),
+        "score": float(landmark_score(geo, mds.embedding)),
+    }  # fmt: skip
+
+
+def _load_knn(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpace:
+    import jax.numpy as jnp
+
+    T = int(np.shape(positions)[0])
+    gc = cfg.graph
+    stage(f"{T} frames: k-NN graph (k = {gc.k}), landmark geodesics, landmark MDS")
+    sp = _stage(run_dir, "space", lambda: _knn_space(gc, positions))
+    g = NeighbourGraph(jnp.asarray(sp["indices"]), jnp.asarray(sp["weights"]))
+    Y = np.asarray(sp["embedding"], np.float64)
+    stage("fuzzy c-means levels and their links")
+    ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
+        build_levels(cfg, Y, g, seed, kind="knn")))  # fmt: skip
+    r = float(sp["score"])
+    return NavSpace(Y, g, hierarchy_from_arrays(ha), float("nan"),
+                    f"k-NN graph, k = {gc.k} (r = {r:.4f})", float("nan"), r, None, None,
+                    "knn")  # fmt: skip
+
+
 def load_space(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpace:
-    """The stages ``sweep`` → ``space`` → ``hierarchy`` of ``positions``: each read from
-    ``run_dir/cache`` when there, else computed (with progress) and stored; without a
-    ``run_dir``, computed. The navigator app opens a finished run through this in
-    seconds."""
+    """The stages of ``positions`` for the config's graph kind (`graph_kind`) — ``sweep``
+    → ``space`` → ``hierarchy`` on the ε-graph, ``space`` → ``hierarchy`` on the k-NN
+    graph: each read from ``run_dir/cache`` when there, else computed (with progress)
+    and stored; without a ``run_dir``, computed. The navigator app opens a finished run
+    through this in seconds."""
+    if graph_kind(cfg, int(np.shape(positions)[0])) == "knn":
+        return _load_knn(cfg, positions, run_dir, seed)
     memo: dict[str, Any] = {}
 
     def P():
@@ -274,19 +402,22 @@ def load_space(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSp
     hc = cfg.hierarchy
     stage("fuzzy c-means levels and their links")
     ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
-        build_levels(cfg, Y, geo, seed, hc.restarts)))  # fmt: skip
+        build_levels(cfg, Y, geo, seed, hc.restarts, kind="epsilon")))  # fmt: skip
     return NavSpace(
         Y, geo, hierarchy_from_arrays(ha), float(sp["threshold"]), source,
         float(sp["connecting_threshold"]), float(sp["score"]), sw, ch,
     )  # fmt: skip
 
 
-def auto_key_centres(h: Hierarchy, geodesics, n: int, level: int = 0) -> list[int]:
+def auto_key_centres(h: Hierarchy, paths, n: int, level: int = 0) -> list[int]:
     """``n`` key centres at ``level``, each linked to the previous: start at the centre
     geodesically farthest from the others on average, then repeatedly step to the linked,
-    unvisited centre farthest (geodesically) from those already picked."""
+    unvisited centre farthest (geodesically) from those already picked (``paths``: the
+    frames' `Geodesics` or `NeighbourGraph`)."""
     lv = h.levels[level]
-    D = np.asarray(geodesics.distances, np.float64)[np.ix_(lv.center_frames, lv.center_frames)]
+    cf = np.asarray(lv.center_frames)
+    i, j = np.repeat(cf, len(cf)), np.tile(cf, len(cf))
+    D = np.asarray(paths.lengths(i, j), np.float64).reshape(len(cf), len(cf))
     D = np.where(np.isfinite(D), D, 0.0)
     seq = [int(np.argmax(D.mean(axis=1)))]
     while len(seq) < n:
@@ -322,7 +453,7 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     t0 = time.perf_counter()
     ns = load_space(cfg, face.positions, run_dir, seed)
     timings["space_and_hierarchy_s"] = time.perf_counter() - t0
-    h, geo, Y = ns.hierarchy, ns.geodesics, ns.embedding
+    h, geo, Y = ns.hierarchy, ns.paths, ns.embedding
 
     nc = cfg.navigation
     keys = list(nc.key_centres) or auto_key_centres(h, geo, nc.num_keys)
@@ -339,17 +470,19 @@ def _run(cfg: Config, run_dir: Path, seed: int) -> dict:
     )  # fmt: skip
     t0 = time.perf_counter()
     crit = ns.choice["criterion"] if ns.choice else ns.threshold_source.split(" (")[0]
-    note = f"{ns.threshold:.4g} mm chosen by {crit}, r = {ns.r:.4f}"
+    note = (f"{ns.threshold:.4g} mm chosen by {crit}, r = {ns.r:.4f}" if ns.kind == "epsilon"
+            else f"{len(Y)} frames, {ns.threshold_source}")  # fmt: skip
     anim = _write_outputs(cfg, run_dir, face, h, routes, play, keys, note)
     timings["figures_s"] = time.perf_counter() - t0
-    W = np.asarray(epsilon_graph(state_distances(face.positions, cfg.graph.dtype), ns.threshold))
+    W = ns.paths if ns.kind == "knn" else np.asarray(
+        epsilon_graph(state_distances(face.positions, cfg.graph.dtype), ns.threshold))
     cold = None
-    if cfg.hierarchy.compare_cold:  # the warm start's benchmark: a stage of its own
-        hc = cfg.hierarchy
+    hc = cfg.hierarchy
+    if hc.compare_cold and ns.kind == "epsilon":  # the warm start's benchmark: its own stage
         stage("cold starts of every warm-started level (compare_cold)")
         cold = cached(run_dir, "cold_levels", lambda: cold_levels(
             ns.embedding, c0=hc.c0, m=hc.m, key=jax.random.PRNGKey(seed), tol=hc.tol,
-            max_steps=hc.max_steps))  # fmt: skip
+            max_steps=hc.max_steps if hc.max_steps > 0 else 300))  # fmt: skip
     return _metrics(cfg, face, ns, routes, play, keys, W, anim, timings, cold)
 
 
@@ -365,17 +498,18 @@ def _write_outputs(
 
     nc = cfg.navigation
     stage("figures" + (" and animation" if nc.animation != "none" else ""))
-    if nc.level_figures:
+    if nc.level_figures and nc.figure:
         for li in progress(range(len(h.levels)), desc="level figures"):
             rt = next((rr for rr in routes if rr.level == li), None)
             save_figure_atomic(plot_level(h, li, rt), run_dir / f"level_{li:02d}.png")
     title = f"ε = {eps_note}" if eps_note else None
-    save_figure_atomic(plot_levels_grid(h, routes, title=title), run_dir / "levels_grid.png")
-    if h.link_sweep is not None:
+    if nc.figure:
+        save_figure_atomic(plot_levels_grid(h, routes, title=title), run_dir / "levels_grid.png")
+    if nc.figure and h.link_sweep is not None:
         save_figure_atomic(plot_link_radius_sweep(h.link_sweep, _chosen_scale(h)),
                            run_dir / "link_radius.png")  # fmt: skip
     anim = None
-    if nc.animation != "none":
+    if nc.figure and nc.animation != "none":
         anim = write_navigation_animation(
             run_dir / f"navigation.{nc.animation}", play, h.embedding, route=routes[0],
             names=face.marker_names, max_frames=nc.animation_frames,
@@ -411,9 +545,12 @@ def _level_metrics(lv, cold: dict | None = None) -> dict:
         "objective_warm": lv.objective,
         "objective_cold": cold["objective_cold"],
         "converged": lv.converged,
+        # the FCM's outcome: "successful" at its fixed point, else why it stopped
+        "result": repr(lv.result).removeprefix("RESULTS."),
+        "result_message": result_message(lv.result),
         "distinct_centre_frames": int(len(np.unique(lv.center_frames))),
-        "links": int(lv.links.sum() // 2) if lv.links is not None else None,
-        "bridges": int(lv.bridges.sum() // 2) if lv.bridges is not None else None,
+        "links": lv.n_links if lv.links is not None else None,
+        "bridges": lv.n_bridges if lv.links is not None else None,
         "link_graph_connected": link_graph_connected(lv) if lv.links is not None else None,
         # groups of centres the links join (the rule alone can leave centres apart)
         "link_pieces": len(np.unique(link_components(lv))) if lv.links is not None else None,
@@ -453,7 +590,8 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
     # the warm start's own cost: the split start alone, on the levels where it ran
     split = [lv for lv in levels if lv["iterations_split_start"] >= 0]
     warm = sum(lv["iterations_split_start"] for lv in split)
-    cold = sum(lv["iterations_cold"] for lv in split) if cfg.hierarchy.compare_cold else None
+    cold = (sum(lv["iterations_cold"] for lv in split)
+            if cfg.hierarchy.compare_cold and ns.kind == "epsilon" else None)  # fmt: skip
     final = routes[-1]
     sweep = None
     if ns.sweep is not None:
@@ -482,6 +620,14 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
         "levels": levels,
         # links the paper's ρ rule forbids, added so that every route connects (bridges)
         "links_bridged": sum(lv["bridges"] or 0 for lv in levels),
+        "graph_kind": ns.kind,
+        # every level's FCM at its fixed point ("6/6"), and the reason where a cap stopped one
+        "levels_converged": f"{sum(lv['converged'] for lv in levels)}/{len(levels)}",
+        "fcm_not_converged": [
+            {"level": i, "centres": lv["centres"], "result": lv["result"],
+             "message": lv["result_message"], "iterations": lv["iterations_warm"]}
+            for i, lv in enumerate(levels) if not lv["converged"]
+        ],
         "link_pieces_finest": next(
             (lv["link_pieces"] for lv in reversed(levels) if lv["link_pieces"] is not None), None
         ),

@@ -34,12 +34,14 @@ from fxspace.navigation import (
     NavigationError,
     Route,
     bridge_keys,
+    is_sparse,
     make_route,
     path_candidates,
     playback,
     refine_route,
     rigid_align,
 )
+from fxspace.results import result_message
 from fxspace.studio._server import FrameDensity, frame_density
 
 __all__ = ["DENSITY_ABOVE", "NavData", "NavigatorController", "load_nav_data"]
@@ -50,37 +52,38 @@ DENSITY_ABOVE = 20_000
 
 @dataclass(frozen=True)
 class NavData:
-    """What the navigator shows: the hierarchy, the frame graph's geodesics, the markers,
-    and where ε came from.
+    """What the navigator shows: the hierarchy, the frames' paths, the markers, and where
+    ε came from.
 
-    At scale (a ``navigation_scale`` run) ``hierarchy`` holds
-    `fxspace.navigation.SparseLevel` objects (links as ``csr_array``), ``geodesics`` is None
-    and ``graph`` is the frames' `fxspace.expression.NeighbourGraph`: routes are then made,
-    bridged and refined on the graph (the same `fxspace.navigation.make_route` & co.), with
-    no ``T × T`` or ``c × c`` matrix anywhere."""
+    ``paths`` is the frames' `Geodesics` (an ε-graph run) or their `NeighbourGraph` (a
+    k-NN run, 10⁵ frames): routes are made, bridged and refined on either by the same
+    `fxspace.navigation.make_route` & co."""
 
     hierarchy: Hierarchy
-    geodesics: object
+    paths: object
     positions: np.ndarray  # (T, M, 3)
     marker_names: tuple[str, ...] = ()
     rate: float = 60.0
     threshold: float = float("nan")
     threshold_source: str = ""
-    graph: object = None
+
+    @property
+    def geodesics(self):
+        """The frames' paths (their old name)."""
+        return self.paths
 
     @property
     def sparse(self) -> bool:
-        """True for a sparse hierarchy on a neighbourhood graph (navigation at scale)."""
-        return self.geodesics is None and self.graph is not None
+        """Whether the levels keep truncated memberships (a k-NN run)."""
+        return is_sparse(self.hierarchy)
 
 
 class _Routes:
-    """The route operations on the data's hierarchy and paths (the geodesics, or the
-    neighbourhood graph at scale): one interface, `fxspace.navigation`'s."""
+    """The route operations on the data's hierarchy and paths: `fxspace.navigation`'s."""
 
     def __init__(self, data: NavData):
         self.d = data
-        self.paths = data.graph if data.sparse else data.geodesics
+        self.paths = data.paths
 
     def make(self, level: int, centres, anchors=None) -> Route:
         return make_route(self.d.hierarchy, self.paths, level, centres, anchors=anchors)
@@ -96,7 +99,9 @@ class _Routes:
 
 
 def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData:
-    """`NavData` of a navigation run folder or config file (``experiment = "navigation"``).
+    """`NavData` of a navigation run folder or config file (``experiment = "navigation"``
+    or ``"navigation_scale"``, either graph kind), opened through its pipeline's
+    ``load_space``.
 
     A run folder's cached stages (``cache/sweep``, ``space``, ``hierarchy``; see
     `fxspace.pipelines.navigation.load_space`) are read, not recomputed — what a finished
@@ -106,12 +111,9 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
     import dataclasses
 
     from fxspace.datasets import load_face
-    from fxspace.pipelines import navigation as nav
     from fxspace.pipelines import resolve_config
 
     spec = resolve_config(target, experiment=("navigation", "navigation_scale"))[0]
-    if spec.pipeline.__name__.endswith("navigation_scale"):
-        return _load_scale_data(target, spec)
     cfg, seed = spec.config, spec.seed
     if restarts is not None:
         cfg = dataclasses.replace(
@@ -119,24 +121,10 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
         )
     face = load_face(cfg.data, seed)
     run_dir = Path(target) if Path(target).is_dir() else None
-    ns = nav.load_space(cfg, face.positions, run_dir, seed)
+    ns = spec.pipeline.load_space(cfg, face.positions, run_dir, seed)
     return NavData(
-        ns.hierarchy, ns.geodesics, np.asarray(face.positions),
+        ns.hierarchy, ns.paths, np.asarray(face.positions),
         tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source,
-    )  # fmt: skip
-
-
-def _load_scale_data(target, spec) -> NavData:
-    from fxspace.datasets import load_face
-    from fxspace.pipelines import navigation_scale as ns
-
-    cfg, seed = spec.config, spec.seed
-    face = load_face(cfg.data, seed)
-    run_dir = Path(target) if Path(target).is_dir() else None
-    ss = ns.load_scale_space(cfg, face.positions, run_dir, seed)
-    return NavData(
-        ss.hierarchy, None, np.asarray(face.positions), tuple(face.marker_names), face.rate,
-        threshold_source=f"k-NN graph, k = {cfg.graph.k} (r = {ss.r:.4f})", graph=ss.graph,
     )  # fmt: skip
 
 
@@ -599,7 +587,8 @@ class NavigatorController:
     def status(self) -> dict:
         """What the status panel shows, as data (`NavigatorView` renders it): the shown
         ``level`` of ``n_levels`` with ``n_clusters`` centres and ``bridges`` (links the
-        paper's ρ rule does not allow, added to join the level's pieces), the ``keys``, the
+        paper's ρ rule does not allow, added to join the level's pieces), ``fcm`` (why the
+        level's FCM is not at its fixed point, "" when it is), the ``keys``, the
         ``preview`` centre and ``selected_key`` (or ``None``), the route's ``route_frames``
         and ``route_level``, ``density`` (frames drawn as one image) with ``n_frames`` and
         ``centres_by_density``, ``guide_level`` (the kept route's level or ``None``) with
@@ -612,6 +601,7 @@ class NavigatorController:
             "n_levels": self.n_levels,
             "n_clusters": int(self.data.hierarchy.levels[self.level].n_clusters),
             "bridges": _bridge_count(self.data.hierarchy.levels[self.level]),
+            "fcm": fcm_status(self.data.hierarchy.levels[self.level]),
             "keys": [int(k) for k in self.picks],
             "preview": None if self.preview is None else int(self.preview),
             "selected_key": int(self.selected_key) if self.picks else None,
@@ -636,8 +626,14 @@ def _short(a, n: int = 30) -> str:
 
 
 def _bridge_count(lv) -> int:
-    """Bridges of a level (dense bool matrix or sparse CSR; none when not computed)."""
-    br = getattr(lv, "bridges", None)
-    if br is None:
-        return 0
-    return int((br.count_nonzero() if hasattr(br, "count_nonzero") else np.sum(br)) // 2)
+    """Bridges of a level (none when not computed)."""
+    return lv.n_bridges
+
+
+def fcm_status(lv) -> str:
+    """The level's FCM outcome for the status line: "" at its fixed point, else the
+    reason it stopped (e.g. the iteration cap) and after how many iterations."""
+    if lv.converged:
+        return ""
+    return (f"not at its fixed point — {repr(lv.result).removeprefix('RESULTS.')} after "
+            f"{lv.num_steps} iterations: {result_message(lv.result)}")  # fmt: skip

@@ -89,6 +89,7 @@ def status_text(st: dict) -> str:
             f"Bridges: {st['bridges']} (orange; not links by the paper's ρ rule)"
             if st["bridges"]
             else "",
+            f"FCM: {st['fcm']}" if st.get("fcm") else "",
             f"Key centres: {shown}",
             f"Preview: centre {st['preview']}" if st["preview"] is not None else "",
             f"Selected key: #{st['selected_key']}" if st["selected_key"] is not None else "",
@@ -108,7 +109,7 @@ def status_text(st: dict) -> str:
 
 LINK_RGB, BRIDGE_RGB = (80, 120, 220), (240, 140, 20)
 """The pad's colours of a link (the paper's ρ rule) and of a bridge (added to join a
-level's pieces, `fxspace.build_hierarchy(bridges=...)`)."""
+level's pieces, `fxspace.navigation.LinkRule(bridges=True)`)."""
 
 
 def _link_colours(lv, i: np.ndarray, j: np.ndarray) -> np.ndarray:

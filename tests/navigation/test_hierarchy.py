@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import fxspace as fx
-from fxspace.navigation._links import _components
+from fxspace.navigation._level import _components
 
 
 def _curve(n=120, seed=0):
@@ -30,6 +30,19 @@ def space():
     return X, W, geo, h
 
 
+@pytest.fixture(scope="module", params=["epsilon", "knn"])
+def both(request, space):
+    """The same frames as the dense Geodesics (an ε-graph) and as a NeighbourGraph with
+    the default FCM of each kind: the full one and the truncated one."""
+    X, W, geo, h = space
+    if request.param == "epsilon":
+        return X, geo, h
+    g = fx.expression.graph_from_dense(W)
+    hs = fx.build_hierarchy(X, g, c0=8, key=jax.random.PRNGKey(0),
+                            fcm=fx.navigation.TruncatedFuzzyCMeans(nearest=4))  # fmt: skip
+    return X, g, hs
+
+
 def test_level_sizes():
     assert fx.level_sizes(2400, 10) == (10, 20, 40, 80, 160, 320, 640, 1280, 2400)
     assert fx.level_sizes(120, 8) == (8, 16, 32, 64, 120)
@@ -41,7 +54,7 @@ def test_level_sizes():
 def test_levels_shapes_and_memberships(space):
     X, _, _, h = space
     assert h.sizes == (8, 16, 32, 64, 120)
-    for lv in h.levels:
+    for lv in h.levels[:-1]:
         assert lv.centers.shape == (lv.n_clusters, 2)
         assert lv.memberships.shape == (len(X), lv.n_clusters)
         np.testing.assert_allclose(lv.memberships.sum(1), 1.0, rtol=1e-9)
@@ -49,9 +62,11 @@ def test_levels_shapes_and_memberships(space):
         # each centre is shown as its nearest frame
         d = np.linalg.norm(X[None] - lv.centers[:, None], axis=-1)
         np.testing.assert_array_equal(lv.center_frames, np.argmin(d, axis=1))
-    # the finest level shows every frame
-    assert sorted(h.levels[-1].center_frames.tolist()) == list(range(len(X)))
-    assert h.levels[-1].objective < 1e-12
+    # the finest level shows every frame: the FCM's fixed point with every frame a centre
+    fin = h.levels[-1]
+    assert sorted(fin.center_frames.tolist()) == list(range(len(X)))
+    assert fin.objective < 1e-12 and fin.converged and fin.init == "frames"
+    np.testing.assert_array_equal(fin.labels, np.arange(len(X)))
 
 
 def test_finer_level_never_worse_in_objective(space):
@@ -83,17 +98,23 @@ def test_split_centers_shape_and_error(space):
         fx.split_centers(X, lv.centers, lv.memberships, 17)
 
 
-def test_links_symmetric_and_connected(space):
-    _, W, _, h = space
-    n_comp, _ = fx.connected_components(W)
-    assert int(n_comp) == 1
+def test_links_are_one_sparse_form_and_every_level_converged(both):
+    """One `Level` type at every size: links, bridges and lengths as symmetric CSR
+    arrays, the FCM record as `.fit` with `.result` and `.stats`, every level at its
+    fixed point; the links' lengths are the geodesic lengths of the pairs."""
+    X, paths, h = both
+    assert h.converged
     for lv in h.levels:
+        assert isinstance(lv, fx.navigation.Level) and lv.converged
+        assert lv.fit.result == fx.RESULTS.successful and "max_steps" in lv.fit.stats
         L = lv.links
-        assert L.dtype == bool and L.shape == (lv.n_clusters, lv.n_clusters)
-        np.testing.assert_array_equal(L, L.T)
-        assert not L.diagonal().any()
-        assert fx.link_graph_connected(lv)
-        assert np.all(L[lv.bridges])  # bridges are links
+        assert L.format == "csr" and L.shape == (lv.n_clusters, lv.n_clusters)
+        assert (L != L.T).nnz == 0 and not L.diagonal().any()
+        assert lv.n_bridges == 0 and lv.bridges.shape == L.shape
+        i, j = fx.navigation.link_pairs(L)
+        got = np.asarray(lv.lengths[i, j]).reshape(-1)
+        want = paths.lengths(lv.center_frames[i], lv.center_frames[j])
+        np.testing.assert_allclose(got, want, rtol=1e-5)
 
 
 def _seg_dist(p, a, b):
@@ -128,7 +149,7 @@ def test_links_match_bruteforce_reference(space):
     for lv in h.levels[:2]:  # ≤ 16 centres: the kernel's near list covers every centre
         links, bridges = fx.center_links(X, geo, lv.center_frames, lv.radius, bridge=False)
         ref = _reference_links(X, geo, lv.center_frames, lv.radius)
-        np.testing.assert_array_equal(links, ref)
+        np.testing.assert_array_equal(links.toarray(), ref)
 
 
 def test_bridges_connect_a_disconnected_link_graph(space):
@@ -136,9 +157,9 @@ def test_bridges_connect_a_disconnected_link_graph(space):
     lv = h.levels[1]
     huge = 100.0 * lv.radius  # every path is blocked → only bridges remain
     links, bridges = fx.center_links(X, geo, lv.center_frames, huge, bridge=True)
-    np.testing.assert_array_equal(links, bridges)
+    assert (links != bridges).nnz == 0
     assert len(np.unique(_components(links))) == 1
-    assert bridges.sum() // 2 == lv.n_clusters - 1  # a spanning tree
+    assert bridges.nnz // 2 == lv.n_clusters - 1  # a spanning tree
 
 
 def test_default_link_radius():
@@ -191,13 +212,15 @@ def test_link_radius_sweep_against_its_definition(space):
     scales = (0.05, 0.3, 1.0, 3.0)
     sw = fx.navigation.link_radius_sweep(h, geo, scales, max_centres=64)
     assert sw.levels.tolist() == [0, 1, 2, 3] and sw.centres.tolist() == [8, 16, 32, 64]
+    assert fx.navigation.link_radius_sweep(h, geo, scales).levels.tolist() == [0, 1, 2, 3]
     for a, li in enumerate(sw.levels):
         cf = h.levels[li].center_frames
         for b, sc in enumerate(scales):
             rho = fx.default_link_radius(X[cf], sc)
             assert sw.radii[a, b] == pytest.approx(rho)
             L, B = fx.center_links(X, geo, cf, rho, bridge=False)
-            assert not B.any() and sw.links[a, b] == L.sum() // 2
+            L = L.toarray()
+            assert not B.nnz and sw.links[a, b] == L.sum() // 2
             assert sw.coverage[a, b] == pytest.approx(_reach_coverage(L))
             assert sw.components[a, b] == len(np.unique(_components(L)))
     # wider circles block more paths: fewer links
@@ -224,24 +247,20 @@ def test_choose_link_scale_known_answers():
     assert fx.navigation.choose_link_scale(sweep([[0.9, 0.9, 0.5], [1, 1, 1]])) == 0.2
 
 
-def _rule_links_reference(X, geo, cf, rho):
-    """The paper's rule, pair by pair with numpy: i—j unless the polyline of the geodesic
-    path between their frames passes within rho of a centre other than the two."""
+def _rule_links_reference(X, paths, cf, rho):
+    """The paper's rule, pair by pair with numpy: i—j unless the polyline of the shortest
+    path between their frames (the paths' own walk) passes within rho of a centre other
+    than the two."""
     c, pos = len(cf), X[cf]
-    nh = np.asarray(geo.next_hop)
     out = np.zeros((c, c), bool)
     for i in range(c):
         for j in range(i + 1, c):
-            path = [int(cf[i])]
-            while path[-1] != cf[j] and nh[path[-1], cf[j]] >= 0:
-                path.append(int(nh[path[-1], cf[j]]))
-            if path[-1] != cf[j] or cf[i] == cf[j]:
+            if cf[i] == cf[j]:
                 continue
+            path = paths.path(int(cf[i]), int(cf[j]))
             keep = (np.arange(c) != i) & (np.arange(c) != j) & (cf != cf[i]) & (cf != cf[j])
             q = pos[keep]
             a, b = X[path[:-1]], X[path[1:]]
-            if len(a) == 0:
-                continue
             ab = b - a
             L2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
             t = np.clip(np.einsum("skd,sd->sk", q[None] - a[:, None], ab) / L2[:, None], 0, 1)
@@ -250,19 +269,46 @@ def _rule_links_reference(X, geo, cf, rho):
     return out
 
 
-def test_default_links_are_the_rule_exactly(space):
-    """Kim & Jung §4.2 by default: no bridges, every link (and no other pair) passes the
-    ρ rule, checked pair by pair against a direct numpy walk of the geodesic paths; the
-    conservative near-list test (levels above EXACT_CENTRES) keeps only pairs that pass."""
-    X, _, geo, h = space
+def test_default_links_are_the_rule_exactly(both):
+    """Kim & Jung §4.2 by default, in both graph kinds: no bridges, ρ by the experiment,
+    and every link (and no other pair) passes the ρ rule, checked pair by pair against a
+    direct numpy walk of the shortest paths — on every level, the one where every frame
+    is a centre included (the k-d tree test of its steps); the conservative near test
+    (levels above EXACT_CENTRES) keeps only pairs that pass."""
+    X, paths, h = both
+    sw = h.link_sweep
+    scale = fx.navigation.choose_link_scale(sw)
+    assert sw.levels.tolist() == [0, 1, 2, 3]  # every FCM level (the finest has no choice)
     for lv in h.levels:
-        assert not lv.bridges.any()
-        if lv.n_clusters <= 64:
-            ref = _rule_links_reference(X, geo, lv.center_frames, lv.radius)
-            np.testing.assert_array_equal(lv.links, ref)
+        assert lv.n_bridges == 0
+        assert lv.radius == pytest.approx(fx.default_link_radius(X[lv.center_frames], scale))
+        ref = _rule_links_reference(X, paths, lv.center_frames, lv.radius)
+        np.testing.assert_array_equal(lv.links.toarray(), ref)
     lv = h.levels[3]
-    near, _ = fx.center_links(X, geo, lv.center_frames, lv.radius, exact=False)
-    assert not (near & ~lv.links).any()  # a subset of the rule's links
+    near, _ = fx.center_links(X, paths, lv.center_frames, lv.radius, exact=False)
+    assert (near.toarray() <= lv.links.toarray()).all()  # a subset of the rule's links
+
+
+def test_options_are_solver_objects_and_old_keywords_map_onto_them(space):
+    """Options sit on `FuzzyCMeans` / `TruncatedFuzzyCMeans` / `LinkRule`; the old
+    keywords map onto them for either graph kind (none refused by branch)."""
+    X, W, geo, _ = space
+    g = fx.expression.graph_from_dense(W)
+    nav = fx.navigation
+    new = fx.build_hierarchy(X, g, c0=8, levels=2, finest=False,
+                             fcm=nav.TruncatedFuzzyCMeans(nearest=4, max_steps=500),
+                             links=nav.LinkRule(rho=0.5))  # fmt: skip
+    old = fx.build_hierarchy(X, g, c0=8, levels=2, finest=False, nearest=4, max_steps=500,
+                             rho_scale=0.5)  # fmt: skip
+    dense_kw = fx.build_hierarchy(X, geo, c0=8, levels=2, finest=False, nearest=4,
+                                  max_steps=500, rho_scale=0.5)  # fmt: skip
+    assert new.sizes == old.sizes == dense_kw.sizes == (8, 16)
+    for a, b, c in zip(new.levels, old.levels, dense_kw.levels, strict=True):
+        np.testing.assert_array_equal(a.centers, b.centers)
+        assert (a.links != b.links).nnz == 0 and (a.links != c.links).nnz == 0
+    assert new.link_sweep is None and nav.is_sparse(new) and not nav.is_sparse(space[3])
+    with pytest.raises(fx.FxspaceError, match="unknown option"):
+        fx.build_hierarchy(X, g, c0=8, levels=1, rho=0.5)
 
 
 def test_hierarchy_rho_by_experiment_and_bridges_option(space):
@@ -270,30 +316,32 @@ def test_hierarchy_rho_by_experiment_and_bridges_option(space):
     rule; ``bridges=True`` joins the pieces a level is left in, with links outside it."""
     X, _, geo, h = space
     sw = h.link_sweep
-    assert sw is not None and sw.levels.tolist() == [0, 1, 2, 3, 4]
+    assert sw is not None and sw.levels.tolist() == [0, 1, 2, 3]
     chosen = fx.navigation.choose_link_scale(sw)
     assert np.all(sw.coverage[:, list(sw.scales).index(chosen)] == 1.0)
     for lv in h.levels:
         rho = fx.default_link_radius(X[lv.center_frames], chosen)
         assert lv.radius == pytest.approx(rho)
         L, B = fx.center_links(X, geo, lv.center_frames, rho)
-        np.testing.assert_array_equal(lv.links, L)
-        assert not lv.bridges.any() and not B.any()
+        assert (lv.links != L).nnz == 0 and not lv.bridges.nnz and not B.nnz
     # relink: the same centres, links at another ρ; bridges join what falls apart
     wide = fx.navigation.relink(h, geo, 3.0, bridges=True)
     for a, b in zip(h.levels, wide.levels, strict=True):
         np.testing.assert_array_equal(a.center_frames, b.center_frames)
         assert b.radius == pytest.approx(fx.default_link_radius(X[b.center_frames], 3.0))
         L, _ = fx.center_links(X, geo, b.center_frames, b.radius, bridge=False)
-        np.testing.assert_array_equal(b.links & ~b.bridges, L)
+        np.testing.assert_array_equal(b.links.toarray() & ~b.bridges.toarray(), L.toarray())
         assert fx.link_graph_connected(b)
-    assert sum(int(lv.bridges.sum()) for lv in wide.levels) > 0
+    assert sum(lv.n_bridges for lv in wide.levels) > 0
     rule = fx.navigation.relink(h, geo, 3.0)
-    assert not any(lv.bridges.any() for lv in rule.levels)
+    assert not any(lv.n_bridges for lv in rule.levels)
     assert not all(fx.link_graph_connected(lv) for lv in rule.levels)
     # the sweep travels with the stored hierarchy
     back = fx.navigation.hierarchy_from_arrays(fx.navigation.hierarchy_to_arrays(h))
     for f in sw._fields:
         np.testing.assert_array_equal(getattr(back.link_sweep, f), getattr(sw, f))
+    for a, b in zip(h.levels, back.levels, strict=True):
+        assert (a.links != b.links).nnz == 0 and b.result == a.result
+        np.testing.assert_allclose(b.lengths.toarray(), a.lengths.toarray())
     with pytest.raises(fx.FxspaceError, match="rho_scale"):
         fx.build_hierarchy(X, geo, c0=8, rho_scale="paper")

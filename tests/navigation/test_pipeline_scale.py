@@ -1,5 +1,7 @@
-"""The navigation pipeline at scale (issue 24): sparse end to end, down to every frame;
-cached stages and resume (Pipeline protocol); the navigator reads the run."""
+"""The navigation pipeline on the k-NN graph (issues 24, 45): ``navigation_scale`` is the
+navigation pipeline with scale defaults; down to every frame, the paper's links (no
+bridges, ρ by its experiment), every level's FCM at its fixed point; cached stages and
+resume."""
 
 import json
 
@@ -38,18 +40,21 @@ def test_route_refined_to_every_frame_is_a_graph_walk(tmp_path):
     (d,) = run_dict(SMALL, tmp_path / "run")
     m = _metrics(d)
     assert m["frames"] == 1500 and m["centres_per_level"] == [6, 12, 24, 1500]
-    assert m["path_is_graph_walk"] and m["path_length_frames"] >= 2
-    assert all(n >= c - 1 for n, c in zip(m["links_per_level"], m["centres_per_level"],
-                                          strict=True))  # fmt: skip
-    assert 0.5 < m["r_landmark"] <= 1.0
+    assert m["graph_kind"] == "knn" and m["path_is_graph_walk"] and m["path_length_frames"] >= 2
+    # the paper at this size too: no bridges, ρ by the experiment, every level converged
+    assert m["links_bridged"] == 0 and m["rho_experiment"]["chosen_scale"] > 0
+    assert m["levels_converged"] == "4/4" and m["fcm_not_converged"] == []
+    # the pieces the rule leaves each level in are counted (the route keeps to one)
+    assert all(lv["link_pieces"] >= 1 and lv["bridges"] == 0 for lv in m["levels"])
+    assert 0.5 < m["r"] <= 1.0
     routes = json.loads((d / "routes.json").read_text())
     assert [r["level"] for r in routes] == [0, 1, 2, 3]
     # the finest route's frames are the run's: consecutive frames joined by graph edges
     from fxspace.datasets import FaceData, load_face
 
-    ss = nsc.load_scale_space(nsc.Config(), load_face(FaceData(**SMALL["data"]), 0).positions,
-                              d, 0)  # fmt: skip
-    W = fx.expression.to_scipy(ss.graph)
+    ss = nsc.load_space(nsc.Config(), load_face(FaceData(**SMALL["data"]), 0).positions,
+                        d, 0)  # fmt: skip
+    W = fx.expression.to_scipy(ss.paths)
     fr = np.asarray(routes[-1]["frames"])
     assert np.all(np.asarray(W[fr[:-1], fr[1:]]).ravel() > 0)
 
@@ -58,21 +63,23 @@ def test_route_refined_to_every_frame_is_a_graph_walk(tmp_path):
 def test_interrupted_after_the_space_resumes(tmp_path, monkeypatch):
     """Interrupt after the first stage (the graph and the embedding), rerun: identical
     metrics and the space not recomputed."""
-    assert nsc.STAGES == ("space", "hierarchy")
+    import fxspace.pipelines.navigation as nav
+
+    assert {"space", "hierarchy"} <= set(nsc.STAGES)
     (ref,) = run_dict(SMALL, tmp_path / "ref")
     calls = []
-    real_space = nsc._space
-    monkeypatch.setattr(nsc, "_space", lambda *a: calls.append(1) or real_space(*a))
-    real_h = nsc.build_hierarchy
+    real_space = nav._knn_space
+    monkeypatch.setattr(nav, "_knn_space", lambda *a: calls.append(1) or real_space(*a))
+    real_h = nav.build_hierarchy
 
     def interrupt(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(nsc, "build_hierarchy", interrupt)
+    monkeypatch.setattr(nav, "build_hierarchy", interrupt)
     with pytest.raises(KeyboardInterrupt):
         run_dict(SMALL, tmp_path / "a")
     assert (tmp_path / "a" / "cache" / "space.npz").is_file() and len(calls) == 1
-    monkeypatch.setattr(nsc, "build_hierarchy", real_h)
+    monkeypatch.setattr(nav, "build_hierarchy", real_h)
     (d,) = run_dict(SMALL, tmp_path / "a")
     assert len(calls) == 1  # the space came from the cache
     assert _metrics(d) == _metrics(ref)
@@ -82,7 +89,8 @@ def test_config_validate_names_the_key():
     for bad, key in [
         (nsc.GraphConfig(k=1), "graph.k"),
         (nsc.GraphConfig(landmarks=2), "graph.landmarks"),
-        (nsc.HierarchyConfig(c0=1), "c0"),
+        (nsc.HierarchyConfig(c0=0), "c0"),
+        (nsc.GraphConfig(kind="dense"), "graph.kind"),
         (nsc.NavConfig(fps=0.0), "fps"),
         (nsc.NavConfig(num_keys=1), "num_keys"),
     ]:
@@ -109,3 +117,9 @@ def test_shipped_config_is_valid():
     cfg = config_from_dict(nsc.Config, body)
     cfg.validate()
     assert cfg.data.synthetic_frames == 100_000 and cfg.hierarchy.finest
+    assert cfg.graph.kind == "knn" and cfg.hierarchy.levels == 5
+    # the same pipeline object serves both names: one Config, one space record
+    import fxspace.pipelines.navigation as nav
+
+    assert issubclass(nsc.Config, nav.Config) and nsc.run is nav.run
+    assert nsc.load_space is nav.load_space

@@ -37,7 +37,7 @@ def test_controller_pick_refine_play(data):
     assert not ctl.pick(c) and "not linked" in ctl.message
     st = ctl.status()
     assert st["keys"] == [a, b] and f"Key centres: {a} → {b}" in status_text(st)
-    assert st["bridges"] == int(data.hierarchy.levels[0].bridges.sum() // 2)
+    assert st["bridges"] == data.hierarchy.levels[0].n_bridges == 0
     ctl.refine()
     assert ctl.level == 1 and ctl.route.level == 1
     f0 = ctl.selected_frame
@@ -201,6 +201,9 @@ def _many_frames(T=30_000, c=8, seed=0):
     """A large 2-D embedding (a dense blob plus a uniform spread) with a tiny hierarchy
     built directly: a level of ``c`` centres on a ring of links and a finest level of
     every frame (no memberships, no links), no geodesics."""
+    from scipy.sparse import csr_array
+
+    from fxspace.cluster import FCMResult
     from fxspace.navigation import Hierarchy, Level
 
     rng = np.random.default_rng(seed)
@@ -209,11 +212,11 @@ def _many_frames(T=30_000, c=8, seed=0):
     links = np.zeros((c, c), bool)
     links[np.arange(c), (np.arange(c) + 1) % c] = True
     links |= links.T
-    mem = np.full((T, c), 1.0 / c)
-    lv = Level(c, xy[cf], mem, cf, 0.0, 0, fx.RESULTS.successful, links,
-               np.zeros_like(links), 1.0, {"init": "kmeans++"})  # fmt: skip
-    fine = lv._replace(n_clusters=T, centers=xy, memberships=np.zeros((0, 0)),
-                       center_frames=np.arange(T), links=None, bridges=None)  # fmt: skip
+    fit = FCMResult(xy[cf], np.full((T, c), 1.0 / c), 0.0, 0, fx.RESULTS.successful, {})
+    lv = Level(c, xy[cf], cf, fit, csr_array(links), csr_array((c, c), dtype=bool),
+               csr_array(links.astype(float)), 1.0, {"init": "kmeans++"})  # fmt: skip
+    fine = lv._replace(n_clusters=T, centers=xy, center_frames=np.arange(T), links=None,
+                       bridges=None, lengths=None)  # fmt: skip
     return NavData(Hierarchy((lv, fine), xy), None, np.zeros((T, 3, 3)))
 
 
@@ -549,9 +552,11 @@ def test_bridges_drawn_apart_from_links():
     class Lv:
         pass
 
+    from scipy.sparse import csr_array
+
     lv = Lv()
-    lv.links, lv.bridges = links, bridges
-    i, j = fx.navigation.link_pairs(links)
+    lv.links, lv.bridges = csr_array(links), csr_array(bridges)
+    i, j = fx.navigation.link_pairs(lv.links)
     cols = _link_colours(lv, i, j)
     assert [tuple(c[0]) for c in cols] == [LINK_RGB, BRIDGE_RGB, LINK_RGB]
     st = {"level": 0, "n_levels": 2, "n_clusters": 4, "bridges": 1, "keys": [],
@@ -561,3 +566,19 @@ def test_bridges_drawn_apart_from_links():
           "playing": False, "message": ""}  # fmt: skip
     assert "Bridges: 1 (orange" in status_text(st)
     assert "Bridges" not in status_text({**st, "bridges": 0})
+    assert "FCM" not in status_text({**st, "fcm": ""})
+
+
+def test_status_line_says_when_a_level_is_not_at_its_fixed_point(data):
+    """Issue 45: a level whose FCM stopped at its cap says so, with the reason, on the
+    status line; a level at its fixed point says nothing."""
+    from fxspace.studio._nav_controller import fcm_status
+
+    xy = data.hierarchy.embedding
+    capped = fx.build_hierarchy(xy, c0=8, levels=2, finest=False, max_steps=2).levels[1]
+    assert not capped.converged
+    note = fcm_status(capped)
+    assert "max_steps_reached after 2 iterations" in note and "raise max_steps" in note
+    assert fcm_status(data.hierarchy.levels[0]) == ""
+    st = NavigatorController(data).status()
+    assert st["fcm"] == "" and "FCM:" in status_text({**st, "fcm": note})

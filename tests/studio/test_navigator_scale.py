@@ -1,7 +1,8 @@
-"""The navigator on a sparse hierarchy (issue 24: navigation at scale): the controller
-makes, bridges, refines and plays routes on the frames' neighbourhood graph down to the
-level where every frame is a centre, with no dense geodesics; the page opens from
-``fxspace studio`` on a ``navigation_scale`` run and draws the sparse links."""
+"""The navigator on a k-NN run (issues 24, 45: navigation at scale): opened through the
+pipeline object like any navigation run, the controller makes, bridges, refines and
+plays routes on the frames' neighbourhood graph down to the level where every frame is a
+centre, with no dense geodesics; the page opens from ``fxspace studio`` on a
+``navigation_scale`` run and draws the links."""
 
 import json
 
@@ -35,13 +36,13 @@ def data(run_dir):
 
 
 def _walk(data, frames) -> bool:
-    W = fx.expression.to_scipy(data.graph)
+    W = fx.expression.to_scipy(data.paths)
     f = np.asarray(frames)
     return bool(np.all(f[1:] != f[:-1]) and np.all(np.asarray(W[f[:-1], f[1:]]).ravel() > 0))
 
 
 def test_run_folder_opens_sparse(data, run_dir):
-    assert data.sparse and data.geodesics is None
+    assert data.sparse and isinstance(data.paths, fx.expression.NeighbourGraph)
     assert [lv.n_clusters for lv in data.hierarchy.levels] == [6, 12, 24, 1500]
     assert all(hasattr(lv.links, "tocoo") for lv in data.hierarchy.levels)  # csr, not dense
     assert data.positions.shape == (1500, 24, 3)
@@ -54,6 +55,7 @@ def test_pick_bridge_refine_to_frames_play_and_export(data, tmp_path):
     a = 0
     b = int(lv.neighbours(a)[0])
     c = next(k for k in range(lv.n_clusters) if k not in (a, b) and not lv.links[b, k])
+    assert ctl.status()["fcm"] == ""  # every level at its fixed point: nothing to say
     assert ctl.pick(a) and ctl.pick(b)
     assert not ctl.pick(c) and "not linked" in ctl.message
     ctl.preview_centre(c)

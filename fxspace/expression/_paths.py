@@ -1,0 +1,213 @@
+"""The *paths* interface of a frame graph: what navigation asks of it (Kim & Jung §4).
+
+Two frame graphs implement it, as ott-jax's ``Geometry`` / ``PointCloud`` / ``Graph``
+share one interface:
+
+- `fxspace.expression.Geodesics` (dense: ``T × T`` distances and next hops, ~2 400
+  frames) answers from its matrices;
+- `fxspace.expression.NeighbourGraph` (sparse: ``T × K`` neighbours, 10⁵ frames and
+  more) answers with Dijkstra searches (scipy), bounded where a bound is known.
+
+The interface (`Paths`): `num_frames`; `path(i, j, limit)` the frames of a shortest
+path; `lengths(i, j)` the geodesic lengths of many pairs; `toward(targets)` the
+shortest-path trees into some frames (distances and next hops, ``(k, T)``); `steps()`
+the graph's edges that are themselves shortest paths. Navigation (`fxspace.navigation`)
+is written once against it.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from fxspace.errors import DisconnectedGraphError, FxspaceError
+
+__all__ = ["Paths"]
+
+
+@runtime_checkable
+class Paths(Protocol):
+    """What a frame graph answers for navigation (see the module docstring)."""
+
+    @property
+    def num_frames(self) -> int: ...
+
+    def path(self, i: int, j: int, limit: float | None = None) -> np.ndarray: ...
+
+    def lengths(self, i, j) -> np.ndarray: ...
+
+    def toward(self, targets) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def steps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def _pairs(i, j, n: int) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(i, np.int64).reshape(-1)
+    b = np.asarray(j, np.int64).reshape(-1)
+    if a.shape != b.shape:
+        raise FxspaceError(f"i and j must have the same length, got {len(a)} and {len(b)}")
+    for name, v in (("i", a), ("j", b)):
+        if v.size and (v.min() < 0 or v.max() >= n):
+            raise FxspaceError(f"{name} must index the graph's {n} frames")
+    return a, b
+
+
+def _targets(targets, n: int) -> np.ndarray:
+    t = np.asarray(targets, np.int64).reshape(-1)
+    if t.size and (t.min() < 0 or t.max() >= n):
+        raise FxspaceError(f"targets must index the graph's {n} frames")
+    return t
+
+
+# -- dense: Geodesics ------------------------------------------------------------------
+
+
+def geodesic_lengths(geo, i, j) -> np.ndarray:
+    D = np.asarray(geo.distances)
+    a, b = _pairs(i, j, D.shape[0])
+    return D[a, b].astype(np.float64)
+
+
+def geodesic_toward(geo, targets) -> tuple[np.ndarray, np.ndarray]:
+    D, nh = np.asarray(geo.distances), np.asarray(geo.next_hop)
+    t = _targets(targets, D.shape[0])
+    return np.ascontiguousarray(D[:, t].T, np.float64), np.ascontiguousarray(nh[:, t].T, np.int32)
+
+
+def geodesic_steps(geo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs i < j whose shortest path is the direct step (``next_hop[i, j] == j``)."""
+    D, nh = np.asarray(geo.distances), np.asarray(geo.next_hop)
+    i, j = np.nonzero(nh == np.arange(nh.shape[0])[None, :])
+    keep = i < j
+    i, j = i[keep].astype(np.int64), j[keep].astype(np.int64)
+    return i, j, D[i, j].astype(np.float64)
+
+
+# -- sparse: NeighbourGraph ------------------------------------------------------------
+
+
+def _csr(graph):
+    from fxspace.expression._sparse import dijkstra_csr
+
+    return dijkstra_csr(graph)
+
+
+def graph_toward(graph, targets, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    from scipy.sparse.csgraph import dijkstra
+
+    csr, directed = _csr(graph)
+    t = _targets(targets, csr.shape[0])
+    if not t.size:
+        return np.zeros((0, csr.shape[0])), np.zeros((0, csr.shape[0]), np.int32)
+    d, pred = dijkstra(csr, directed=directed, indices=t, return_predecessors=True, limit=limit)
+    # on a symmetric graph the predecessor of f on the path from t is f's next hop to t
+    hop = np.where(pred < 0, -1, pred).astype(np.int32)
+    hop[np.arange(len(t)), t] = t
+    return np.asarray(d, np.float64), hop
+
+
+def graph_lengths(graph, i, j, batch: int = 64) -> np.ndarray:
+    from scipy.sparse.csgraph import dijkstra
+
+    csr, directed = _csr(graph)
+    a, b = _pairs(i, j, csr.shape[0])
+    out = np.full(len(a), np.inf)
+    src, inv = np.unique(a, return_inverse=True)
+    for s in range(0, len(src), batch):
+        rows = src[s : s + batch]
+        sel = (inv >= s) & (inv < s + len(rows))
+        d = dijkstra(csr, directed=directed, indices=rows)
+        out[sel] = d[inv[sel] - s, b[sel]]
+    return out
+
+
+def graph_path(graph, i: int, j: int, limit: float | None = None) -> np.ndarray:
+    """Frames of a shortest path i → j; with ``limit`` (≥ its length) the search stops
+    there (a short link costs a small ball, not the whole graph)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    csr, directed = _csr(graph)
+    n = csr.shape[0]
+    for name, v in (("i", i), ("j", j)):
+        if not 0 <= int(v) < n:
+            raise FxspaceError(f"{name}={v} is out of range for a graph of {n} frames")
+    i, j = int(i), int(j)
+    if i == j:
+        return np.asarray([i], np.int64)
+    lim = np.inf if limit is None or not np.isfinite(limit) else limit * (1 + 1e-9) + 1e-12
+    d, pred = dijkstra(csr, directed=directed, indices=j, return_predecessors=True, limit=lim)
+    if not np.isfinite(d[i]):
+        if np.isfinite(lim):
+            return graph_path(graph, i, j)
+        raise DisconnectedGraphError(f"frame {j} is not reachable from frame {i}")
+    out = [i]
+    while out[-1] != j:  # the tree into j: each frame's predecessor is its next hop
+        out.append(int(pred[out[-1]]))
+    return np.asarray(out, np.int64)
+
+
+def graph_steps(graph, chunk: int = 8192) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges i < j of the graph that are shortest paths (no other path strictly shorter:
+    a search from i bounded by the edge's length, vectorised over the edges)."""
+    idx = np.asarray(graph.indices, np.int64)
+    w = np.asarray(graph.weights, np.float64)
+    T = idx.shape[0]
+    rows = np.repeat(np.arange(T), idx.shape[1])
+    cols, ww = idx.reshape(-1), w.reshape(-1)
+    up = np.isfinite(ww) & (rows < cols)
+    i, j, wt = rows[up], cols[up], ww[up]
+    key = i * T + j
+    key, first = np.unique(key, return_index=True)
+    i, j, wt = i[first], j[first], wt[first]
+    ok = _edges_are_shortest(idx, w, i, j, wt, chunk)
+    return i[ok], j[ok], wt[ok]
+
+
+def _edges_are_shortest(idx, w, pi, pj, pw, chunk: int) -> np.ndarray:
+    T = idx.shape[0]
+    step = max(1024, (1 << 21) // max(idx.shape[1], 1))
+    ok = np.ones(len(pi), bool)
+    for s in range(0, len(pi), chunk):
+        src, dst, bound = pi[s : s + chunk], pj[s : s + chunk], pw[s : s + chunk]
+        n = len(src)
+        blocked = np.zeros(n, bool)
+        fp, fn, fd = np.arange(n), src.copy(), np.zeros(n)
+        best_k, best_d = fp * T + fn, fd.copy()
+        while len(fp):
+            parts = []
+            for s2 in range(0, len(fp), step):  # ≤ step × K candidates in memory at once
+                qp, qn, qd = fp[s2 : s2 + step], fn[s2 : s2 + step], fd[s2 : s2 + step]
+                nb = idx[qn]
+                nd = qd[:, None] + w[qn]
+                keep = (nd < bound[qp][:, None]) & (nb != src[qp][:, None])
+                keep &= ~((qn == src[qp])[:, None] & (nb == dst[qp][:, None]))  # the edge
+                r, col = np.nonzero(keep)
+                parts.append((qp[r], nb[r, col], nd[r, col]))
+            p = np.concatenate([x[0] for x in parts])
+            node = np.concatenate([x[1] for x in parts])
+            dd = np.concatenate([x[2] for x in parts])
+            blocked[p[node == dst[p]]] = True
+            live = ~blocked[p]
+            p, node, dd = p[live], node[live], dd[live]
+            key = p.astype(np.int64) * T + node
+            order = np.lexsort((dd, key))
+            key, dd, p, node = key[order], dd[order], p[order], node[order]
+            first = np.ones(len(key), bool)
+            first[1:] = key[1:] != key[:-1]
+            key, dd, p, node = key[first], dd[first], p[first], node[first]
+            at = np.searchsorted(best_k, key)
+            atc = np.minimum(at, len(best_k) - 1)
+            seen = (at < len(best_k)) & (best_k[atc] == key)
+            better = ~seen | (dd < best_d[atc])
+            key, dd, p, node = key[better], dd[better], p[better], node[better]
+            upd = seen[better]
+            best_d[atc[better][upd]] = dd[upd]
+            if (~upd).any():
+                nk = np.concatenate([best_k, key[~upd]])
+                nd_ = np.concatenate([best_d, dd[~upd]])
+                o = np.argsort(nk, kind="stable")
+                best_k, best_d = nk[o], nd_[o]
+            fp, fn, fd = p, node, dd
+        ok[s : s + chunk] = ~blocked
+    return ok
