@@ -393,3 +393,28 @@ def test_weights_mae_on_60_random_face_vertices_is_at_the_noise_floor(ict):
         oracle.append(float(np.mean(np.abs(Wo - W))))
     print(f"weights MAE: ours {np.round(ours, 4)}, oracle at the true motion {np.round(oracle, 4)}")
     assert np.all(np.asarray(ours) <= np.asarray(oracle))
+
+
+@pytest.mark.slow  # compiles the solve under vmap and grad
+def test_numerical_solve_still_jits_vmaps_and_differentiates(setup):
+    """The quality judgement sits outside the jitted solve: `_solve` still runs under
+    jit, vmap (two takes at once equal two calls) and grad."""
+    import jax
+    import jax.numpy as jnp
+
+    from fxspace.face._solve import _solve
+
+    rig, ids, X, W, b = setup
+    B, A = jnp.asarray(b.points), jnp.asarray(b.basis)
+    Ys = jnp.stack([jnp.asarray(b.to_rig(X[:6])), jnp.asarray(b.to_rig(X[6:12]))])
+    v, w0 = jnp.ones(Ys.shape[1:3]), jnp.zeros((6, rig.num_shapes))
+
+    def f(Y):
+        return _solve(B, A, Y, v, 0.0, 1e-4, 1e-2, w0, True, 3, 10, True)
+
+    both = jax.vmap(f)(Ys)
+    for i in range(2):
+        np.testing.assert_allclose(np.asarray(both[0][i]), np.asarray(f(Ys[i])[0]), atol=1e-6)
+        assert np.asarray(both[6][i]).shape == (6,)  # steps to tolerance per frame
+    g = jax.grad(lambda Y: jnp.sum(f(Y)[0]))(Ys[0])
+    assert np.all(np.isfinite(np.asarray(g))) and float(jnp.abs(g).sum()) > 0
