@@ -14,6 +14,7 @@ from fxspace.io._c3d import write_c3d as write_c3d
 from fxspace.io._gltf import read_gltf as read_gltf
 from fxspace.io._gltf_write import ik_poses_to_local as ik_poses_to_local
 from fxspace.io._gltf_write import write_gltf as write_gltf
+from fxspace.io._gltf_write import write_gltf_animation as write_gltf_animation
 from fxspace.io._gltf_write import write_ik_gltf as write_ik_gltf
 from fxspace.io._ik_bvh import ik_poses_to_motion as ik_poses_to_motion
 from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
@@ -51,6 +52,7 @@ __all__ = [
     "ik_poses_to_local",
     "write_gltf",
     "write_ik_gltf",
+    "write_gltf_animation",
     "ik_poses_to_motion",
     "write_ik_bvh",
     "SUPPORTED_EXTENSIONS",

@@ -51,7 +51,7 @@ from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, q
 if TYPE_CHECKING:  # pragma: no cover
     from fxspace.mesh import SkinnedMesh
 
-__all__ = ["ik_poses_to_local", "write_gltf", "write_ik_gltf"]
+__all__ = ["ik_poses_to_local", "write_gltf", "write_ik_gltf", "write_gltf_animation"]
 
 _FLOAT, _U16, _U32 = 5126, 5123, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -473,3 +473,38 @@ def write_ik_gltf(
     **Returns:** the path written (atomically).
     """
     return write_gltf(path, mesh, ik_poses_to_local(mesh, angles, translation), rate=rate)
+
+
+def write_gltf_animation(
+    path: str | Path,
+    mesh: SkinnedMesh,
+    retargeted,
+    *,
+    rate: float | None = None,
+    animation: str = "retargeted",
+) -> Path:
+    """Write a retargeted take (or any per-frame IK poses) on ``mesh`` as an animated
+    glTF an animator opens (Blender, three.js): the character's mesh and skin plus one
+    animation with every joint's rotation and the root's translation per frame.
+
+    **Arguments:** `path` (``.glb``/``.gltf``); `mesh`: the character the poses belong to;
+    `retargeted`: a `fxspace.mesh.Retargeted` record (its ``.pose`` and ``.rate`` are
+    used), or a `fxspace.Pose` with a leading frame axis; `rate`: frames per second
+    (default: the record's, else 30); `animation`: the animation's name.
+
+    Non-finite frames (a source frame with NaN) are refused, naming the first.
+
+    **Returns:** the path written (atomically). Read it back with `fxspace.io.read_gltf`
+    and pose it with `fxspace.mesh.animation_vertices`.
+    """
+    pose = getattr(retargeted, "pose", retargeted)
+    if not (hasattr(pose, "angles") and hasattr(pose, "translation")):
+        raise FxspaceError(
+            "retargeted must be a fx.mesh.retarget(...) record or a Pose (angles (T, J, 3), "
+            f"translation (T, 3)), got {type(retargeted).__name__}"
+        )
+    r = rate if rate is not None else getattr(retargeted, "rate", None) or 30.0
+    if not (isinstance(r, int | float) and math.isfinite(r) and r > 0):
+        raise FxspaceError(f"rate must be a positive number of frames per second, got {r!r}")
+    local = ik_poses_to_local(mesh, pose.angles, pose.translation)
+    return write_gltf(path, mesh, local, rate=float(r), animation=animation)
