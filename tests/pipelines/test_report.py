@@ -74,10 +74,10 @@ def drawn(monkeypatch):
     return got
 
 
-def _header_and_rows(printed: str) -> tuple[str, list[str]]:
+def _header_and_rows(printed: str, n: int = 6) -> tuple[str, list[str]]:
     lines = printed.splitlines()
     rule = next(i for i, ln in enumerate(lines) if set(ln.replace(" ", "")) == {"-"})
-    return "\n".join(lines[:rule]), lines[rule + 1 : rule + 7]
+    return "\n".join(lines[:rule]), lines[rule + 1 : rule + 1 + n]
 
 
 def test_table_shows_swept_keys_then_only_differing_metrics_with_units(sweep, drawn, capsys):
@@ -210,9 +210,11 @@ def test_report_of_the_example_sweep(tmp_path, capsys):
     sweep_config(cfg, tmp_path / "o", engine="serial")
     capsys.readouterr()
     rows, folder = runs.write_report(tmp_path / "o")
-    head, body = _header_and_rows(capsys.readouterr().out)
+    printed = capsys.readouterr().out
+    head, body = _header_and_rows(printed, 4)
     assert head.splitlines()[-2].split()[:2] == ["dim", "num_thresholds"]
-    assert "[mm]" in head and "timings" not in head and len(body) == 4
+    assert "[mm]" in head and "timings" not in head and "same in all 4 runs" in printed
+    assert [ln.split()[:2] for ln in body] == [["2", "3"], ["2", "5"], ["3", "3"], ["3", "5"]]
     assert 1 <= len(list(folder.glob("*.png"))) <= 12
 
 
