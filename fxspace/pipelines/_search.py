@@ -374,7 +374,8 @@ def _recover(study, storage, out: Path, retry_failed: bool) -> tuple[int, list[s
             why = _stale(t, out)
             if why is not None:
                 _fail(study, storage, t, why)
-                notes.append(f"{_slot_name(_slot(t) or t.number)}: {why}; queued again")
+                k = _slot(t)
+                notes.append(f"{_slot_name(t.number if k is None else k)}: {why}; queued again")
                 if not retry_failed:
                     _queue_retry(study, t)
                     queued += 1
@@ -632,10 +633,13 @@ def _next_trial(study, storage, search: dict, space: dict, out: Path, worker: in
                 trial.set_user_attr(_SKIP, "not needed: the study holds its trials")
                 study.tell(trial, state=TrialState.FAIL)
                 continue
-            taken = {_params_key(t.params): s for s, t in latest.items()}
+            taken = {_params_key(t.params): _slot_name(s) for s, t in latest.items()}
+            taken |= {_params_key(_queued_params(t)): "a queued configuration" for t in trials
+                      if t.state == TrialState.WAITING and _SLOT not in t.user_attrs
+                      and t.number != trial.number}  # fmt: skip
             twin = taken.get(_params_key(trial.params))
             if twin is not None:
-                trial.set_user_attr(_SKIP, f"a repeat of {_slot_name(twin)}")
+                trial.set_user_attr(_SKIP, f"a repeat of {twin}")
                 study.tell(trial, state=TrialState.FAIL)
                 rng = random.Random(int(search["seed"]) * 1_000_003 + len(trials) + worker)
                 new = _untried(space, set(taken), rng)
@@ -726,6 +730,8 @@ def search_worker(config: str, out: str, worker: int = 0, force: bool = False,
     if why == "exhausted":
         print(f"[search] worker {worker}: every configuration of [search.space] has been "
               "tried; the search ends here", flush=True)  # fmt: skip
+    elif why != "done":
+        print(f"[search] worker {worker} stops: {why}", flush=True)
     failed = [t for t in done if t["status"] == "failed"]
     return {"run_dir": f"{out}#worker{worker}", "name": f"search worker {worker}",
             "status": "failed" if failed else "complete",

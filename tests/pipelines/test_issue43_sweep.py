@@ -429,3 +429,15 @@ def test_two_sweep_processes_on_one_search_draw_different_configurations(tmp_pat
     for k in range(8):
         c = (out / f"trial_{k:04d}" / "config.toml").read_text()
         assert f"x = {res[k]['params']['x']}" in c
+
+
+def test_a_used_up_space_ends_the_search_saying_so(tmp_path, toy, capsys):
+    p = tmp_path / "tiny.toml"
+    p.write_text(f'experiment = "{toy}"\n[search]\nmethod = "tpe"\ntrials = 4\n'
+                 'metric = "score"\ndirection = "maximize"\n'
+                 '[search.space]\ny = ["a", "b"]\n')  # fmt: skip
+    res = sweep_config(p, tmp_path / "o", engine="serial")
+    got = capsys.readouterr().out
+    assert sorted(r["params"]["y"] for r in res) == ["a", "b"]  # each point once, no repeat
+    assert "every configuration of [search.space] has been tried" in got
+    assert "2 complete, 0 failed, 2 never drawn of 4 trials" in got

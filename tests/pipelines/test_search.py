@@ -153,7 +153,8 @@ def test_search_example_with_two_workers(tmp_path):
     r = subprocess.run(
         [sys.executable, "-m", "fxspace.cli", "sweep",
          str(ROOT / "configs" / "search_example.toml"), "--workers", "2", "--out", str(out)],
-        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=900,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "FXSPACE_QUIET": "0"}, capture_output=True,
+        text=True, timeout=900,
     )  # fmt: skip
     log = r.stdout + r.stderr
     assert r.returncode == 0, log[-3000:]
