@@ -84,9 +84,11 @@ from fxspace.mesh._markers import triangle_normals as triangle_normals
 from fxspace.mesh._markers import visible_triangles as visible_triangles
 from fxspace.mesh._procedural import chain_mesh as chain_mesh
 from fxspace.mesh._procedural import subdivide_mesh as subdivide_mesh
+from fxspace.mesh._retarget import LiveRetarget as LiveRetarget
 from fxspace.mesh._retarget import Retargeted as Retargeted
 from fxspace.mesh._retarget import RetargetError as RetargetError
 from fxspace.mesh._retarget import joint_positions as joint_positions
+from fxspace.mesh._retarget import live_retarget as live_retarget
 from fxspace.mesh._retarget import retarget as retarget
 from fxspace.mesh._skinning import Pose as Pose
 from fxspace.mesh._skinning import SkinTables as SkinTables
@@ -167,6 +169,8 @@ __all__ = [
     "RetargetError",
     "retarget",
     "joint_positions",
+    "LiveRetarget",
+    "live_retarget",
     "Pose",
     "SkinTables",
     "skin_tables",

@@ -110,3 +110,18 @@ def test_real_walk_onto_cesium_man(data_dir, take):
     assert s["joint_error_median"] < 0.06 and s["joint_error_median"] < c["joint_error_median"]
     assert r.contacts.any()
     assert s["foot_slide_mean"] <= s["source_foot_slide_mean"] * 1.05
+
+
+def test_live_retarget_follows_its_own_skeleton_frame_by_frame(rng):
+    mesh = branching_mesh(3)
+    angles, trans = _walk(rng, mesh.num_joints, 10)
+    motion = _own_motion(mesh, angles, trans)
+    lr = fx.mesh.live_retarget(motion, mesh)
+    x = fx.motion.forward_kinematics(motion)
+    assert lr.scale == pytest.approx(1.0, rel=1e-9)
+    for t in range(10):
+        pose, v = lr.step(np.asarray(x[t]))
+        xj = fx.mesh.joint_positions(mesh, pose)
+        tgt = lr.targets(np.asarray(x[t]))
+        np.testing.assert_allclose(xj, tgt, atol=1e-3 * lr.height)
+        assert v.shape == (mesh.num_vertices, 3)
