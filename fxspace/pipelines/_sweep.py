@@ -24,14 +24,12 @@ of the config's order, so each compiles its shapes once.
 
 from __future__ import annotations
 
-import io
 import os
 import re
-import sys
 import threading
 import time
 import traceback
-from contextlib import contextmanager, redirect_stderr, redirect_stdout
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -74,57 +72,6 @@ class SchedulerError(FxspaceError, ConnectionError):
 # ------------------------------------------------------------------ worker side
 
 
-class _Prefixed(io.TextIOBase):
-    """A text stream that writes each whole line to ``stream`` behind ``prefix``; a line
-    redrawn with ``\r`` (a progress bar) keeps only its last state, a blank one is
-    dropped, so N workers' bars never interleave into garbage."""
-
-    def __init__(self, stream: Any, prefix: str) -> None:
-        self._stream, self._prefix, self._buf = stream, prefix, ""
-
-    def writable(self) -> bool:
-        return True
-
-    def write(self, s: str) -> int:
-        self._buf += s
-        *lines, rest = self._buf.split("\n")
-        self._buf = rest.rsplit("\r", 1)[-1]
-        lines = [ln.rsplit("\r", 1)[-1] for ln in lines]
-        for ln in lines:
-            if ln.strip():
-                self._stream.write(f"{self._prefix}{ln}\n")
-        if lines:
-            self._stream.flush()
-        return len(s)
-
-    def flush(self) -> None:
-        self._stream.flush()
-
-    def finish(self) -> None:
-        if self._buf.strip():
-            self._stream.write(f"{self._prefix}{self._buf}\n")
-            self._buf = ""
-        self._stream.flush()
-
-
-@contextmanager
-def named_output(name: str | None):
-    """Within this block, every line printed to stdout or stderr starts with ``[name]``
-    (a worker's lines among other workers'; progress bars reduced to nothing, the
-    sweep's own progress lines say how far it is); ``None``: unchanged."""
-    if name is None:
-        yield
-        return
-    out = _Prefixed(sys.stdout, f"[{name}] ")
-    err = _Prefixed(sys.stderr, f"[{name}] ")
-    try:
-        with redirect_stdout(out), redirect_stderr(err):
-            yield
-    finally:
-        out.finish()
-        err.finish()
-
-
 def _run_waiting(entry: Any, experiment: str, force: bool, lock_wait: float | None,
                  defer: bool) -> str:  # fmt: skip
     """Run ``entry`` under its folder's lock; a lock another process holds is reported
@@ -165,6 +112,7 @@ def _task(config: str, out: str, run_dir: str, force: bool, lock_wait: float | N
 
     from fxspace.config import load_toml
     from fxspace.pipelines import _plan
+    from fxspace.pipelines._search import named_output
 
     name = Path(run_dir).name or run_dir
     try:
