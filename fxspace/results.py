@@ -84,15 +84,45 @@ class RESULTS(eqx.Enumeration):
     )
 
 
-def result_message(result: Any) -> str:
-    """The message of a concrete scalar result (``""`` for ``successful``); same as
-    ``RESULTS[result]``."""
-    return RESULTS[result]
+class _ResultItem(type(RESULTS.successful)):  # type: ignore[misc]
+    """A `RESULTS` member that prints as one: ``RESULTS.successful``, or for a batch the
+    count of each member (``RESULTS[successful ×98, max_steps_reached ×2]``); ``str``
+    adds the message of a scalar failure. Only printing differs from equinox's item
+    (same fields, so the same pytree leaves under jit/vmap)."""
+
+    def _names(self) -> list[str] | None:
+        (leaf,) = jax.tree_util.tree_leaves(self)
+        if isinstance(leaf, jax.core.Tracer):
+            return None
+        names = {member_code(getattr(RESULTS, n)): n for n in _MEMBERS}
+        return [names.get(int(c), f"code {int(c)}") for c in np.asarray(leaf).reshape(-1)]
+
+    def _scalar(self) -> bool:
+        (leaf,) = jax.tree_util.tree_leaves(self)
+        return np.ndim(leaf) == 0
+
+    def __repr__(self) -> str:
+        names = self._names()
+        if names is None:
+            return "RESULTS<traced>"
+        if self._scalar():
+            return f"RESULTS.{names[0]}"
+        counts = {n: names.count(n) for n in dict.fromkeys(names)}
+        return "RESULTS[" + ", ".join(f"{n} ×{c}" for n, c in counts.items()) + "]"
+
+    def __str__(self) -> str:
+        names = self._names()
+        if names is None or not self._scalar() or names[0] == "successful":
+            return repr(self)
+        return f"{repr(self)}: {RESULTS[self]}"
 
 
-def is_successful(result: Any) -> jax.Array:
-    """``result == RESULTS.successful`` as a boolean array (works under jit/vmap)."""
-    return result == RESULTS.successful
+def _readable(item: Any) -> Any:
+    """``item`` (a `RESULTS` member, any shape) as a `_ResultItem`."""
+    if isinstance(item, _ResultItem):
+        return item
+    (leaf,) = jax.tree_util.tree_leaves(item)
+    return _ResultItem(leaf, RESULTS)
 
 
 _MEMBERS = (
@@ -104,6 +134,23 @@ _MEMBERS = (
     "disconnected",
     "poor_fit",
 )
+# the members, and every member `RESULTS.where` builds, print readably (`_ResultItem`)
+_where = RESULTS.where
+for _n in _MEMBERS:
+    RESULTS._name_to_item[_n] = _readable(RESULTS._name_to_item[_n])
+RESULTS.where = classmethod(lambda cls, pred, a, b: _readable(_where(pred, a, b)))
+del _n
+
+
+def result_message(result: Any) -> str:
+    """The message of a concrete scalar result (``""`` for ``successful``); same as
+    ``RESULTS[result]``."""
+    return RESULTS[result]
+
+
+def is_successful(result: Any) -> jax.Array:
+    """``result == RESULTS.successful`` as a boolean array (works under jit/vmap)."""
+    return result == RESULTS.successful
 
 
 def result_code(result: Any) -> jax.Array:
