@@ -37,8 +37,9 @@ def plot_sweep(
     th = np.asarray(thresholds, float)
     r = np.asarray(scores, float)
     conn = np.asarray(connected, bool)
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    ax.plot(th[conn], r[conn], "o-", color="C0", label="Pearson r (connected)")
+    fig, ax = plt.subplots(figsize=(7.0, 5.6), layout="constrained")
+    # data on top (z 4), the paper's star above everything (z 6), criteria under the data
+    ax.plot(th[conn], r[conn], "o-", color="C0", zorder=4, label="Pearson r (connected)")
     if (~conn).any():
         ax.plot(
             th[~conn],
@@ -47,10 +48,9 @@ def plot_sweep(
             color="C3",
             transform=ax.get_xaxis_transform(),  # x in data, y in axes fraction
             clip_on=False,
+            zorder=4,
             label="disconnected ε (r undefined)",
         )
-    if connecting is not None:
-        ax.axvline(connecting, color="0.5", ls=":", label=f"connecting ε = {connecting:.4g}")
     groups: dict[float, list[str]] = {}
     for name, t in (marks or {}).items():
         key = next((g for g in groups if np.isclose(g, t, rtol=1e-9, atol=0.0)), float(t))
@@ -58,40 +58,77 @@ def plot_sweep(
     styles = ("--", "-.", (0, (1, 1)), (0, (5, 1, 1, 1)))
     for k, (t, names) in enumerate(groups.items()):
         bold = chosen is not None and chosen in names
+        same = connecting is not None and np.isclose(t, connecting, rtol=1e-6, atol=0.0)
         ax.axvline(
             t,
             color=f"C{k + 1}",
             ls=styles[k % len(styles)],
-            lw=(2.6 if bold else 1.2) + 0.8 * (len(names) - 1),
-            label=f"{' = '.join(names)}: ε = {t:.4g}" + (" (chosen)" if bold else ""),
+            lw=(2.6 if bold else 1.4) + 0.8 * (len(names) - 1),
+            zorder=2,
+            label=f"{' = '.join(names)}: ε = {t:.4g}"
+            + (" (chosen)" if bold else "")
+            + (" = connecting ε" if same else ""),
         )
+    if connecting is not None:
+        # the connecting ε as the edge of a shaded band (no ε left of it connects the
+        # graph) and a thin line drawn above the criteria's lines, so one that picks the
+        # same ε cannot hide it
+        if th.size and th.min() < connecting:
+            ax.axvspan(th.min() / 1.1, connecting, color="0.9", zorder=0,
+                       label="below the connecting ε: graph disconnected")  # fmt: skip
+        ax.plot([connecting, connecting], [0.0, 1.0], color="k", ls=":", lw=1.2, marker="v",
+                markevery=[1], ms=8, transform=ax.get_xaxis_transform(), clip_on=False,
+                zorder=5, label=f"connecting ε = {connecting:.4g} (▼)")  # fmt: skip
     if largest is not None:
-        ax.axvline(largest, color="0.2", ls="-", lw=0.8, label=f"largest distance {largest:.4g}")
+        ax.axvline(largest, color="0.2", ls="-", lw=0.8, zorder=2,
+                   label=f"largest distance {largest:.4g}")  # fmt: skip
+    if reference is not None:
+        ax.axhline(reference[0], color="0.3", lw=0.8, ls="-.", zorder=1, label=reference[1])
     if paper_point is not None:
         ax.plot(
             *paper_point,
             "*",
             color="k",
-            ms=9,
+            mec="w",
+            ms=13,
+            zorder=6,
+            clip_on=False,
             label=f"paper: ε = {paper_point[0]:g} {units}, r = {paper_point[1]:.4f}",
         )
-    if reference is not None:
-        ax.axhline(reference[0], color="0.3", lw=0.8, ls="-.", label=reference[1])
     ax.set_xscale("log")
+    ends = [v for v in (*th[np.isfinite(th) & (th > 0)], connecting, largest) if v]
+    if ends:  # a margin, so a line at either end is not drawn on the frame
+        ax.set_xlim(min(ends) / 1.1, max(ends) * 1.1)
+    _plain_log_ticks(ax.xaxis)
     ax.set_xlabel(f"threshold ε ({units}: distance between marker-distance matrices)")
     ax.set_ylabel("Pearson r (geodesic vs 2-D distance)")
     if mean_degree is not None:
         ax2 = ax.twinx()
-        ax2.plot(th, np.asarray(mean_degree), color="0.7", lw=1)
-        ax2.set_ylabel("mean degree", color="0.5")
+        ax2.plot(th, np.asarray(mean_degree), color="0.6", lw=1, zorder=1)
+        ax2.set_ylabel("mean degree (grey line)", color="0.4")
         ax2.set_yscale("log")
-    ax.legend(fontsize=7, loc="lower right")
+        _plain_log_ticks(ax2.yaxis)
+        ax2.tick_params(axis="y", colors="0.4")
+        ax.set_zorder(ax2.get_zorder() + 1)  # r, the criteria and the star above the grey line
+        ax.patch.set_visible(False)
+    # the legend under the axes: it covers no point, the paper's star included
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2,
+              frameon=False)  # fmt: skip
     title = "Threshold sweep"
     if chosen is not None and chosen in (marks or {}):
         title += f": ε = {marks[chosen]:.4g} chosen by {chosen}"  # type: ignore[index]
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
     return fig
+
+
+def _plain_log_ticks(axis) -> None:
+    """Ticks of a log axis as plain numbers at 1, 2 and 5 × 10ᵏ (no crowded "3×10²4×10²"
+    minor labels)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
 
 
 def plot_embedding(

@@ -32,7 +32,7 @@ __all__ = [
 
 
 def _links_segments(xy_c: np.ndarray, links) -> np.ndarray:
-    """Segments of a level's links (a ``csr_array``)."""
+    """Segments of the links (dense ``(c, c)`` or a sparse level's ``csr_array``)."""
     from fxspace.navigation import link_pairs
 
     i, j = link_pairs(links)
@@ -57,9 +57,8 @@ def _draw_level(
     if show_links and lv.links is not None and lv.n_clusters <= 400:
         bridges = getattr(lv, "bridges", None)
         plain = lv.links
-        if bridges is not None and bridges.nnz:
-            plain = lv.links.astype(np.int8) - bridges.astype(np.int8)
-            plain.eliminate_zeros()
+        if bridges is not None and not hasattr(bridges, "tocsr") and np.any(bridges):
+            plain = np.asarray(lv.links, bool) & ~np.asarray(bridges, bool)
             ax.add_collection(LineCollection(
                 _links_segments(c, bridges), colors="tab:orange", linewidths=1.0,
                 alpha=0.9, zorder=2,
@@ -72,7 +71,7 @@ def _draw_level(
                     colors="tab:blue",
                     linestyles="dashed",
                     linewidths=0.6,
-                    alpha=0.6,
+                    alpha=float(np.clip(12.0 / math.sqrt(len(segs)), 0.12, 0.6)),  # many: fainter
                     zorder=2,
                 )
             )
@@ -118,25 +117,47 @@ def plot_level(
 
 
 def plot_levels_grid(
-    hierarchy, routes: Sequence | None = None, ncols: int = 4, title: str | None = None
+    hierarchy,
+    routes: Sequence | None = None,
+    ncols: int = 3,
+    title: str | None = None,
+    *,
+    panel_width: float = 4.2,
+    fontsize: float = 14.0,
 ) -> Figure:
     """Every level in a grid; ``routes`` (e.g. from `fxspace.navigate`) are drawn on
-    their levels; `title` (e.g. the ε and the criterion that chose it) above them."""
+    their levels; `title` (e.g. the ε and the criterion that chose it) above them.
+
+    Made to be read on a page: ``ncols`` panels a row, each ``panel_width`` inches wide
+    and as tall as the embedding's extent needs (no empty bands around a flat space),
+    titles and legend at ``fontsize``; links drawn fainter as a level holds more of them.
+    """
     n = len(hierarchy.levels)
-    ncols = min(ncols, n)
+    ncols = max(1, min(ncols, n))
     nrows = math.ceil(n / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols, 3.3 * nrows), squeeze=False)
+    xy = np.asarray(hierarchy.embedding, float)
+    ext = np.ptp(xy, axis=0) if xy.size else np.ones(2)
+    aspect = float(np.clip(ext[1] / max(ext[0], 1e-12), 0.45, 1.0))
+    ph = panel_width * aspect + 0.5  # + the panel's title
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(panel_width * ncols, ph * nrows + 1.3 + (0.4 if title else 0)),
+        squeeze=False, layout="constrained",
+    )  # fmt: skip
     by_level = {r.level: r for r in (routes or ())}
+    bridged = False
     for k in range(nrows * ncols):
         ax = axes.flat[k]
         if k < n:
             _draw_level(ax, hierarchy, k, by_level.get(k), label_centres=False)
+            ax.title.set_fontsize(fontsize)
+            b = getattr(hierarchy.levels[k], "bridges", None)
+            bridged |= b is not None and bool(b.nnz if hasattr(b, "nnz") else np.any(b))
         else:
             ax.axis("off")
-    fig.legend(handles=_levels_legend(bool(by_level)), loc="lower center", ncol=5, fontsize=8)
+    fig.legend(handles=_levels_legend(bool(by_level), bridges=bridged), loc="outside lower center",
+               ncol=3, fontsize=fontsize - 1, frameon=False)  # fmt: skip
     if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.97 if title else 1))
+        fig.suptitle(title, fontsize=fontsize + 1)
     return fig
 
 
@@ -167,16 +188,19 @@ def plot_link_radius_sweep(sweep, chosen: float | None = None) -> Figure:
     return fig
 
 
-def _levels_legend(with_route: bool) -> list:
-    """Legend handles of `plot_levels_grid` (what each mark in a level means)."""
+def _levels_legend(with_route: bool, bridges: bool = True) -> list:
+    """Legend handles of `plot_levels_grid` (what each mark in a level means; the bridge
+    entry only where a level has bridges)."""
     from matplotlib.lines import Line2D
 
     h = [
-        Line2D([], [], ls="", marker="o", ms=3, color="0.8", label="frame"),
-        Line2D([], [], ls="", marker="o", ms=6, mfc="tab:blue", mec="k", label="cluster centre"),
-        Line2D([], [], ls="--", color="tab:blue", lw=0.8, label="link between centres"),
-        Line2D([], [], color="tab:orange", lw=1.0, label="bridge (not a link by the ρ rule)"),
+        Line2D([], [], ls="", marker="o", ms=4, color="0.7", label="frame"),
+        Line2D([], [], ls="", marker="o", ms=7, mfc="tab:blue", mec="k", label="cluster centre"),
+        Line2D([], [], ls="--", color="tab:blue", lw=1.0, label="link between centres"),
     ]
+    if bridges:
+        h.append(Line2D([], [], color="tab:orange", lw=1.2,
+                        label="bridge (not a link by the ρ rule)"))  # fmt: skip
     if with_route:
         h += [
             Line2D([], [], color="tab:red", lw=1.5, label="route"),

@@ -116,6 +116,7 @@ class EditorView:
         self.mu = V0.mean(0)
         self.scale = 2.0 / max(float(np.ptp((V0 - self.mu) @ self.R[:2].T)), 1e-12)
         self.handles: list = []
+        self.cp_labels: list = []  # each gizmo's index, as the "Move control point" panel takes it
         self.shown_segment = -1
         self.head = ctl.face
         self.shown_head: np.ndarray | None = None  # the head's vertices last drawn
@@ -235,7 +236,7 @@ class EditorView:
             self.curves.remove()
         self.curves = self.server.gui.add_uplot(
             tuple(data), tuple(series), title="Expression weights", aspect=1.6,
-            scales={"y": {"range": [0.0, 1.0]}},
+            **curve_axes(ctl.n_frames),
         )  # fmt: skip
 
     def _move_by_numbers(self) -> None:
@@ -303,14 +304,19 @@ class EditorView:
         P = self.to_scene(C)
         show = self.ctl.mode in ("edited", "control points")
         if seg != self.shown_segment or len(self.handles) != len(P):
-            for hd in self.handles:
+            for hd in self.cp_labels + self.handles:  # a label before its gizmo
                 hd.remove()
-            self.handles = []
+            self.handles, self.cp_labels = [], []
             for k in range(len(P)):
                 hd = self.server.scene.add_transform_controls(
                     f"/controls/cp_{k}", scale=0.08, disable_rotations=True, position=P[k],
                     line_width=1.5, depth_test=False,
                 )  # fmt: skip
+                # the index the "Move control point" panel takes, riding on the gizmo
+                self.cp_labels.append(self.server.scene.add_label(
+                    f"/controls/cp_{k}/index", gizmo_label(k), position=(0.012, 0.012, 0.0),
+                    font_screen_scale=1.2, anchor="bottom-left",
+                ))  # fmt: skip
                 hd.on_update(self._gizmo_callback(hd, k))
                 self.handles.append(hd)
             self.shown_segment = seg
@@ -335,6 +341,22 @@ class EditorView:
         self.status.content = status_text(self.ctl.status())
         if int(self.frame_slider.value) != self.ctl.frame:
             self.frame_slider.value = self.ctl.frame
+
+
+def curve_axes(n_frames: int) -> dict:
+    """uPlot options of the weight chart: a numeric x axis labelled "frame" over the
+    sequence (uPlot reads x as a time in seconds since 1970 unless told otherwise, and
+    printed "12:00am 1/1/70"), and the weight (0 to 1) on y."""
+    return {
+        "scales": {"x": {"time": False, "range": [0.0, float(max(n_frames - 1, 1))]},
+                   "y": {"range": [0.0, 1.05]}},  # room for the top tick and a curve at 1
+        "axes": ({"label": "frame", "scale": "x"}, {"label": "weight", "scale": "y"}),
+    }  # fmt: skip
+
+
+def gizmo_label(k: int) -> str:
+    """The text beside control point ``k``'s gizmo: the number the panel moves it by."""
+    return f"#{k}"
 
 
 def _head_of(data: EditorData, head: str | Path | None = "face/ict"):
