@@ -22,18 +22,8 @@ from fxspace.pipelines.navigation import (
     run,
 )
 
-__all__ = [
-    "Config",
-    "GraphConfig",
-    "HierarchyConfig",
-    "NavConfig",
-    "NavSpace",
-    "STAGES",
-    "prepare_app",
-    "run",
-    "load_space",
-    "auto_key_centres",
-]
+__all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "NavSpace", "STAGES",
+           "prepare_app", "run", "load_space", "auto_key_centres"]  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
