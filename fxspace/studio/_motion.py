@@ -201,9 +201,17 @@ class _Body:
     """The character's scene nodes, made once and then updated in place (only the changed
     arrays travel to the page each frame)."""
 
-    def __init__(self, server, ctl):
+    def __init__(self, server, ctl, character=None):
         self.server, self.ctl = server, ctl
         X = ctl.joints()
+        self.character, self.skin, self.center = character, None, None
+        if character is not None:  # the skinned character: LBS of its IK pose each frame
+            _, v = character.step(X)
+            self.skin = server.scene.add_mesh_simple(
+                "/character/skin", v.astype(np.float32),
+                np.asarray(character.mesh.faces, np.uint32), color=(200, 170, 140),
+            )  # fmt: skip
+            self.center = v.mean(0)
         q, p, s = bone_instances(X, ctl.skel.parents)
         cyl = _unit_cylinder()
         sc = server.scene
@@ -229,11 +237,24 @@ class _Body:
         on = [(40, 200, 60) if c else (150, 150, 150) for c in self.ctl.contacts()]
         return feet, np.asarray(on, np.uint8)
 
+    def show_capsules(self, on: bool) -> None:
+        """The capsule body (limbs and joints) on or off; the skinned character the other
+        way round."""
+        self.limbs.visible = self.joints.visible = bool(on)
+        if self.skin is not None:
+            self.skin.visible = not on
+
     def draw(self, show_samples: bool) -> None:
         X = self.ctl.joints()
         q, p, s = bone_instances(X, self.ctl.skel.parents)
         feet, cols = self._feet(X)
+        v = None
+        if self.skin is not None and self.skin.visible:
+            _, v = self.character.step(X)
+            self.center = v.mean(0)
         with self.server.atomic():
+            if v is not None:
+                self.skin.vertices = v.astype(np.float32)
             self.limbs.batched_wxyzs, self.limbs.batched_positions = q, p
             self.limbs.batched_scales = s
             self.joints.batched_positions = X.astype(np.float32)
@@ -254,11 +275,13 @@ class MotionView:
     the controls and the target gizmos, each control wired to one `MotionController`
     method (``server.fxspace_view``); `tick` plays one frame."""
 
-    def __init__(self, server, ctl: MotionController, export_path, playing: bool = True):
+    def __init__(
+        self, server, ctl: MotionController, export_path, playing: bool = True, character=None
+    ):
         self.server, self.ctl = server, ctl
         self.ground, self.grid = _scene(server)
         self._panel()
-        self.body = _Body(server, ctl)
+        self.body = _Body(server, ctl, character)
         self.redraw = serialized(server)(self._redraw)
         self._controls(export_path, playing)
         self._targets()
@@ -293,10 +316,12 @@ class MotionView:
         self.status = g.add_markdown(status_text(ctl.status()))
         self.play = g.add_checkbox("Playing", playing)
         self.follow = g.add_checkbox("Follow camera", True)
-        lo, hi = ctl.turn_range()
+        lo, hi = ctl.turn_range()  # the ends rounded inwards: every value can be reached
+        lo, hi = min(float(np.ceil(lo)), -1.0), max(float(np.floor(hi)), 1.0)
         self.turn = g.add_slider(
-            "Turn", min(lo, -1.0), max(hi, 1.0), 0.5, ctl.turn,
-            hint="turning rate, deg/s (+ left)", disabled=ctl.table is None,
+            "Turn", lo, hi, 0.5, float(np.clip(round(ctl.turn * 2) / 2, lo, hi)),
+            hint="turning rate, degrees per second (+ left)", disabled=ctl.table is None,
+            marks=((lo, f"{lo:.0f}°/s"), (0.0, "0"), (hi, f"{hi:+.0f}°/s")),
         )  # fmt: skip
         left, right = g.add_button("◀ Left"), g.add_button("Right ▶")
         info = getattr(ctl.setup, "info", None) or {}  # the mood clips' labels (config)
@@ -306,6 +331,12 @@ class MotionView:
                            disabled=ctl.parametric)  # fmt: skip
         alpha = g.add_slider("Alpha", 0.0, 1.0, 0.01, ctl.alpha)
         self.show = g.add_checkbox("Show samples", True)
+        if self.body.skin is not None:
+            caps = g.add_checkbox(
+                "Capsule body", False, hint="the stick body instead of the character"
+            )
+            caps.on_update(lambda _e: (self.body.show_capsules(caps.value), self.redraw()))
+            self.body.show_capsules(False)
         rec, stop = g.add_button("Record"), g.add_button("Stop and write BVH")
         self.turn.on_update(lambda _e: self._act(lambda: ctl.set_turn(self.turn.value)))
         left.on_click(lambda _e: self._act(lambda: ctl.nudge_turn(+1)))
@@ -349,6 +380,8 @@ class MotionView:
         ctl.step()
         self.body.draw(bool(self.show.value))
         r = ctl.root * np.asarray([1.0, 0.0, 1.0])
+        if self.body.skin is not None and self.body.skin.visible:  # follow the character
+            r = self.body.center * np.asarray([1.0, 0.0, 1.0])
         snap = tuple(np.round(r / 10.0) * 10.0)
         if snap != self.snapped:
             self.ground.position = self.grid.position = self.snapped = snap
@@ -384,6 +417,7 @@ def serve_motion(
     playing: bool = True,
     options: ServeOptions | None = None,
     server=None,
+    character: str | Path | None = "auto",
 ):
     """Serve the live controller for ``setup`` (``options`` or the old keywords; ``port=0``
     picks a free port): a shaded body walking on a ground plane (feet shaded green in
@@ -391,17 +425,46 @@ def serve_motion(
     (joy or the hand gizmo), α, the sample clouds on their own panel, record → BVH. With
     ``block=False`` returns ``(server, controller)`` at once (stop with ``server.stop()``).
     `server`: a running viser server to draw into (`serve` opens the page first, with
-    the ground and a progress line, while the set-up loads)."""
+    the ground and a progress line, while the set-up loads). `character`: a skinned glTF
+    the walker wears (retargeted live through the mesh IK, `fxspace.mesh.live_retarget`;
+    "auto": CesiumMan from the data root when the skeleton's joints resolve; ``None``:
+    the capsule body only); a "Capsule body" checkbox switches back."""
     o = options or ServeOptions(port, host, fps, block, environment_map)
     server = server if server is not None else new_server(o.port, o.host, o.environment_map)
     ctl = MotionController(setup)
-    view = MotionView(server, ctl, export_path, playing)
+    view = MotionView(server, ctl, export_path, playing, _character(setup.skeleton, character))
     server.fxspace_view = view
     view.redraw()
     attach_stop(server, Player(serialized(server)(view.tick), view.playing_now, o.fps))
     if o.block:
         run_until_interrupted(server, "motion controller", o.host)
     return server, ctl
+
+
+def _character(skel, character):
+    """The `fxspace.mesh.LiveRetarget` of ``skel`` onto ``character`` (a glTF path or
+    ``"auto"``: CesiumMan), or ``None`` with the reason on the console."""
+    if character is None:
+        return None
+    from fxspace import io as fio
+    from fxspace import mesh as fmesh
+    from fxspace.data import data_path
+    from fxspace.errors import FxspaceError
+
+    try:
+        src = M.joint_map_for(skel, required=())
+        if len(src.roles) < 6:
+            raise FxspaceError(f"the skeleton's joints resolve {len(src.roles)} roles")
+        path = data_path("mesh", "CesiumMan.glb") if character == "auto" else Path(character)
+        man = fio.read_gltf(path)
+        pairs = src.correspondences(M.joint_map_for(man.joint_names, required=()))
+        lr = fmesh.live_retarget(skel, man, pairs)
+    except (FxspaceError, OSError) as e:
+        print(f"fxspace studio: the capsule body ({e})")
+        return None
+    print(f"fxspace studio: the walker wears {path.name} ({len(pairs)} joints paired, "
+          f"scale {lr.scale:.2f})")  # fmt: skip
+    return lr
 
 
 def serve(target: str | Path, port: int = 8080, **kwargs):
