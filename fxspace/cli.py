@@ -72,7 +72,8 @@ def _cmd_docs(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from fxspace.runs import manifest_files, write_report
+    from fxspace.report import write_report
+    from fxspace.runs import manifest_files
 
     rows, folder = write_report(args.dir, out=args.out, force=args.force, show_all=args.all)
     figs = len([f for f in manifest_files(folder) if "_vs_" in f and f.endswith(".png")])

@@ -81,8 +81,6 @@ __all__ = [
     "read_json",
     "run_lock",
     "LOCK",
-    "collect",  # noqa: F822 - fxspace._report's, resolved by __getattr__ below
-    "write_report",  # noqa: F822
     "machine",
     "BENCH_FIELDS",
     "write_bench",
@@ -997,21 +995,6 @@ def cached_arrays(
     np.savez_compressed(buf, **value)
     _store(run_dir, p, buf.getvalue())
     return value
-
-
-# ------------------------------------------------------------------ comparing runs
-# `collect` and `write_report` live in fxspace._report (the report draws its figures with
-# fxspace.plot, a layer above this module): resolved here on first use, so
-# ``fxspace.runs.collect`` / ``from fxspace.runs import write_report`` keep working.
-_REPORT_NAMES = ("collect", "write_report")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _REPORT_NAMES:
-        import importlib
-
-        return getattr(importlib.import_module("fxspace._report"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 #: The fields of one benchmark comparison (a row of `write_bench`).

@@ -23,6 +23,7 @@ from fxspace.cli import main
 from fxspace.config import ConfigError
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.pipelines import _REGISTERED, register, run_dict
+from fxspace.report import collect, write_report
 from fxspace.runs import (
     LOCK,
     MANIFEST,
@@ -33,7 +34,6 @@ from fxspace.runs import (
     reset_cache,
     save_npz_atomic,
     write_bench,
-    write_report,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -248,7 +248,7 @@ def test_fifo_named_metrics_json_never_hangs_report(tmp_path, toy, capsys):
     os.mkfifo(d / "metrics.json")
     with _within(20):
         assert main(["report", str(tmp_path / "s")]) == 0
-    rows = {r["run"]: r for r in runs.collect(tmp_path / "s")}
+    rows = {r["run"]: r for r in collect(tmp_path / "s")}
     assert rows["a"]["status"] == "corrupt" and "FIFO" in rows["a"]["error"]
     assert rows["b"]["status"] == "complete"
     assert "a: " in capsys.readouterr().err
@@ -505,7 +505,7 @@ def test_report_names_malformed_bookkeeping(tmp_path, toy, name, text, capsys):
     (d,) = run_dict({"experiment": toy}, tmp_path / "s" / "a")
     (d / name).write_bytes(text.encode("latin-1"))
     assert main(["report", str(tmp_path / "s")]) == 0
-    (row,) = runs.collect(tmp_path / "s")
+    (row,) = collect(tmp_path / "s")
     if name == "meta.json" and text.startswith("{"):
         assert row["status"] == "complete" and row["compile_s"] is None
     else:

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 import fxspace.plot
-from fxspace import runs
-from fxspace._report import describe
+from fxspace import report as runs
 from fxspace.cli import main
 from fxspace.pipelines import _REGISTERED, register, sweep_config
 from fxspace.plot import plot_report_metric
+from fxspace.report import describe
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -44,7 +44,7 @@ def test_search_table_is_checked_naming_the_key():
 def test_search_runs_trials_continues_and_reports_failures(tmp_path):
     from fxspace.pipelines import run_config, run_dict
     from fxspace.pipelines._sweep import sweep_config
-    from fxspace.runs import collect
+    from fxspace.report import collect
 
     raw = load_toml(ROOT / "configs" / "search_example.toml")
     raw["search"]["trials"] = 3

@@ -1,4 +1,4 @@
-"""`fxspace sweep` (parallel runs of a [sweep]) and `fxspace report` / `fx.runs.collect`."""
+"""`fxspace sweep` (parallel runs of a [sweep]) and `fxspace report` / `fx.report.collect`."""
 
 import csv
 import dataclasses
@@ -14,7 +14,7 @@ import pytest
 from fxspace.cli import main
 from fxspace.config import ConfigError
 from fxspace.pipelines import _REGISTERED, register, run_dict, sweep_config
-from fxspace.runs import collect, write_report
+from fxspace.report import collect, write_report
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "configs" / "sweep_example.toml"

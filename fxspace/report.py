@@ -11,8 +11,8 @@ one place, `KNOWN` (an experiment's own entries first, then everyone's); a unit 
 read from the name's suffix (`SUFFIX_UNITS`: ``_mm``, ``_s``, ``_hz``, ...). A metric
 with no known direction gets no "best" mark.
 
-``fxspace.runs.collect`` and ``fxspace.runs.write_report`` are the public names (resolved
-on first use: the report draws with ``fxspace.plot``, a layer above ``fxspace.runs``).
+This module is the report's one home (it draws with ``fxspace.plot``, a layer above
+``fxspace.runs``, so it sits beside the command line, not in ``fxspace.runs``).
 """
 
 from __future__ import annotations
