@@ -77,9 +77,10 @@ def test_refusals_name_the_fix(rng):
         fx.mesh.retarget(motion, "CesiumMan.glb")
 
 
+@pytest.mark.slow
 def test_nan_frames_are_reported_not_hidden(rng):
     mesh = branching_mesh(3)
-    angles, trans = _walk(rng, mesh.num_joints, 12)
+    angles, trans = _walk(rng, mesh.num_joints)
     motion = _own_motion(mesh, angles, trans)
     rt = np.array(motion.root_translation)
     rt[5] = np.nan
@@ -112,6 +113,7 @@ def test_real_walk_onto_cesium_man(data_dir, take):
     assert s["foot_slide_mean"] <= s["source_foot_slide_mean"] * 1.05
 
 
+@pytest.mark.slow
 def test_live_retarget_follows_its_own_skeleton_frame_by_frame(rng):
     mesh = branching_mesh(3)
     angles, trans = _walk(rng, mesh.num_joints, 10)
