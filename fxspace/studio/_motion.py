@@ -344,7 +344,17 @@ class MotionView:
         joy.on_update(lambda _e: self._act(lambda: ctl.set_joy(joy.value)))
         alpha.on_update(lambda _e: self._act(lambda: ctl.set_alpha(alpha.value)))
         rec.on_click(lambda _e: self._act(ctl.start_recording))
-        stop.on_click(lambda _e: self._act(lambda: ctl.stop_recording(export_path)))
+        stop.on_click(lambda _e: self._act(lambda: self.stop_recording(export_path)))
+
+    def stop_recording(self, export_path) -> Path | None:
+        """Write the recording as BVH and, when the walker wears a character, the take
+        retargeted onto it as glTF beside it (``….glb``: mesh + skin animation)."""
+        rec = list(self.ctl.recording or [])
+        out = self.ctl.stop_recording(export_path)
+        if out is not None and self.body.character is not None:
+            glb = export_character_gltf(self.ctl.skel, rec, self.body.character, out)
+            self.ctl.message += f"; the character in {glb.name}"
+        return out
 
     def _act(self, action) -> None:
         """Run a controller action, show the turn it left, redraw."""
@@ -439,6 +449,20 @@ def serve_motion(
     if o.block:
         run_until_interrupted(server, "motion controller", o.host)
     return server, ctl
+
+
+def export_character_gltf(skel, recording, character, bvh_path) -> Path:
+    """The recorded frames (``(rotations, root)`` pairs of ``skel``) retargeted onto the
+    walker's character by `fxspace.mesh.retarget` (feet planted where the session's are)
+    and written by `fxspace.io.write_gltf_animation` beside ``bvh_path`` (``.glb``)."""
+    from fxspace import io as fio
+    from fxspace import mesh as fmesh
+
+    q = np.stack([r[0] for r in recording])
+    root = np.stack([r[1] for r in recording])
+    take = dataclasses.replace(skel, root_translation=root, rotations=q)
+    res = fmesh.retarget(take, character.mesh, list(character.pairs), baseline=False)
+    return fio.write_gltf_animation(Path(bvh_path).with_suffix(".glb"), character.mesh, res)
 
 
 def _character(skel, character):

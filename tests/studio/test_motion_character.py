@@ -69,3 +69,28 @@ def test_body_wears_the_character_and_capsules_are_an_option():
         assert body.limbs.visible and not body.skin.visible
     finally:
         server.stop()
+
+
+@pytest.mark.slow
+def test_recording_exports_the_character_as_gltf(tmp_path):
+    from fxspace.studio._motion import export_character_gltf
+
+    mesh = branching_mesh(3)
+    rng = np.random.default_rng(1)
+    n = 12
+    rot = np.tile([1.0, 0, 0, 0], (n, mesh.num_joints, 1))
+    rot[:, 1:] += np.cumsum(rng.normal(0, 0.03, (n, mesh.num_joints - 1, 4)), axis=0)
+    rot /= np.linalg.norm(rot, axis=-1, keepdims=True)
+    root = np.linspace([0, 0, 0], [0.5, 0, 0], n)
+    skel = fx.motion.Motion(
+        names=mesh.joint_names, parents=tuple(int(p) for p in mesh.parents),
+        offsets=np.asarray(mesh.rest_translations), root_translation=root[:1],
+        rotations=rot[:1], rate=30.0, channels=((),) * mesh.num_joints,
+    )  # fmt: skip
+    lr = fx.mesh.live_retarget(skel, mesh)
+    glb = export_character_gltf(skel, list(zip(rot, root, strict=True)), lr, tmp_path / "s.bvh")
+    assert glb == tmp_path / "s.glb"
+    back = fx.io.read_gltf(glb)
+    v = fx.mesh.animation_vertices(back, 0, np.arange(n) / 30.0)
+    assert v.shape == (n, mesh.num_vertices, 3)
+    assert np.ptp(v.mean(1)[:, 0]) > 0.25  # the character travels with the recording
