@@ -94,3 +94,72 @@ def test_recording_exports_the_character_as_gltf(tmp_path):
     v = fx.mesh.animation_vertices(back, 0, np.arange(n) / 30.0)
     assert v.shape == (n, mesh.num_vertices, 3)
     assert np.ptp(v.mean(1)[:, 0]) > 0.25  # the character travels with the recording
+
+
+def _mixamo_mood_setup():
+    """The toy mood walk of test_motion_app with Mixamo joint names (8 roles resolve)."""
+    import jax
+    from helpers import TOY_OFFSETS, TOY_PARENTS
+    from helpers import toy_clips as _clips
+
+    from fxspace import motion as M
+
+    names = ("Hips", "LeftUpLeg", "LeftLeg", "LeftFoot", "Spine", "Spine1", "LeftArm", "LeftHand")
+    rng = np.random.default_rng(1)
+    qL, rL = _clips(rng, 4, 20, 0.4)
+    qU, rU = _clips(rng, 2, 16, 0.6)
+    wl = np.stack([np.linspace(0, 19, 20) * s for s in (1.0, 0.9, 0.8, 0.95)])
+    wu = np.stack([np.linspace(0, 15, 16) * s for s in (1.0, 0.7)])
+    sp = M.build_spaces(
+        M.stack_examples(list(qL), list(rL), wl), M.stack_examples(list(qU), list(rU), wu),
+        np.linspace(0, 15, 20), TOY_PARENTS, TOY_OFFSETS,
+        mask=M.upper_body_mask(TOY_PARENTS, names, "Spine"), spine=4, lower_joint=3,
+        lower_dims=(0, 2), lower_time=19.0, upper_joint=-1, upper_time=8.0,
+        key=jax.random.PRNGKey(0), n_samples=60, knn_k=4, k_replace=5,
+    )  # fmt: skip
+    skel = fx.motion.Motion(
+        names=names, parents=TOY_PARENTS, offsets=TOY_OFFSETS, root_translation=np.zeros((1, 3)),
+        rotations=np.tile([1.0, 0, 0, 0], (1, len(names), 1)), rate=30.0,
+        channels=(("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation",
+                   "Xrotation"),) + (("Zrotation", "Yrotation", "Xrotation"),) * 7,
+    )  # fmt: skip
+    return M.Setup("mood_walk", sp, skel, 1.0, (3, 3), [], [], {})
+
+
+@pytest.mark.slow
+def test_browser_walker_wears_cesium_man_and_exports_it(data_dir, chromium, tmp_path):
+    from fxspace.studio import serve_motion
+    from fxspace.studio._server import ServeOptions
+
+    opts = ServeOptions(port=0, block=False, environment_map=False)
+    server, ctl = serve_motion(
+        _mixamo_mood_setup(), playing=True, options=opts, export_path=tmp_path / "rec.bvh"
+    )
+    body = server.fxspace_view.body
+    assert body.skin is not None and body.skin.visible and not body.limbs.visible
+    with chromium.page(server, viewport={"width": 900, "height": 700}) as page:
+        page.get_by_text("mood_walk", exact=False).first.wait_for(timeout=60_000)
+        page.get_by_text("Capsule body").first.wait_for(timeout=60_000)
+        for _ in range(200):  # the walker starts once the page has drawn the scene
+            if ctl.frame > 3:
+                break
+            page.wait_for_timeout(100)
+        v0 = np.asarray(body.skin.vertices).copy()
+        shot0 = page.screenshot()
+        f0 = ctl.frame
+        for _ in range(200):
+            if ctl.frame > f0 + 10:
+                break
+            page.wait_for_timeout(100)
+        v1 = np.asarray(body.skin.vertices)
+        assert np.abs(v1 - v0).max() > 0.01  # the skinned character moves
+        size = np.ptp(v1, axis=0)  # a standing human: ~1.5 m tall, narrower than tall
+        assert 1.2 < size[1] < 1.8 and size[0] < 0.8 * size[1] and size[2] < 0.8 * size[1]
+        assert page.screenshot() != shot0  # and the page shows it moving
+        page.get_by_role("button", name="Record").click()
+        page.get_by_text("recording", exact=False).first.wait_for(timeout=60_000)
+        page.wait_for_timeout(1500)
+        page.get_by_role("button", name="Stop and write BVH").click()
+        page.get_by_text("rec.glb", exact=False).first.wait_for(timeout=120_000)
+    back = fx.io.read_gltf(tmp_path / "rec.glb")
+    assert back.num_vertices == body.character.mesh.num_vertices and back.animation_names
