@@ -172,12 +172,19 @@ def _pairs(joint_map, src_names, char_names) -> tuple[list[tuple[str, str]], lis
         if len(pairs) < 4:
             raise RetargetError(
                 f"joint_map: the source's and the character's joint names share only "
-                f"{len(pairs)} names; pass the correspondences, e.g. joint_map = "
-                "fx.motion.joint_map_for(motion).correspondences("
-                "fx.motion.joint_map_for(mesh.joint_names, required=())) "
-                "or {source joint: character joint}"
+                f"{len(pairs)} names; pass joint_map=fx.motion.joint_map_for (CMU, Bandai, "
+                "Mixamo, VRM, CesiumMan names) or {source joint: character joint}"
             )
         return pairs, [""] * len(pairs)
+    if callable(joint_map) and not hasattr(joint_map, "correspondences"):
+        # a resolver such as fx.motion.joint_map_for: names → a map with .correspondences
+        try:
+            joint_map = joint_map(src_names).correspondences(joint_map(char_names, required=()))
+        except (TypeError, AttributeError) as e:
+            raise RetargetError(
+                "joint_map: a callable must resolve joint names to a joint map with "
+                f".correspondences (fx.motion.joint_map_for); it failed: {e}"
+            ) from None
     if isinstance(joint_map, tuple) and len(joint_map) == 2 and all(
         hasattr(m, "correspondences") for m in joint_map
     ):
@@ -432,7 +439,10 @@ def retarget(
     - ``joint_map``: the correspondences, as ``source_map.correspondences(character_map)``
       (``(role, source joint, character joint)`` triples from `fxspace.motion.JointMap`),
       the pair ``(source_map, character_map)``, ``{source joint: character joint}`` or
-      ``(source, character)`` pairs; ``None``: joints of the same (normalised) name.
+      ``(source, character)`` pairs, or the resolver itself, ``fx.motion.joint_map_for``
+      (applied to both skeletons' names: CMU, Bandai, Mixamo, VRM, CesiumMan, …);
+      ``None``: joints of the same (normalised) name (`fxspace.mesh` does not import the
+      name tables of `fxspace.motion`).
     - ``feet``: the source joints whose contacts hold the character's feet on the floor
       (default: the ``foot``/``toes`` roles, or joints named foot/toe/ankle/ball).
     - ``solver``: an IK solver object (default ``LevenbergMarquardt(rtol=1e-3,
@@ -450,9 +460,8 @@ def retarget(
     ```python
     take = fx.io.read_amc("131.asf", "131_09.amc.gz")
     man = fx.io.read_gltf("CesiumMan.glb")
-    jm = fx.motion.joint_map_for(take).correspondences(
-        fx.motion.joint_map_for(man.joint_names, required=()))
-    r = fx.mesh.retarget(take, man, jm)
+    r = fx.mesh.retarget(take, man, fx.motion.joint_map_for)   # roles by name on both
+    r.correspondences      # (source joint, character joint) pairs used
     r.summary()   # joint error, foot slide (ours / source), ms per frame
     ```
     """

@@ -105,7 +105,9 @@ def test_real_walk_onto_cesium_man(data_dir, take):
         fx.motion.joint_map_for(man.joint_names, required=())
     )
     assert len(jm) >= 14
-    r = fx.mesh.retarget(m, man, jm)
+    # the resolver itself as the map: the same pairs
+    r = fx.mesh.retarget(m, man, fx.motion.joint_map_for)
+    assert r.correspondences == tuple((s, c) for _, s, c in jm)
     s, c = r.summary(), r.baseline.summary()
     assert r.result == fx.RESULTS.successful
     assert s["joint_error_median"] < 0.06 and s["joint_error_median"] < c["joint_error_median"]
