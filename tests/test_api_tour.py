@@ -171,9 +171,11 @@ def test_the_whole_tour_runs_on_the_shipped_data(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "runs").exists()  # nothing written to a runs/ folder either
     written = {p.name for p in tmp_path.iterdir()}
     assert {"nav.gif", "edits.json", "out.bvh", "pose.bvh", "ik.glb", "anim.glb"} <= written
-    assert fx.load_edits(tmp_path / "edits.json")  # the keys saved in the temporary folder
     assert 0.9 < ns["best"]["score"] <= 1.0 and ns["threshold"] > 0
     assert "RESULTS.successful" in out and "RESULTS<" not in out
-    assert all(len(ns["h"].levels[0].neighbours(a)) for a in ns["keys"][:1])
+    h, keys = ns["h"], ns["keys"]  # the route's keys: each pair linked at level 0
+    assert all(b in h.levels[0].neighbours(a) for a, b in zip(keys, keys[1:], strict=False))
+    saved, _ = fx.load_edits(tmp_path / "edits.json")  # the keys, in the temporary folder
+    assert len(saved) == len(ns["edit_keys"]) == 2
     assert ns["P"].ndim == 3 and np.isfinite(ns["P"]).all()  # the scripted session's frames
     assert os.getcwd() == str(tmp_path)
