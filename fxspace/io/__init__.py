@@ -17,6 +17,7 @@ from fxspace.io._gltf_write import write_gltf as write_gltf
 from fxspace.io._gltf_write import write_gltf_animation as write_gltf_animation
 from fxspace.io._gltf_write import write_ik_gltf as write_ik_gltf
 from fxspace.io._ik_bvh import ik_poses_to_motion as ik_poses_to_motion
+from fxspace.io._ik_bvh import write_character_bvh as write_character_bvh
 from fxspace.io._ik_bvh import write_ik_bvh as write_ik_bvh
 from fxspace.io._markers import SUPPORTED_EXTENSIONS as SUPPORTED_EXTENSIONS
 from fxspace.io._markers import read_markers as read_markers
@@ -55,6 +56,7 @@ __all__ = [
     "write_gltf_animation",
     "ik_poses_to_motion",
     "write_ik_bvh",
+    "write_character_bvh",
     "SUPPORTED_EXTENSIONS",
     "read_markers",
     "write_npz",

@@ -366,8 +366,10 @@ def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
             children[p].append(j)
     offsets = np.asarray(motion.offsets) / scale
     out: list[str] = ["HIERARCHY"]
+    emitted: list[int] = []  # depth-first: the order a reader takes the channels in
 
     def emit(j: int, depth: int) -> None:
+        emitted.append(j)
         ind = "\t" * depth
         chans = motion.channels[j]
         is_end = not chans and not children[j]
@@ -390,7 +392,8 @@ def write_bvh(path: str | Path, motion: Motion, scale: float = 1.0) -> Path:
     cols = []
     quats = np.asarray(motion.rotations)
     root = np.asarray(motion.root_translation) / scale
-    for j, chans in enumerate(motion.channels):
+    for j in emitted:
+        chans = motion.channels[j]
         order = "".join(_ROT[c] for c in chans if c in _ROT)
         if order and len(order) != 3:
             raise ValueError(

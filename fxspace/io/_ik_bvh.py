@@ -27,7 +27,7 @@ from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, q
 if TYPE_CHECKING:  # pragma: no cover
     from fxspace.mesh import SkinnedMesh
 
-__all__ = ["ik_poses_to_motion", "write_ik_bvh"]
+__all__ = ["ik_poses_to_motion", "write_character_bvh", "write_ik_bvh"]
 
 _ROT = ("Xrotation", "Yrotation", "Zrotation")
 
@@ -99,3 +99,42 @@ def write_ik_bvh(
     from fxspace.io._bvh import write_bvh
 
     return write_bvh(path, ik_poses_to_motion(mesh, angles, translation, rate))
+
+
+@checked
+def write_character_bvh(
+    path: str | Path, mesh: SkinnedMesh, retargeted, *, rate: float | None = None
+) -> Path:
+    """Write a retargeted take as a BVH of the character's own skeleton: the hierarchy
+    is ``mesh``'s joints (its joint names, offsets from the glTF skin's rest
+    translations), each frame the joints' rotations and the root's position.
+
+    **Arguments:** `path` (``.bvh``/``.bvh.gz``); `mesh`: the character the take was
+    retargeted onto; `retargeted`: a `fxspace.mesh.retarget` record (its ``.pose`` and
+    ``.rate`` are used) or a `fxspace.Pose` with a leading frame axis; `rate`: frames
+    per second (default: the record's, else 30).
+
+    Non-finite frames (a source frame with NaN) are refused, naming the first.
+
+    **Returns:** the path written (atomically). ``fx.io.read_bvh`` +
+    ``fx.forward_kinematics`` give ``fx.mesh.joint_positions(mesh, retargeted.pose)``.
+    """
+    pose = getattr(retargeted, "pose", retargeted)
+    if not (hasattr(pose, "angles") and hasattr(pose, "translation")):
+        raise FxspaceError(
+            "retargeted must be a fx.mesh.retarget(...) record or a Pose (angles (T, J, 3), "
+            f"translation (T, 3)), got {type(retargeted).__name__}"
+        )
+    r = rate if rate is not None else getattr(retargeted, "rate", None) or 30.0
+    if not (isinstance(r, int | float) and np.isfinite(r) and r > 0):
+        raise FxspaceError(f"rate must be a positive number of frames per second, got {r!r}")
+    ang = np.asarray(pose.angles, np.float64)
+    tr = np.asarray(pose.translation, np.float64)
+    if ang.ndim == 3 and tr.ndim == 2 and ang.shape[0] == tr.shape[0]:
+        bad = ~(np.isfinite(ang).all(axis=(1, 2)) & np.isfinite(tr).all(axis=1))
+        if bad.any():
+            raise FxspaceError(
+                f"retargeted: frame {int(np.argmax(bad))} is not finite (a source frame "
+                "with NaN?); drop or fill those frames before exporting"
+            )
+    return write_ik_bvh(path, mesh, ang, tr, rate=float(r))

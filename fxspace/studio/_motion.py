@@ -348,12 +348,13 @@ class MotionView:
 
     def stop_recording(self, export_path) -> Path | None:
         """Write the recording as BVH and, when the walker wears a character, the take
-        retargeted onto it as glTF beside it (``….glb``: mesh + skin animation)."""
+        retargeted onto it as glTF beside it (``….glb``: mesh + skin animation) and as a
+        BVH of the character's skeleton (``…_character.bvh``)."""
         rec = list(self.ctl.recording or [])
         out = self.ctl.stop_recording(export_path)
         if out is not None and self.body.character is not None:
             glb = export_character_gltf(self.ctl.skel, rec, self.body.character, out)
-            self.ctl.message += f"; the character in {glb.name}"
+            self.ctl.message += f"; the character in {glb.name} and {glb.stem}_character.bvh"
         return out
 
     def _act(self, action) -> None:
@@ -454,7 +455,9 @@ def serve_motion(
 def export_character_gltf(skel, recording, character, bvh_path) -> Path:
     """The recorded frames (``(rotations, root)`` pairs of ``skel``) retargeted onto the
     walker's character by `fxspace.mesh.retarget` (feet planted where the session's are)
-    and written by `fxspace.io.write_gltf_animation` beside ``bvh_path`` (``.glb``)."""
+    and written by `fxspace.io.write_gltf_animation` beside ``bvh_path`` (``.glb``), and
+    by `fxspace.io.write_character_bvh` as a BVH of the character's own skeleton
+    (``…_character.bvh``)."""
     from fxspace import io as fio
     from fxspace import mesh as fmesh
 
@@ -462,7 +465,9 @@ def export_character_gltf(skel, recording, character, bvh_path) -> Path:
     root = np.stack([r[1] for r in recording])
     take = dataclasses.replace(skel, root_translation=root, rotations=q)
     res = fmesh.retarget(take, character.mesh, list(character.pairs), baseline=False)
-    return fio.write_gltf_animation(Path(bvh_path).with_suffix(".glb"), character.mesh, res)
+    glb = fio.write_gltf_animation(Path(bvh_path).with_suffix(".glb"), character.mesh, res)
+    fio.write_character_bvh(glb.with_name(glb.stem + "_character.bvh"), character.mesh, res)
+    return glb
 
 
 def _character(skel, character):

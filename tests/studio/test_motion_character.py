@@ -94,6 +94,8 @@ def test_recording_exports_the_character_as_gltf(tmp_path):
     v = fx.mesh.animation_vertices(back, 0, np.arange(n) / 30.0)
     assert v.shape == (n, mesh.num_vertices, 3)
     assert np.ptp(v.mean(1)[:, 0]) > 0.25  # the character travels with the recording
+    mot = fx.io.read_bvh(tmp_path / "s_character.bvh")  # and its own skeleton as BVH
+    assert sorted(mot.names) == sorted(mesh.joint_names) and mot.num_frames == n
 
 
 def _mixamo_mood_setup():
