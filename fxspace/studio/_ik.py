@@ -14,6 +14,10 @@ the surface of the model and their target positions are set":
   gradient path, BFGS on the factored gradient of eq. (13) (or on eq. (9));
 - *Remove marker*; *Play / Pause* plays the mesh's own animation and tracks it with the
   current markers (their targets follow the animated surface, IK warm-started per frame);
+- *BVH take* + *Load take*: a BVH file (any skeleton with nameable joints: CMU, Bandai,
+  Mixamo, VRM) retargeted onto the mesh (`fxspace.mesh.retarget`); *Play / Pause* plays
+  it, the scaled source's joints drawn red, the character's corresponded joints blue, the
+  feet in contact green (``serve_ik(…, take=PATH)`` loads one at start);
 - *Export BVH* writes the current pose, or the tracked frames, as BVH
   (`fxspace.io.write_ik_bvh`); *Export glTF* writes them with the mesh as an
   animated ``.glb`` (`fxspace.io.write_ik_gltf`). A file of that name that this app did
@@ -84,6 +88,8 @@ class IKView:
         self.solver = gui.add_dropdown("Solver", tuple(IK_SOLVERS), initial_value=ctl.solver)
         self.kind = gui.add_dropdown("Constraint", ("normal", "floor", "none"))
         self.cons_btn = gui.add_button("Constrain marker")
+        self.take_text = gui.add_text("BVH take", initial_value="")
+        self.take_btn = gui.add_button("Load take")
         self.play_btn = gui.add_button("Play / Pause", disabled=ctl.animation is None)
         self.export_btn = gui.add_button("Export BVH")
         self.gltf_btn = gui.add_button("Export glTF")
@@ -124,9 +130,33 @@ class IKView:
             g.on_update(lambda _e, i=i, g=g: self.on_drag(i, g))
             self.gizmos.append(g)
 
+    def draw_take(self) -> None:
+        """The loaded take's frame: source joints (red), the character's corresponded
+        joints (blue), the feet in contact (green)."""
+        ov = self.ctl.take_overlay()
+        if ov is None:
+            return
+        src, char, contact = (np.asarray(a) for a in ov)
+        sc, size = self.server.scene, self.size
+        sc.add_point_cloud("/take/source", src.astype(np.float32), colors=(220, 40, 40),
+                           point_size=0.02 * size)  # fmt: skip
+        sc.add_point_cloud("/take/character", char.astype(np.float32), colors=(30, 90, 220),
+                           point_size=0.015 * size)  # fmt: skip
+        feet = char[contact] if contact.any() else np.zeros((0, 3))
+        if len(feet):
+            sc.add_point_cloud("/take/contacts", feet.astype(np.float32), colors=(40, 200, 60),
+                               point_size=0.035 * size)  # fmt: skip
+        else:
+            sc.remove_by_name("/take/contacts")
+
+    def load_take(self) -> None:
+        self.ctl.load_take(str(self.take_text.value))
+        self.play_btn.disabled = False
+
     def _redraw(self, gizmos: bool = True) -> None:
         self.draw_mesh()
         self.draw_markers(gizmos)
+        self.draw_take()
         self.gui_status.content = status_text(self.ctl.status())
 
     def on_mesh_click(self, e) -> None:
@@ -171,6 +201,7 @@ class IKView:
         self.solver.on_update(
             lambda _e: self.guarded(lambda: ctl.set_solver(str(self.solver.value)))
         )
+        self.take_btn.on_click(lambda _e: self.guarded(self.load_take))
         self.play_btn.on_click(lambda _e: self.guarded(ctl.toggle_play))
         self.export_btn.on_click(lambda _e: self.guarded(lambda: ctl.export_bvh(export_path)))
         self.gltf_btn.on_click(lambda _e: self.guarded(lambda: ctl.export_gltf(gltf_path)))
@@ -187,12 +218,14 @@ def serve_ik(
     export_path: str | Path = "ik_pose.bvh",
     gltf_path: str | Path | None = None,
     options: ServeOptions | None = None,
+    take: str | Path | None = None,
 ):
     """Serve the IK studio for ``target`` (see `load_ik_mesh`); ``port=0`` picks a free
     port (``server.get_port()``), or pass `options`, a `ServeOptions`, which wins over
     the keywords. With ``block=False`` returns ``(server, controller)`` at once (stop with
     ``server.stop()``; the page's `IKView` is ``server.fxspace_view``). *Export glTF*
-    writes `gltf_path` (default: `export_path` with the suffix ``.glb``)."""
+    writes `gltf_path` (default: `export_path` with the suffix ``.glb``). `take`: a BVH
+    file retargeted onto the mesh at start (`IKController.load_take`)."""
     o = options or ServeOptions(port, host, 30.0, block, environment_map)
     mesh, anim = load_ik_mesh(target)
     ctl = IKController(mesh, anim, fps=o.fps)
@@ -202,6 +235,13 @@ def serve_ik(
         gltf_path = bvh.with_name(bvh.name.removesuffix(".gz").removesuffix(".bvh") + ".glb")
     view = IKView(server, ctl, export_path, gltf_path)
     server.fxspace_view = view
+    if take is not None:
+        view.take_text.value = str(take)
+        try:
+            view.load_take()
+        except BaseException:
+            server.stop()
+            raise
 
     @serialized(server)
     def tick() -> None:

@@ -100,6 +100,9 @@ class IKController:
         self._normals = None
         self._lock = threading.RLock()
         self.solver = "lm"  # see IK_SOLVERS
+        self.take = None  # a BVH take retargeted onto the mesh (`load_take`)
+        self.take_name = ""
+        self.take_frame = 0
 
     # ------------------------------------------------------------------ markers
     @property
@@ -307,8 +310,65 @@ class IKController:
             self.solve()
             self.recorded.append(self.pose)
 
+    # ------------------------------------------------------------------ a BVH take
+    def load_take(self, path, joint_map=None, max_frames: int = 600) -> int:
+        """Read a BVH take and retarget it onto the mesh (`fxspace.mesh.retarget`: the
+        source scaled to the character, feet planted where the source's are; `joint_map`
+        defaults to `fxspace.motion.joint_map_for`, roles by joint name), show its first
+        frame; *Play / Pause* then plays it (recorded: the exports write it). Takes
+        longer than `max_frames` are cut there (said). Returns the number of frames."""
+        from fxspace.io import read_bvh
+        from fxspace.mesh import retarget
+        from fxspace.motion import joint_map_for
+
+        p = Path(str(path).strip()).expanduser()
+        if not str(path).strip() or not p.is_file():
+            raise FxspaceError(f"BVH take {str(path)!r}: no such file; type the path of a .bvh")
+        take = read_bvh(p, units="auto")  # Bandai: cm, CMU conversions: inches…
+        cut = take.num_frames > max_frames
+        if cut:
+            take = take.frames(slice(0, max_frames))
+        res = retarget(take, self.mesh, joint_map_for if joint_map is None else joint_map,
+                       baseline=False)  # fmt: skip
+        with self._lock:
+            self.take, self.take_name, self.playing = res, p.name, False
+            self.recorded = []
+            self._show_take_frame(0)
+            sm = res.summary()
+            self.message = (
+                f"take {p.name}: {len(res.joint_error)} frames{' (cut)' if cut else ''} "
+                f"retargeted, {len(res.correspondences)} joints paired, joint error "
+                f"{sm['joint_error_median']:.3f} heights ({res.result!r})"
+            )
+        return len(res.joint_error)
+
+    def _show_take_frame(self, f: int) -> None:
+        r = self.take
+        self.take_frame = int(f)
+        self.pose = Pose(jnp.asarray(r.pose.angles[f], jnp.float32),
+                         jnp.asarray(r.pose.translation[f], jnp.float32))  # fmt: skip
+        self.vertices = np.asarray(self._posed(self.pose))
+        self.time = f / r.rate
+
+    def take_overlay(self):
+        """The take's frame as drawn: ``(source joints (M, 3), character joints (M, 3),
+        contacts (M,) bool)`` (the scaled source's joints, the character's corresponded
+        joints, the feet in contact), or ``None`` without a take."""
+        r = self.take
+        if r is None:
+            return None
+        f = self.take_frame
+        return (np.asarray(r.targets[f]), np.asarray(r.joints[f]),
+                np.asarray(r.contacts[f], bool))  # fmt: skip
+
     def step(self) -> float:
-        """Advance the animation by one frame (wrapping) and track it."""
+        """Advance the animation (or the loaded take) by one frame (wrapping) and track
+        it."""
+        if self.take is not None:
+            with self._lock:
+                self._show_take_frame((self.take_frame + 1) % len(self.take.joint_error))
+                self.recorded.append(self.pose)
+            return self.time
         t0, t1 = self.mesh.animation_range(self.animation)
         t = self.time + 1.0 / self.fps
         self.set_time(t0 if t > t1 else t)
@@ -369,8 +429,8 @@ class IKController:
         """Start or stop playing the mesh's animation (tracked with the current markers);
         starting clears the recorded frames. Returns whether it now plays."""
         with self._lock:
-            if self.animation is None:
-                self.message = "this mesh has no animation"
+            if self.animation is None and self.take is None:
+                self.message = "this mesh has no animation (load a BVH take)"
                 return False
             self.playing = not self.playing
             if self.playing:
@@ -379,7 +439,8 @@ class IKController:
 
     def status(self) -> dict:
         """What the status panel shows, as data (`IKView` renders it): ``markers`` (the
-        count), ``constraints`` (marker → kind), ``playing``, ``time`` (s), the last
+        count), ``constraints`` (marker → kind), ``playing``, ``time`` (s), ``take`` (the
+        loaded BVH take's file name, or None), the last
         solve's ``num_steps`` and ``residual`` (None before one) and the last
         ``message``."""
         r = self.last_result
@@ -388,6 +449,7 @@ class IKController:
             "constraints": dict(sorted(self.constraints.items())),
             "playing": bool(self.playing),
             "time": float(self.time),
+            "take": self.take_name if self.take is not None else None,
             "solver": self.solver,
             "num_steps": None if r is None else int(r.num_steps),
             "residual": None if r is None else float(r.residual),
