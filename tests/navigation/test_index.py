@@ -30,9 +30,10 @@ def test_ids_duplicates_and_errors():
         GridIndex(np.array([[np.nan, 0.0]]))
 
 
-def test_links_module_keeps_old_names():
-    from fxspace.navigation import _hierarchy, _links
+def test_public_names_are_the_one_implementation():
+    """Issue 45: one implementation behind each public name (no dense/sparse front)."""
+    from fxspace.navigation import _level, _links
 
-    assert _hierarchy.center_links is _links.center_links  # the dense implementation
-    assert fx.center_links is fx.navigation.center_links  # the front: dense or sparse
-    assert fx.link_graph_connected is _links.link_graph_connected
+    assert fx.center_links is fx.navigation.center_links is _links.center_links
+    assert fx.link_graph_connected is _level.link_graph_connected
+    assert fx.navigation.SparseLevel is fx.navigation.Level
