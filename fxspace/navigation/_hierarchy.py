@@ -416,7 +416,12 @@ def finest_level(
 ) -> Level:
     """The level where every frame is a centre (c = T): no clustering (the trivial FCM
     record), links by the rule at ``rho`` (default 0.5 × the frames' median spacing)."""
-    x = np.asarray(embedding, np.float64)
+    x = np.asarray(as_float_array(embedding, "embedding", ndim=2, xp="numpy"), np.float64)
+    if links and not hasattr(paths, "steps"):
+        raise FxspaceError(
+            f"paths must be the frames' Geodesics or NeighbourGraph (fxspace.expression.Paths),"
+            f" got {type(paths).__name__}"
+        )
     T = len(x)
     lv = Level(T, x.copy(), np.arange(T, dtype=np.int64), _frames_fit(x),
                stats={"init": "frames", "num_steps_split": -1, "total_steps": 0})  # fmt: skip
