@@ -568,7 +568,7 @@ def test_wrong_type_family_coverage_is_printed_and_never_regresses(tmp_path, mon
         (lambda: fx.navigation.link_pairs(None), "no links"),
         (lambda: fx.navigation.link_pairs(np.ones((2, 3), bool)), "links must be"),
         (lambda: fx.navigation.hierarchy_from_arrays(3), "hierarchy_to_arrays"),
-        (lambda: fx.frame_path(object(), [0, 1]), "geodesics"),
+        (lambda: fx.frame_path(object(), [0, 1]), "paths"),
         (lambda: fx.motion.register_dtw("x"), "features"),
         (lambda: fx.motion.register_dtw([np.zeros((4, 2)), np.zeros((3, 3))]), "share"),
         (lambda: fx.motion.control_defaults(None, {}), "setup"),

@@ -30,10 +30,10 @@ from fxspace.expression._missing import GapFill as GapFill
 from fxspace.expression._missing import fill_gaps as fill_gaps
 from fxspace.expression._missing import missing_report as missing_report
 from fxspace.expression._missing import require_complete as require_complete
+from fxspace.expression._paths import Paths as Paths
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
 from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
-from fxspace.expression._paths import Paths as Paths
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
 from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr

@@ -88,9 +88,7 @@ def geodesic_steps(geo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _csr(graph):
-    from fxspace.expression._sparse import dijkstra_csr
-
-    return dijkstra_csr(graph)
+    return graph.dijkstra_csr()  # the graph's own (csr, directed) for scipy's Dijkstra
 
 
 def graph_toward(graph, targets, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:

@@ -63,6 +63,10 @@ class NeighbourGraph(NamedTuple):
         """Number of neighbours of each frame (host array)."""
         return np.sum(np.isfinite(np.asarray(self.weights)), axis=1)
 
+    def dijkstra_csr(self):
+        """``(csr, directed)`` for scipy's Dijkstra on this graph (see `dijkstra_csr`)."""
+        return dijkstra_csr(self)
+
     # the paths interface of navigation (fxspace.expression._paths.Paths)
     def path(self, i: int, j: int, limit: float | None = None) -> np.ndarray:
         """Frames of a shortest path i → j (Dijkstra into j, stopped at ``limit`` when

@@ -278,6 +278,12 @@ def _global_frames_np(mesh, angles, translation):
 def joint_positions(mesh, pose: Pose) -> np.ndarray:
     """World positions ``(T, J, 3)`` of ``mesh``'s joints at the IK poses ``pose``
     (leading frame axis; numpy, host side)."""
+    if not hasattr(mesh, "joint_names") or not hasattr(mesh, "inverse_bind"):
+        raise RetargetError(
+            f"mesh must be a SkinnedMesh (fx.io.read_gltf), got {type(mesh).__name__}"
+        )
+    if not isinstance(pose, Pose):
+        raise RetargetError(f"pose must be a Pose (fx.mesh.Pose), got {type(pose).__name__}")
     a = np.asarray(pose.angles, np.float64)
     tr = np.asarray(pose.translation, np.float64)
     one = a.ndim == 2
@@ -473,6 +479,50 @@ def retarget(
     pairs, roles = _pairs(joint_map, names, tuple(mesh.joint_names))
     si = np.array([names.index(s) for s, _ in pairs])
     ci = np.array([mesh.joint_names.index(c) for _, c in pairs])
+    is_foot = _foot_mask(feet, pairs, roles)
+    g_rest, c_rest, floor, height = _character_at_rest(mesh, ci)
+    tgt, finite, scale, x_rest, r_src = _source_targets(
+        mesh, g_rest, c_rest, floor, names, parents, off, root, rot, si, ci
+    )
+    t = len(tgt)
+    fi, contact, src_slide, ik_t = _plant_feet(tgt, is_foot, finite, c_rest, height, rate)
+    rest_h = c_rest[:, 1]
+
+    # baseline: rotation copying (each joint's world rotation change through the rest poses)
+    t0 = time.perf_counter()
+    copy_pose = _rotation_copy(mesh, g_rest, r_src, si, ci, x_rest, tgt, finite)
+    copy_ms = 1e3 * (time.perf_counter() - t0) / t
+
+    pose, results, ms, compile_s = _solve_take(
+        mesh, ci, height, solver, limit, prior_weight, foot_weight, contact_weight, contact,
+        finite, copy_pose, rest_h, ik_t,
+    )  # fmt: skip
+
+    def record(p, method, results, ms, comp, baseline_rec):
+        xj = joint_positions(mesh, p)[:, ci]
+        err = np.linalg.norm(xj - tgt, axis=-1).mean(1) / height
+        err[~finite] = np.nan
+        slide = _slide(xj[:, fi], contact[:, fi], height)
+        med = float(np.nanmedian(err)) if finite.any() else np.nan
+        if not finite.all():
+            res = RESULTS.nonfinite_input
+        elif not np.isfinite(med) or med > max_error:
+            res = RESULTS.poor_fit
+        else:
+            res = RESULTS.successful
+        return Retargeted(
+            p, err, slide, src_slide, res, results, float(ms), float(comp), tuple(pairs),
+            tgt, xj, contact, height, scale, rate, method, baseline_rec,
+        )  # fmt: skip
+
+    base_rec = record(copy_pose, "rotation_copy", None, copy_ms, 0.0, None) if baseline else None
+    return record(pose, "mesh_ik", results, ms, compile_s, base_rec)
+
+
+def _foot_mask(feet, pairs, roles) -> np.ndarray:
+    """Which corresponded pairs hold a foot on the floor: the given source joints
+    ``feet`` (each must be corresponded), else the ``foot``/``toes`` roles, or joints
+    named foot/toe/ankle/ball."""
     if feet is None:
         is_foot = np.array(
             [r.endswith(("_foot", "_toes")) if r else bool(_FOOT.search(s))
@@ -483,14 +533,24 @@ def retarget(
         if bad:
             raise RetargetError(f"feet: {bad} are not corresponded source joints")
         is_foot = np.array([s in feet for s, _ in pairs])
+    return is_foot
 
-    # the character at rest
+
+def _character_at_rest(mesh, ci):
+    """``(global rest frames, corresponded joints' rest positions, floor height,
+    character height)`` of the character at rest."""
     g_rest, _ = _char_rest(mesh)
     c_rest = g_rest[ci, :3, 3]
     verts = np.asarray(mesh.vertices, np.float64)
     floor = float(verts[:, 1].min())
     height = float(np.ptp(verts[:, 1]))
+    return g_rest, c_rest, floor, height
 
+
+def _source_targets(mesh, g_rest, c_rest, floor, names, parents, off, root, rot, si, ci):
+    """``(targets, finite, scale, x_rest, r_src)``: the source's corresponded joints per
+    frame scaled to the character and put on its floor (``finite``: frames with every
+    one seen), with the source's rest positions and posed world rotations."""
     # the source: rest (no rotations) and posed
     ident = np.tile([1.0, 0.0, 0.0, 0.0], (1, len(names), 1))
     x_rest, _ = _source_fk(parents, off, np.zeros((1, 3)), ident)
@@ -513,8 +573,14 @@ def retarget(
     c_low = float(c_rest[:, 1].min() - floor)  # the character's lowest joint above its floor
     tgt = scale * (x_src[:, si] - [0.0, s_floor, 0.0])  # the source's world, scaled
     tgt[..., 1] += floor + c_low
-    t, m = tgt.shape[:2]
+    return tgt, finite, scale, x_rest, r_src
 
+
+def _plant_feet(tgt, is_foot, finite, c_rest, height: float, rate: float):
+    """``(foot indices, contact, source foot slide, IK targets)``: the contacts of the
+    source's feet (in the character's space) and the targets with each planted joint at
+    its contact's mean spot, at its rest height (NaN on frames not fully seen)."""
+    t, m = tgt.shape[:2]
     # contacts of the source's feet (in the character's space)
     fi = np.flatnonzero(is_foot)
     contact = np.zeros((t, m), bool)
@@ -531,12 +597,13 @@ def retarget(
             ik_t[a:b, k, [0, 2]] = tgt[a:b, k][:, [0, 2]].mean(0)
             ik_t[a:b, k, 1] = rest_h[k]
     ik_t[~finite] = np.nan
+    return fi, contact, src_slide, ik_t
 
-    # baseline: rotation copying (each joint's world rotation change through the rest poses)
-    t0 = time.perf_counter()
-    copy_pose = _rotation_copy(mesh, g_rest, r_src, si, ci, x_rest, tgt, finite)
-    copy_ms = 1e3 * (time.perf_counter() - t0) / t
 
+def _solve_take(mesh, ci, height, solver, limit, prior_weight, foot_weight, contact_weight,
+                contact, finite, copy_pose, rest_h, ik_t):
+    """``(pose, results, ms per frame, compile seconds)``: the mesh IK tracked through
+    the take, warm-started from the rotation copy's first seen frame."""
     # the solve
     model = _joint_model(mesh, ci, height)
     dtype = model.local_rest.dtype
@@ -565,28 +632,9 @@ def retarget(
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     poses, results, _steps = jax.block_until_ready(compiled(*args))
-    ms = 1e3 * (time.perf_counter() - t0) / t
+    ms = 1e3 * (time.perf_counter() - t0) / len(ik_t)
     pose = Pose(np.asarray(poses.angles, np.float64), np.asarray(poses.translation, np.float64))
-
-    def record(p, method, results, ms, comp, baseline_rec):
-        xj = joint_positions(mesh, p)[:, ci]
-        err = np.linalg.norm(xj - tgt, axis=-1).mean(1) / height
-        err[~finite] = np.nan
-        slide = _slide(xj[:, fi], contact[:, fi], height)
-        med = float(np.nanmedian(err)) if finite.any() else np.nan
-        if not finite.all():
-            res = RESULTS.nonfinite_input
-        elif not np.isfinite(med) or med > max_error:
-            res = RESULTS.poor_fit
-        else:
-            res = RESULTS.successful
-        return Retargeted(
-            p, err, slide, src_slide, res, results, float(ms), float(comp), tuple(pairs),
-            tgt, xj, contact, height, scale, rate, method, baseline_rec,
-        )  # fmt: skip
-
-    base_rec = record(copy_pose, "rotation_copy", None, copy_ms, 0.0, None) if baseline else None
-    return record(pose, "mesh_ik", results, ms, compile_s, base_rec)
+    return pose, results, ms, compile_s
 
 
 _COMPILED: dict = {}

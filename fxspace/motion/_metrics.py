@@ -148,6 +148,15 @@ def _period(ev: np.ndarray) -> float:
     return float((ev[-1] - ev[0]) / (ev.size - 1)) if ev.size >= 2 else float("nan")
 
 
+def _pair(v, name: str) -> tuple[int, int]:
+    if isinstance(v, str | bytes) or not hasattr(v, "__len__") or len(v) != 2:
+        raise FxspaceError(f"{name} must be a (left, right) pair of joint indices, got {v!r}")
+    try:
+        return int(v[0]), int(v[1])
+    except (TypeError, ValueError):
+        raise FxspaceError(f"{name} must hold two joint indices (ints), got {v!r}") from None
+
+
 def cycle_coupling(
     X: Float[Array, "T J 3"],
     feet: tuple[int, int],
@@ -165,6 +174,7 @@ def cycle_coupling(
     clock over a lower body of another tempo drifts by the difference of their cadences.
     """
     rate = check_scalar(rate, "rate", low=0.0, low_open=True)
+    feet, hands, lateral = _pair(feet, "feet"), _pair(hands, "hands"), _pair(lateral, "lateral")
     lo = cycle_events(swing_signal(X, feet[0], feet[1], lateral), rate)
     up = cycle_events(swing_signal(X, hands[1], hands[0], lateral), rate)
     nan = float("nan")
@@ -190,6 +200,7 @@ def cadence(X: Float[Array, "T J 3"], feet: tuple[int, int], lateral: tuple[int,
     from the first to the last stride event of `swing_signal` (left foot against right);
     NaN with fewer than two strides."""
     rate = check_scalar(rate, "rate", low=0.0, low_open=True)
+    feet, lateral = _pair(feet, "feet"), _pair(lateral, "lateral")
     ev = cycle_events(swing_signal(X, feet[0], feet[1], lateral), rate)
     return 1.0 / _period(ev) if ev.size >= 2 else float("nan")
 

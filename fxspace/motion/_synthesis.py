@@ -252,6 +252,7 @@ def _spliced(sp: SynthesisSpaces, wL, wU, t_lower, t_upper):
     return splice_frame(sp, qL, qU), rL
 
 
+@checked
 def clock_bounds(sp: SynthesisSpaces, t_lower, t_upper, dt=1.0):
     """The bound on eqs. 2–3 (``sp.max_clock_rate``, ``r``): the largest advance each clock
     may make in one frame, ``r · max_i Δt / max(C_i'(T), min_slope)`` over the examples

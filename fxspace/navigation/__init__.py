@@ -17,6 +17,7 @@ from fxspace.navigation._hierarchy import split_centers as split_centers
 from fxspace.navigation._index import GridIndex as GridIndex
 from fxspace.navigation._level import Hierarchy as Hierarchy
 from fxspace.navigation._level import Level as Level
+from fxspace.navigation._level import LinkRadiusSweep as LinkRadiusSweep
 from fxspace.navigation._level import SparseLevel as SparseLevel
 from fxspace.navigation._level import hierarchy_from_arrays as hierarchy_from_arrays
 from fxspace.navigation._level import hierarchy_to_arrays as hierarchy_to_arrays
@@ -27,7 +28,6 @@ from fxspace.navigation._level import link_graph_connected as link_graph_connect
 from fxspace.navigation._level import link_pairs as link_pairs
 from fxspace.navigation._links import EXACT_CENTRES as EXACT_CENTRES
 from fxspace.navigation._links import LINK_SCALES as LINK_SCALES
-from fxspace.navigation._links import LinkRadiusSweep as LinkRadiusSweep
 from fxspace.navigation._links import LinkRule as LinkRule
 from fxspace.navigation._links import center_links as center_links
 from fxspace.navigation._links import choose_link_scale as choose_link_scale

@@ -297,11 +297,28 @@ def _fit_from(a, p: str, centers):
     return FCMResult(centers, u, obj, steps, res, stats)
 
 
+class LinkRadiusSweep(NamedTuple):
+    """The link radius experiment of Kim & Jung §4.2 (`link_radius_sweep`).
+
+    **Fields:** `scales` ``(S,)`` (ρ = scale × the level's median centre spacing);
+    `levels` ``(L,)`` the swept level indices and `centres` their sizes; per level and
+    scale ``(L, S)``: `radii` (ρ), `links` (pairs linked), `components` (groups of
+    centres the links join) and `coverage` (the fraction of centre pairs a route can
+    join through links: 1 when the level is connected).
+    """
+
+    scales: np.ndarray
+    levels: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    links: np.ndarray
+    components: np.ndarray
+    coverage: np.ndarray
+
+
 @checked
 def hierarchy_from_arrays(a: dict[str, np.ndarray]) -> Hierarchy:
     """The `Hierarchy` stored by `hierarchy_to_arrays`."""
-    from fxspace.navigation._links import LinkRadiusSweep
-
     if not (hasattr(a, "__getitem__") and hasattr(a, "__contains__")) or isinstance(a, str):
         raise FxspaceError(
             f"a must be the arrays of hierarchy_to_arrays (a dict or an NpzFile), got "

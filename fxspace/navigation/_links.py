@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import TYPE_CHECKING, Literal
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +35,7 @@ from jaxtyping import Array, Float, Int
 from fxspace._validate import checked
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
-from fxspace.navigation._level import _components, pair_csr
+from fxspace.navigation._level import LinkRadiusSweep, _components, pair_csr
 
 if TYPE_CHECKING:
     from fxspace.navigation._level import Hierarchy
@@ -449,25 +449,6 @@ def center_links(
     rule = LinkRule(rho=float(rho), bridges=bool(bridge), exact_centres=n_exact)
     links, bridges, _ = level_links(embedding, paths, center_frames, float(rho), rule)
     return links, bridges
-
-
-class LinkRadiusSweep(NamedTuple):
-    """The link radius experiment of Kim & Jung §4.2 (`link_radius_sweep`).
-
-    **Fields:** `scales` ``(S,)`` (ρ = scale × the level's median centre spacing);
-    `levels` ``(L,)`` the swept level indices and `centres` their sizes; per level and
-    scale ``(L, S)``: `radii` (ρ), `links` (pairs linked), `components` (groups of
-    centres the links join) and `coverage` (the fraction of centre pairs a route can
-    join through links: 1 when the level is connected).
-    """
-
-    scales: np.ndarray
-    levels: np.ndarray
-    centres: np.ndarray
-    radii: np.ndarray
-    links: np.ndarray
-    components: np.ndarray
-    coverage: np.ndarray
 
 
 def _coverage(labels: np.ndarray) -> float:

@@ -32,7 +32,7 @@ __all__ = [
 
 
 def _links_segments(xy_c: np.ndarray, links) -> np.ndarray:
-    """Segments of the links (dense ``(c, c)`` or a sparse level's ``csr_array``)."""
+    """Segments of a level's links (a ``csr_array``)."""
     from fxspace.navigation import link_pairs
 
     i, j = link_pairs(links)
@@ -57,8 +57,9 @@ def _draw_level(
     if show_links and lv.links is not None and lv.n_clusters <= 400:
         bridges = getattr(lv, "bridges", None)
         plain = lv.links
-        if bridges is not None and not hasattr(bridges, "tocsr") and np.any(bridges):
-            plain = np.asarray(lv.links, bool) & ~np.asarray(bridges, bool)
+        if bridges is not None and bridges.nnz:
+            plain = lv.links.astype(np.int8) - bridges.astype(np.int8)
+            plain.eliminate_zeros()
             ax.add_collection(LineCollection(
                 _links_segments(c, bridges), colors="tab:orange", linewidths=1.0,
                 alpha=0.9, zorder=2,

@@ -121,7 +121,7 @@ def test_bad_requests_name_the_argument(space):
     with pytest.raises(fx.FxspaceError, match="Hierarchy"):
         make_route([], g, 0, [0])
     with pytest.raises(NavigationError, match="paths"):
-        make_route(h, np.eye(3), 0, [0])
+        make_route(h, np.eye(3), 0, [0, 1])
     with pytest.raises(NavigationError, match="embedding"):
         refine_route(Hierarchy(h.levels, Y[:5]), g, make_route(h, g, 0, [0]))
     with pytest.raises(NavigationError, match="to_level"):
