@@ -246,30 +246,9 @@ def solve_weights(
 
     **Returns:** a `FaceSolve`.
     """
-    if not isinstance(rig, Rig) or not isinstance(binding, Binding):
-        raise FxspaceError("pass a fx.face.Rig and the fx.face.Binding from bind_markers")
-    if hasattr(markers, "positions") and hasattr(markers, "names"):  # a MarkerSequence
-        names = markers.names if names is None else names
-        units = getattr(markers, "units", None) if units is None else units
-        markers = markers.positions
-    X = np.asarray(markers, np.float64)
-    single = X.ndim == 2
-    X = X[None] if single else X
-    M = len(binding.names)
-    if names is not None:
-        X = _by_name(X, names, binding.names)
-    if X.ndim != 3 or X.shape[1:] != (M, 3) or len(X) < 1:
-        raise FxspaceError(f"markers must be (frames, {M}, 3) for this binding; got {X.shape}")
-    if binding.basis.shape[0] != rig.num_shapes:
-        raise FxspaceError("binding was made for another rig (shape count differs); bind again")
-    checks = (("temporal", temporal, 0.0), ("ridge", ridge, 0.0), ("tol", tol, 0.0),
-              ("fit_tol", fit_tol, 0.0), ("outlier_tol", outlier_tol, 0.0))  # fmt: skip
-    for name, val, low in checks:
-        if not (np.isfinite(val) and val >= low):
-            raise FxspaceError(f"{name} must be a finite number >= {low}; got {val!r}")
-    for name, val in (("outer", outer), ("inner", inner)):
-        if not isinstance(val, (int, np.integer)) or val < 1:
-            raise FxspaceError(f"{name} must be an integer >= 1; got {val!r}")
+    X, single, units = _take_markers(rig, binding, markers, names, units)
+    _check_numbers(temporal=temporal, ridge=ridge, tol=tol, fit_tol=fit_tol,
+                   outlier_tol=outlier_tol, outer=outer, inner=inner)  # fmt: skip
     X = _convert_units(X, units, binding.units)
     seen = np.all(np.isfinite(X), axis=-1)
     dtype = jnp.asarray(0.0).dtype
@@ -297,36 +276,13 @@ def solve_weights(
     ratio_j = jnp.asarray(ratio, dtype)
     rr = jnp.where(jnp.asarray(seen) & ~few[:, None], r, jnp.nan)  # rig units
     rms, fit, outl, poor = _judge(rr, seen, size, ratio_j, fit_tol, outlier_tol)
-    dropped = np.zeros(seen.shape, bool)
-    bad = np.flatnonzero(np.asarray(poor & ~few) & (seen.sum(axis=1) >= 5))
-    if len(bad):
-        # one marker far off (a glitch) drags the whole frame's fit: leave each poor
-        # frame's worst marker out and solve again; keep that where the rest then fits
-        worst = np.argmax(np.nan_to_num(np.asarray(rr)[bad], nan=-1.0), axis=1)
-        drop = np.zeros(seen.shape, bool)
-        drop[bad, worst] = True
-        v2 = jnp.asarray(seen & ~drop, dtype)
-        w2, R2, tau2, r2, opt2, obj2, steps2 = _solve(
-            B, A, Y, v2, temporal, ridge, tol, w, bool(expressions), int(outer), int(inner),
-            False,
-        )  # fmt: skip
-        rr2 = jnp.where(jnp.asarray(seen) & ~few[:, None], r2, jnp.nan)
-        kept = jnp.where(jnp.asarray(drop), jnp.nan, rr2)
-        _, _, outl2, poor2 = _judge(kept, seen & ~drop, size, ratio_j, fit_tol, outlier_tol)
-        take = np.zeros(len(X), bool)
-        take[bad] = ~np.asarray(poor2)[bad]
-        if take.any():
-            t = jnp.asarray(take)
-            w, R, tau = (jnp.where(t[:, None], w2, w), jnp.where(t[:, None, None], R2, R),
-                         jnp.where(t[:, None], tau2, tau))  # fmt: skip
-            rr = jnp.where(t[:, None], rr2, rr)
-            opt = jnp.where(t, opt2, opt)
-            steps = jnp.where(t, steps + steps2, steps)
-            rms, fit, outl, poor = _judge(jnp.where(jnp.asarray(drop), jnp.nan, rr), seen & ~drop,
-                                          size, ratio_j, fit_tol, outlier_tol)  # fmt: skip
-            dropped = drop & take[:, None]
-            outl = outl | jnp.asarray(dropped)
-            poor = poor | t
+    state = (w, R, tau, rr, opt, steps, rms, fit, outl, poor)
+    state, dropped = _retry_without_worst(
+        lambda v2, w_init: _solve(B, A, Y, v2, temporal, ridge, tol, w_init, bool(expressions),
+                                  int(outer), int(inner), False),
+        state, seen, few, dtype, size, ratio_j, fit_tol, outlier_tol,
+    )  # fmt: skip
+    w, R, tau, rr, opt, steps, rms, fit, outl, poor = state
     nan = jnp.nan
     w = jnp.where(few[:, None], nan, w)
     R = jnp.where(few[:, None, None], nan, R)
@@ -346,6 +302,76 @@ def solve_weights(
     if single:
         out = jax.tree_util.tree_map(lambda a: a[0] if getattr(a, "ndim", 0) else a, out)
     return check_result(out.result, throw, "solve_weights", out)
+
+
+def _take_markers(rig, binding, markers, names, units):
+    """``(X, single, units)``: the markers as ``(T, M, 3)`` float64 in the binding's
+    marker order (``single`` when one frame was passed), after checking the rig and the
+    binding; a `MarkerSequence`'s names and units fill in ``names`` and ``units``."""
+    if not isinstance(rig, Rig) or not isinstance(binding, Binding):
+        raise FxspaceError("pass a fx.face.Rig and the fx.face.Binding from bind_markers")
+    if hasattr(markers, "positions") and hasattr(markers, "names"):  # a MarkerSequence
+        names = markers.names if names is None else names
+        units = getattr(markers, "units", None) if units is None else units
+        markers = markers.positions
+    X = np.asarray(markers, np.float64)
+    single = X.ndim == 2
+    X = X[None] if single else X
+    M = len(binding.names)
+    if names is not None:
+        X = _by_name(X, names, binding.names)
+    if X.ndim != 3 or X.shape[1:] != (M, 3) or len(X) < 1:
+        raise FxspaceError(f"markers must be (frames, {M}, 3) for this binding; got {X.shape}")
+    if binding.basis.shape[0] != rig.num_shapes:
+        raise FxspaceError("binding was made for another rig (shape count differs); bind again")
+    return X, single, units
+
+
+def _check_numbers(*, temporal, ridge, tol, fit_tol, outlier_tol, outer, inner) -> None:
+    """Refuse a non-finite or negative tolerance or weight, and iteration counts that are
+    not integers >= 1."""
+    checks = (("temporal", temporal, 0.0), ("ridge", ridge, 0.0), ("tol", tol, 0.0),
+              ("fit_tol", fit_tol, 0.0), ("outlier_tol", outlier_tol, 0.0))  # fmt: skip
+    for name, val, low in checks:
+        if not (np.isfinite(val) and val >= low):
+            raise FxspaceError(f"{name} must be a finite number >= {low}; got {val!r}")
+    for name, val in (("outer", outer), ("inner", inner)):
+        if not isinstance(val, (int, np.integer)) or val < 1:
+            raise FxspaceError(f"{name} must be an integer >= 1; got {val!r}")
+
+
+def _retry_without_worst(solve, state, seen, few, dtype, size, ratio_j, fit_tol, outlier_tol):
+    """One marker far off (a glitch) drags the whole frame's fit: leave each poor frame's
+    worst marker out and solve again (``solve(v, w0)``); keep that where the rest then
+    fits. ``state`` is ``(w, R, tau, rr, opt, steps, rms, fit, outl, poor)``; returns the
+    updated state and the ``(T, M)`` mask of markers left out."""
+    w, R, tau, rr, opt, steps, rms, fit, outl, poor = state
+    dropped = np.zeros(seen.shape, bool)
+    bad = np.flatnonzero(np.asarray(poor & ~few) & (seen.sum(axis=1) >= 5))
+    if len(bad):
+        worst = np.argmax(np.nan_to_num(np.asarray(rr)[bad], nan=-1.0), axis=1)
+        drop = np.zeros(seen.shape, bool)
+        drop[bad, worst] = True
+        v2 = jnp.asarray(seen & ~drop, dtype)
+        w2, R2, tau2, r2, opt2, obj2, steps2 = solve(v2, w)
+        rr2 = jnp.where(jnp.asarray(seen) & ~few[:, None], r2, jnp.nan)
+        kept = jnp.where(jnp.asarray(drop), jnp.nan, rr2)
+        _, _, outl2, poor2 = _judge(kept, seen & ~drop, size, ratio_j, fit_tol, outlier_tol)
+        take = np.zeros(len(seen), bool)
+        take[bad] = ~np.asarray(poor2)[bad]
+        if take.any():
+            t = jnp.asarray(take)
+            w, R, tau = (jnp.where(t[:, None], w2, w), jnp.where(t[:, None, None], R2, R),
+                         jnp.where(t[:, None], tau2, tau))  # fmt: skip
+            rr = jnp.where(t[:, None], rr2, rr)
+            opt = jnp.where(t, opt2, opt)
+            steps = jnp.where(t, steps + steps2, steps)
+            rms, fit, outl, poor = _judge(jnp.where(jnp.asarray(drop), jnp.nan, rr), seen & ~drop,
+                                          size, ratio_j, fit_tol, outlier_tol)  # fmt: skip
+            dropped = drop & take[:, None]
+            outl = outl | jnp.asarray(dropped)
+            poor = poor | t
+    return (w, R, tau, rr, opt, steps, rms, fit, outl, poor), dropped
 
 
 def _judge(rr, seen, size: float, ratio, fit_tol: float, outlier_tol: float):

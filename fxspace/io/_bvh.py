@@ -132,19 +132,7 @@ def read_bvh(path: str | Path, scale: float = 1.0, *, units: str | None = None) 
     ``scale`` that is not a finite positive number, an unknown ``units``, or both given.
     """
     scale = check_scalar(scale, "scale", low=0.0, low_open=True)
-    if units is not None:
-        u = units.strip().lower() if isinstance(units, str) else units
-        u = _UNIT_SPELLING.get(u, u)
-        if u != "auto" and u not in _UNITS_M:
-            raise FxspaceError(
-                f"units must be one of {sorted(_UNITS_M)} or 'auto', got {units!r}"
-            )
-        if scale != 1.0:
-            raise FxspaceError(
-                f"give scale (metres per file unit) or units, not both (scale={scale:g}, "
-                f"units={units!r})"
-            )
-        units = u
+    units = _check_units(scale, units)
     path = Path(path)
     lines = _open_text(path).splitlines()
     try:
@@ -153,6 +141,48 @@ def read_bvh(path: str | Path, scale: float = 1.0, *, units: str | None = None) 
         raise CorruptFileError(f"{path}: no MOTION section (is this a BVH file?)") from None
     tk = _Tokens(lines[:mline], path)
     tk.expect("HIERARCHY")
+    names, parents, offsets, channels = _parse_hierarchy(tk)
+    extent = _rest_extent(parents, offsets)
+    scale = _scale_for_units(path, extent, units, scale)
+    n_ch = sum(len(c) for c in channels)
+    data, dt = _read_frames(path, lines, mline, n_ch)
+    quats, root, local = _decode_channels(data, channels, parents, offsets)
+    offsets_np = np.asarray(offsets, dtype=np.float64)
+    if local:
+        _fold_joint_translations(path, names, parents, offsets_np, root, quats, local)
+    return Motion(
+        names=tuple(names),
+        parents=tuple(parents),
+        offsets=jnp.asarray(offsets_np * scale),
+        root_translation=jnp.asarray(root * scale),
+        rotations=jnp.asarray(quats),
+        rate=float(1.0 / dt),
+        channels=tuple(channels),
+    )
+
+
+def _check_units(scale: float, units: str | None) -> str | None:
+    """``units`` in its canonical spelling (``None`` stays ``None``); refuses an unknown
+    unit and ``units`` given together with a ``scale`` other than 1."""
+    if units is None:
+        return None
+    u = units.strip().lower() if isinstance(units, str) else units
+    u = _UNIT_SPELLING.get(u, u)
+    if u != "auto" and u not in _UNITS_M:
+        raise FxspaceError(
+            f"units must be one of {sorted(_UNITS_M)} or 'auto', got {units!r}"
+        )
+    if scale != 1.0:
+        raise FxspaceError(
+            f"give scale (metres per file unit) or units, not both (scale={scale:g}, "
+            f"units={units!r})"
+        )
+    return u
+
+
+def _parse_hierarchy(tk: _Tokens):
+    """``(names, parents, offsets, channels)`` of the HIERARCHY section after its
+    keyword, end sites as joints named ``<parent>_end``; errors name the line."""
     names: list[str] = []
     parents: list[int] = []
     offsets: list[list[float]] = []
@@ -196,8 +226,13 @@ def read_bvh(path: str | Path, scale: float = 1.0, *, units: str | None = None) 
     joint(-1, False, tk.next("root name")[0])
     if tk.i != len(tk.toks):
         raise tk.error(f"unexpected {tk.toks[tk.i][0]!r} after the root joint")
+    return names, parents, offsets, channels
 
-    extent = _rest_extent(parents, offsets)
+
+def _scale_for_units(path: Path, extent: float, units: str | None, scale: float) -> float:
+    """Metres per file unit from ``units`` (``"auto"``: inferred from the rest skeleton's
+    ``extent``, said on the console) or ``scale``; warns about an implausible size when
+    neither was given."""
     if units == "auto":
         units = _unit_for_extent(extent) if extent > 0 else None
         if units is None:
@@ -222,22 +257,7 @@ def read_bvh(path: str | Path, scale: float = 1.0, *, units: str | None = None) 
                  f"declares no unit) — implausible for a body; the lengths look like {likely} "
                  f"({extent * _UNITS_M[likely]:.3g} m): read with units={likely!r}",
                  warning=True)  # fmt: skip
-
-    n_ch = sum(len(c) for c in channels)
-    data, dt = _read_frames(path, lines, mline, n_ch)
-    quats, root, local = _decode_channels(data, channels, parents, offsets)
-    offsets_np = np.asarray(offsets, dtype=np.float64)
-    if local:
-        _fold_joint_translations(path, names, parents, offsets_np, root, quats, local)
-    return Motion(
-        names=tuple(names),
-        parents=tuple(parents),
-        offsets=jnp.asarray(offsets_np * scale),
-        root_translation=jnp.asarray(root * scale),
-        rotations=jnp.asarray(quats),
-        rate=float(1.0 / dt),
-        channels=tuple(channels),
-    )
+    return scale
 
 
 def _read_frames(path, lines: list[str], mline: int, n_ch: int) -> tuple[np.ndarray, float]:

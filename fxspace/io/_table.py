@@ -337,6 +337,37 @@ def read_table(
     body = rows[1:]
     if not body:
         raise CorruptFileError(f"{path}: the table has a header but no rows")
+    cells, lines = _split_rows(path, body, s, header)
+    # decimal commas: only where ',' is not the separator and cells hold no '.'
+    comma = s != "," and any("," in c[i] for c in cells[:50] for ix in markers.values()
+                                for i in ix)  # fmt: skip
+    names = list(markers)
+    cols = [i for ix in markers.values() for i in ix]
+    xyz = _numbers(path, cells, cols, lines, comma, header).reshape(len(cells), len(names), 3)
+    if comma:
+        said.append("decimal commas read as points")
+
+    xyz, fr = _fill_frame_gaps(path, cells, frame_col, lines, header, xyz, said)
+    rate = _table_rate(path, cells, time_col, frame_col, fr, lines, comma, header, len(xyz),
+                       rate, said)  # fmt: skip
+
+    if other:
+        shown = ", ".join(repr(o) for o in other[:8]) + (" …" if len(other) > 8 else "")
+        said.append(f"{len(other)} non-marker column(s) ignored: {shown}")
+
+    u = _table_units(path, units, hdr_units, xyz, said)
+    sep_name = _SEPS[s]
+    note(f"{path.name}: {len(names)} markers × {len(xyz)} frames, separator {sep_name}"
+         + "".join(f"; {x}" for x in said))  # fmt: skip
+    try:
+        return MarkerSequence(xyz, tuple(names), float(rate), u)
+    except FxspaceError as e:
+        raise CorruptFileError(f"{path}: {e}") from None
+
+
+def _split_rows(path, body, s: str, header: list[str]) -> tuple[list[list[str]], list[int]]:
+    """``(cells, line numbers)`` of the data rows split at ``s`` (a trailing separator
+    dropped); a row whose length differs from the header's is refused."""
     cells, lines = [], []
     for n, ln in body:
         c = ln.split(s)
@@ -349,40 +380,42 @@ def read_table(
             )
         cells.append(c)
         lines.append(n)
-    # decimal commas: only where ',' is not the separator and cells hold no '.'
-    comma = s != "," and any("," in c[i] for c in cells[:50] for ix in markers.values()
-                                for i in ix)  # fmt: skip
-    names = list(markers)
-    cols = [i for ix in markers.values() for i in ix]
-    xyz = _numbers(path, cells, cols, lines, comma, header).reshape(len(cells), len(names), 3)
-    if comma:
-        said.append("decimal commas read as points")
+    return cells, lines
 
-    # frames: gaps in a frame column become NaN rows
-    if frame_col is not None:
-        fr = _numbers(path, cells, [frame_col], lines, False, header)[:, 0]
-        if np.isnan(fr).any() or np.any(fr != np.round(fr)):
-            bad = int(np.flatnonzero(np.isnan(fr) | (fr != np.round(fr)))[0])
-            raise CorruptFileError(f"{path}, line {lines[bad]}: the frame number is not an integer")
-        d = np.diff(fr)
-        if (d <= 0).any():
-            bad = int(np.flatnonzero(d <= 0)[0]) + 1
-            raise CorruptFileError(
-                f"{path}, line {lines[bad]}: frame numbers must increase (frame {fr[bad]:g} "
-                f"follows {fr[bad - 1]:g})"
-            )
-        if (d > 1).any():
-            full = np.full((int(fr[-1] - fr[0]) + 1, len(names), 3), np.nan)
-            full[(fr - fr[0]).astype(int)] = xyz
-            said.append(f"{len(full) - len(xyz)} frame(s) absent from the frame numbering "
-                        "inserted as missing (NaN)")  # fmt: skip
-            xyz = full
 
-    # rate: from the time column or given
+def _fill_frame_gaps(path, cells, frame_col, lines, header, xyz: np.ndarray, said: list):
+    """``(xyz, frame numbers)``: with a frame column, checked to be increasing integers,
+    gaps in it become NaN rows (``None`` for the frame numbers without one)."""
+    if frame_col is None:
+        return xyz, None
+    fr = _numbers(path, cells, [frame_col], lines, False, header)[:, 0]
+    if np.isnan(fr).any() or np.any(fr != np.round(fr)):
+        bad = int(np.flatnonzero(np.isnan(fr) | (fr != np.round(fr)))[0])
+        raise CorruptFileError(f"{path}, line {lines[bad]}: the frame number is not an integer")
+    d = np.diff(fr)
+    if (d <= 0).any():
+        bad = int(np.flatnonzero(d <= 0)[0]) + 1
+        raise CorruptFileError(
+            f"{path}, line {lines[bad]}: frame numbers must increase (frame {fr[bad]:g} "
+            f"follows {fr[bad - 1]:g})"
+        )
+    if (d > 1).any():
+        full = np.full((int(fr[-1] - fr[0]) + 1, xyz.shape[1], 3), np.nan)
+        full[(fr - fr[0]).astype(int)] = xyz
+        said.append(f"{len(full) - len(xyz)} frame(s) absent from the frame numbering "
+                    "inserted as missing (NaN)")  # fmt: skip
+        xyz = full
+    return xyz, fr
+
+
+def _table_rate(path, cells, time_col, frame_col, fr, lines, comma, header, n_frames: int,
+                rate, said: list) -> float:
+    """The frame rate (Hz): from the time column (checked against a given ``rate``) or
+    given; refused when neither."""
     if time_col is not None:
         i, sc = time_col
         t = _numbers(path, cells, [i], lines, comma, header)[:, 0] * sc
-        if frame_col is not None and len(t) < len(xyz):  # rows were inserted: per row
+        if frame_col is not None and len(t) < n_frames:  # rows were inserted: per row
             t_rate = _rate_from_time(path, t, lines, steps=np.diff(fr))
         else:
             t_rate = _rate_from_time(path, t, lines)
@@ -402,11 +435,11 @@ def read_table(
             f"{path}: the table has no time column, so its frame rate is unknown; pass "
             "rate=… Hz to read_markers (a config: [data] rate = 120.0)"
         )
+    return rate
 
-    if other:
-        shown = ", ".join(repr(o) for o in other[:8]) + (" …" if len(other) > 8 else "")
-        said.append(f"{len(other)} non-marker column(s) ignored: {shown}")
 
+def _table_units(path, units, hdr_units: set, xyz: np.ndarray, said: list) -> str:
+    """The table's units: given, declared by the header, or inferred from the data."""
     if units is not None:
         u = canonical_units(units)
     elif len(hdr_units) == 1:
@@ -421,13 +454,7 @@ def read_table(
         u, why = infer_units(xyz)
         said.append(f"units inferred as {u!r} from the data's extent ({why}); "
                     f"declare them with units=… (a config: [data] units) if not")  # fmt: skip
-    sep_name = _SEPS[s]
-    note(f"{path.name}: {len(names)} markers × {len(xyz)} frames, separator {sep_name}"
-         + "".join(f"; {x}" for x in said))  # fmt: skip
-    try:
-        return MarkerSequence(xyz, tuple(names), float(rate), u)
-    except FxspaceError as e:
-        raise CorruptFileError(f"{path}: {e}") from None
+    return u
 
 
 def _rate_from_time(path, t: np.ndarray, lines, steps: np.ndarray | None = None):

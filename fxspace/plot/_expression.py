@@ -51,24 +51,7 @@ def plot_sweep(
             zorder=4,
             label="disconnected ε (r undefined)",
         )
-    groups: dict[float, list[str]] = {}
-    for name, t in (marks or {}).items():
-        key = next((g for g in groups if np.isclose(g, t, rtol=1e-9, atol=0.0)), float(t))
-        groups.setdefault(key, []).append(name)
-    styles = ("--", "-.", (0, (1, 1)), (0, (5, 1, 1, 1)))
-    for k, (t, names) in enumerate(groups.items()):
-        bold = chosen is not None and chosen in names
-        same = connecting is not None and np.isclose(t, connecting, rtol=1e-6, atol=0.0)
-        ax.axvline(
-            t,
-            color=f"C{k + 1}",
-            ls=styles[k % len(styles)],
-            lw=(2.6 if bold else 1.4) + 0.8 * (len(names) - 1),
-            zorder=2,
-            label=f"{' = '.join(names)}: ε = {t:.4g}"
-            + (" (chosen)" if bold else "")
-            + (" = connecting ε" if same else ""),
-        )
+    _draw_criteria(ax, marks, connecting, chosen)
     if connecting is not None:
         # the connecting ε as the edge of a shaded band (no ε left of it connects the
         # graph) and a thin line drawn above the criteria's lines, so one that picks the
@@ -103,14 +86,7 @@ def plot_sweep(
     ax.set_xlabel(f"threshold ε ({units}: distance between marker-distance matrices)")
     ax.set_ylabel("Pearson r (geodesic vs 2-D distance)")
     if mean_degree is not None:
-        ax2 = ax.twinx()
-        ax2.plot(th, np.asarray(mean_degree), color="0.6", lw=1, zorder=1)
-        ax2.set_ylabel("mean degree (grey line)", color="0.4")
-        ax2.set_yscale("log")
-        _plain_log_ticks(ax2.yaxis)
-        ax2.tick_params(axis="y", colors="0.4")
-        ax.set_zorder(ax2.get_zorder() + 1)  # r, the criteria and the star above the grey line
-        ax.patch.set_visible(False)
+        _draw_mean_degree(ax, th, mean_degree)
     # the legend under the axes: it covers no point, the paper's star included
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2,
               frameon=False)  # fmt: skip
@@ -119,6 +95,42 @@ def plot_sweep(
         title += f": ε = {marks[chosen]:.4g} chosen by {chosen}"  # type: ignore[index]
     ax.set_title(title, fontsize=10)
     return fig
+
+
+def _draw_criteria(ax, marks, connecting, chosen) -> None:
+    """One vertical line per distinct ε in ``marks``, naming every criterion that picks
+    it (the ``chosen`` one bold, one that picks the connecting ε said so)."""
+    groups: dict[float, list[str]] = {}
+    for name, t in (marks or {}).items():
+        key = next((g for g in groups if np.isclose(g, t, rtol=1e-9, atol=0.0)), float(t))
+        groups.setdefault(key, []).append(name)
+    styles = ("--", "-.", (0, (1, 1)), (0, (5, 1, 1, 1)))
+    for k, (t, names) in enumerate(groups.items()):
+        bold = chosen is not None and chosen in names
+        same = connecting is not None and np.isclose(t, connecting, rtol=1e-6, atol=0.0)
+        ax.axvline(
+            t,
+            color=f"C{k + 1}",
+            ls=styles[k % len(styles)],
+            lw=(2.6 if bold else 1.4) + 0.8 * (len(names) - 1),
+            zorder=2,
+            label=f"{' = '.join(names)}: ε = {t:.4g}"
+            + (" (chosen)" if bold else "")
+            + (" = connecting ε" if same else ""),
+        )
+
+
+def _draw_mean_degree(ax, th: np.ndarray, mean_degree) -> None:
+    """The graph's mean degree against ε, a grey line on a second (log) y axis beneath
+    the r axis's contents."""
+    ax2 = ax.twinx()
+    ax2.plot(th, np.asarray(mean_degree), color="0.6", lw=1, zorder=1)
+    ax2.set_ylabel("mean degree (grey line)", color="0.4")
+    ax2.set_yscale("log")
+    _plain_log_ticks(ax2.yaxis)
+    ax2.tick_params(axis="y", colors="0.4")
+    ax.set_zorder(ax2.get_zorder() + 1)  # r, the criteria and the star above the grey line
+    ax.patch.set_visible(False)
 
 
 def _plain_log_ticks(axis) -> None:
