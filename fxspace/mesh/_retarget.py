@@ -166,7 +166,13 @@ def _motion_arrays(motion):
 
 def _pairs(joint_map, src_names, char_names) -> tuple[list[tuple[str, str]], list[str]]:
     """``[(source joint, character joint)]`` and the roles (``""`` when unknown)."""
-    if joint_map is None:
+    if joint_map is None:  # the one joint-name map (CMU, Bandai, Mixamo, VRM, CesiumMan...)
+        from fxspace.joints import JointMapError, joint_map_for
+
+        try:
+            return _pairs(joint_map_for, src_names, char_names)
+        except (JointMapError, RetargetError):
+            pass  # names the map does not know: pair the joints of the same name
         cn = {_norm(n): n for n in char_names}
         pairs = [(s, cn[_norm(s)]) for s in src_names if _norm(s) in cn]
         if len(pairs) < 4:
@@ -447,8 +453,8 @@ def retarget(
       the pair ``(source_map, character_map)``, ``{source joint: character joint}`` or
       ``(source, character)`` pairs, or the resolver itself, ``fx.motion.joint_map_for``
       (applied to both skeletons' names: CMU, Bandai, Mixamo, VRM, CesiumMan, …);
-      ``None``: joints of the same (normalised) name (`fxspace.mesh` does not import the
-      name tables of `fxspace.motion`).
+      ``None`` (the default): that resolver (the one joint-name map, `fxspace.joints`),
+      and where it knows neither skeleton, the joints of the same (normalised) name.
     - ``feet``: the source joints whose contacts hold the character's feet on the floor
       (default: the ``foot``/``toes`` roles, or joints named foot/toe/ankle/ball).
     - ``solver``: an IK solver object (default ``LevenbergMarquardt(rtol=1e-3,

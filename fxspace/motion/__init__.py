@@ -11,6 +11,15 @@ Quaternions are ``(w, x, y, z)``; lengths are metres; see `Motion`. The rotation
 re-exported here live in `fxspace.rotations`.
 """
 
+from fxspace.joints import BODY_ROLES as BODY_ROLES
+from fxspace.joints import CONVENTIONS as CONVENTIONS
+from fxspace.joints import LENGTH_UNITS as LENGTH_UNITS
+from fxspace.joints import ROLES as ROLES
+from fxspace.joints import JointMap as JointMap
+from fxspace.joints import JointMapError as JointMapError
+from fxspace.joints import SkeletonSpec as SkeletonSpec
+from fxspace.joints import infer_length_unit as infer_length_unit
+from fxspace.joints import joint_map_for as joint_map_for
 from fxspace.motion._blend import ExampleSet as ExampleSet
 from fxspace.motion._blend import KNNResult as KNNResult
 from fxspace.motion._blend import blend_pose as blend_pose
@@ -31,15 +40,6 @@ from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
 from fxspace.motion._horn import absolute_rotation as absolute_rotation
 from fxspace.motion._horn import apply_rigid as apply_rigid
-from fxspace.motion._jointmap import BODY_ROLES as BODY_ROLES
-from fxspace.motion._jointmap import CONVENTIONS as CONVENTIONS
-from fxspace.motion._jointmap import LENGTH_UNITS as LENGTH_UNITS
-from fxspace.motion._jointmap import ROLES as ROLES
-from fxspace.motion._jointmap import JointMap as JointMap
-from fxspace.motion._jointmap import JointMapError as JointMapError
-from fxspace.motion._jointmap import SkeletonSpec as SkeletonSpec
-from fxspace.motion._jointmap import infer_length_unit as infer_length_unit
-from fxspace.motion._jointmap import joint_map_for as joint_map_for
 from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
 from fxspace.motion._locomotion import LocomotionState as LocomotionState
 from fxspace.motion._locomotion import TurnTable as TurnTable

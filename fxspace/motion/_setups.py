@@ -35,8 +35,8 @@ import numpy as np
 
 from fxspace.config import ConfigError
 from fxspace.errors import FxspaceError
+from fxspace.joints import BODY_ROLES, JointMap, SkeletonSpec
 from fxspace.motion._fk import fk_arrays
-from fxspace.motion._jointmap import BODY_ROLES, JointMap, SkeletonSpec
 from fxspace.motion._register import alignment_curve, gait_window, pose_features, register_dtw
 from fxspace.motion._space import extract_window, find_key_times, stack_examples
 from fxspace.motion._splice import align_start, heading_quat, upper_body_mask
@@ -132,7 +132,7 @@ class SetupClip:
 
 
 def _check_units(units, where: str, allow_empty: bool = False) -> None:
-    from fxspace.motion._jointmap import LENGTH_UNITS
+    from fxspace.joints import LENGTH_UNITS
 
     if isinstance(units, str):
         if units in LENGTH_UNITS or units == "auto" or (allow_empty and units == ""):

@@ -129,3 +129,25 @@ def test_live_retarget_follows_its_own_skeleton_frame_by_frame(rng):
         tgt = lr.targets(np.asarray(x[t]))
         np.testing.assert_allclose(xj, tgt, atol=1e-3 * lr.height)
         assert v.shape == (mesh.num_vertices, 3)
+
+
+def test_default_joint_map_pairs_by_role_across_naming_styles():
+    """joint_map=None uses the one joint-name map (fxspace.joints): a Mixamo-named source
+    pairs with a VRM-named character by role, not by spelling; unknown names fall back to
+    joints of the same name."""
+    from fxspace.mesh._retarget import _pairs
+
+    sides = ("UpLeg", "Leg", "Foot", "ToeBase", "Shoulder", "Arm", "ForeArm", "Hand")
+    vrm_sides = ("UpperLeg", "LowerLeg", "Foot", "Toes", "Shoulder", "UpperArm", "LowerArm",
+                 "Hand")  # fmt: skip
+    mix = ["Hips", "Spine", "Spine1", "Spine2", "Neck", "Head"]
+    mix += [f"{s}{b}" for s in ("Left", "Right") for b in sides]
+    vrm = ["hips", "spine", "chest", "upperChest", "neck", "head"]
+    vrm += [f"{s}{b}" for s in ("left", "right") for b in vrm_sides]
+    pairs, roles = _pairs(None, mix, vrm)
+    got = dict(pairs)
+    assert got["LeftUpLeg"] == "leftUpperLeg" and got["RightForeArm"] == "rightLowerArm"
+    assert got["Spine1"] == "chest" and "left_upper_leg" in roles
+    same = ["a", "b", "c", "d", "e"]
+    pairs, roles = _pairs(None, same, list(reversed(same)))
+    assert sorted(pairs) == [(n, n) for n in same] and roles == [""] * 5
