@@ -129,8 +129,13 @@ class FaceData:
             raise ConfigError("data.takes must name at least one AnimFace file")
         if self.max_gap < 0:
             raise ConfigError(f"data.max_gap must be >= 0 frames, got {self.max_gap}")
-        if self.synthetic_frames < 10 or self.synthetic_markers < 4:
-            raise ConfigError("data.synthetic_frames must be >= 10 and synthetic_markers >= 4")
+        if self.synthetic_frames < 10:
+            raise ConfigError(f"data.synthetic_frames must be >= 10, got {self.synthetic_frames}")
+        if not 12 <= self.synthetic_markers <= 200:  # the synthetic face's layout (face_layout)
+            raise ConfigError(
+                f"data.synthetic_markers must lie in [12, 200] (the synthetic face's layout), "
+                f"got {self.synthetic_markers}"
+            )
 
 
 class FaceFrames(NamedTuple):

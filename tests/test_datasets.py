@@ -143,3 +143,10 @@ def test_resolved_config_records_what_was_read(tmp_path):
         dataclasses.replace(cfg, units="furlong").validate()
     with pytest.raises(ConfigError, match="data.resample_hz must be"):
         dataclasses.replace(cfg, resample_hz=-1.0).validate()
+
+
+@pytest.mark.parametrize("n", [10, 4, 201])
+def test_synthetic_markers_outside_the_layout_refused_by_the_config(n):
+    """Issue 43.8: `synthetic_markers = 10` passed validation and failed mid-run."""
+    with pytest.raises(ConfigError, match=r"data.synthetic_markers must lie in \[12, 200\]"):
+        FaceData(source="synthetic", synthetic_markers=n).validate()
