@@ -80,6 +80,7 @@ __all__ = [
     "read_regular",
     "read_json",
     "run_lock",
+    "pid_alive",
     "LOCK",
     "machine",
     "BENCH_FIELDS",
@@ -362,7 +363,8 @@ class RunLockedError(FxspaceError, RuntimeError):
     """Another live process holds the run folder's lock."""
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` lives on this host (one that exists but is not ours: yes)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -448,7 +450,7 @@ def run_lock(run_dir: str | Path, wait: float | None = 0.0, poll: float = 0.2) -
                 print(f"[fxspace] {lp} {what}; treating it as stale and taking it over")
                 _unlink_if_same(lp, st.st_ino)
                 continue
-            if held["host"] == host and not _pid_alive(held["pid"]):
+            if held["host"] == host and not pid_alive(held["pid"]):
                 print(f"[fxspace] {lp}: its holder (pid {held['pid']}) died; taking it over")
                 _unlink_if_same(lp, st.st_ino)
                 continue

@@ -45,6 +45,7 @@ import numpy as np
 
 from fxspace._validate import checked
 from fxspace.errors import FxspaceError
+from fxspace.io._ik_bvh import retargeted_pose
 from fxspace.mesh import LocalPose
 from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
 
@@ -497,14 +498,6 @@ def write_gltf_animation(
     **Returns:** the path written (atomically). Read it back with `fxspace.io.read_gltf`
     and pose it with `fxspace.mesh.animation_vertices`.
     """
-    pose = getattr(retargeted, "pose", retargeted)
-    if not (hasattr(pose, "angles") and hasattr(pose, "translation")):
-        raise FxspaceError(
-            "retargeted must be a fx.mesh.retarget(...) record or a Pose (angles (T, J, 3), "
-            f"translation (T, 3)), got {type(retargeted).__name__}"
-        )
-    r = rate if rate is not None else getattr(retargeted, "rate", None) or 30.0
-    if not (isinstance(r, int | float) and math.isfinite(r) and r > 0):
-        raise FxspaceError(f"rate must be a positive number of frames per second, got {r!r}")
+    pose, r = retargeted_pose(retargeted, rate)
     local = ik_poses_to_local(mesh, pose.angles, pose.translation)
     return write_gltf(path, mesh, local, rate=float(r), animation=animation)

@@ -101,6 +101,21 @@ def write_ik_bvh(
     return write_bvh(path, ik_poses_to_motion(mesh, angles, translation, rate))
 
 
+def retargeted_pose(retargeted, rate) -> tuple:
+    """``(pose, rate)`` of a `fx.mesh.retarget` record (or a bare ``Pose``) and the frame
+    rate to write it at (``rate``, else the record's, else 30), checked."""
+    pose = getattr(retargeted, "pose", retargeted)
+    if not (hasattr(pose, "angles") and hasattr(pose, "translation")):
+        raise FxspaceError(
+            "retargeted must be a fx.mesh.retarget(...) record or a Pose (angles (T, J, 3), "
+            f"translation (T, 3)), got {type(retargeted).__name__}"
+        )
+    r = rate if rate is not None else getattr(retargeted, "rate", None) or 30.0
+    if not (isinstance(r, int | float) and np.isfinite(r) and r > 0):
+        raise FxspaceError(f"rate must be a positive number of frames per second, got {r!r}")
+    return pose, float(r)
+
+
 @checked
 def write_character_bvh(
     path: str | Path, mesh: SkinnedMesh, retargeted, *, rate: float | None = None
@@ -119,15 +134,7 @@ def write_character_bvh(
     **Returns:** the path written (atomically). ``fx.io.read_bvh`` +
     ``fx.forward_kinematics`` give ``fx.mesh.joint_positions(mesh, retargeted.pose)``.
     """
-    pose = getattr(retargeted, "pose", retargeted)
-    if not (hasattr(pose, "angles") and hasattr(pose, "translation")):
-        raise FxspaceError(
-            "retargeted must be a fx.mesh.retarget(...) record or a Pose (angles (T, J, 3), "
-            f"translation (T, 3)), got {type(retargeted).__name__}"
-        )
-    r = rate if rate is not None else getattr(retargeted, "rate", None) or 30.0
-    if not (isinstance(r, int | float) and np.isfinite(r) and r > 0):
-        raise FxspaceError(f"rate must be a positive number of frames per second, got {r!r}")
+    pose, r = retargeted_pose(retargeted, rate)
     ang = np.asarray(pose.angles, np.float64)
     tr = np.asarray(pose.translation, np.float64)
     if ang.ndim == 3 and tr.ndim == 2 and ang.shape[0] == tr.shape[0]:

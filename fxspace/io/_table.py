@@ -38,13 +38,13 @@ from __future__ import annotations
 import gzip
 import math
 import re
-import zlib
 from pathlib import Path
 
 import numpy as np
 
 from fxspace._progress import note
 from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.io._trc import raw_bytes
 from fxspace.io._types import UNIT_SCALES, MarkerSequence, _check_seq, canonical_units
 
 __all__ = [
@@ -153,12 +153,7 @@ def check_units_plausible(seq: MarkerSequence, source: str) -> bool:
 
 # -- text -----------------------------------------------------------------------------------
 def _load_text(path: Path) -> str:
-    raw = path.read_bytes()
-    if path.name.lower().endswith(".gz"):
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError, zlib.error) as e:
-            raise CorruptFileError(f"{path}: not a readable gzip file ({e})") from e
+    raw = raw_bytes(path)
     if b"\x00" in raw[:4096]:
         raise CorruptFileError(f"{path}: binary data, not a text table")
     try:

@@ -34,13 +34,20 @@ __all__ = ["write_trc"]
 _REQUIRED = ("DataRate", "NumFrames", "NumMarkers", "Units")
 
 
-def _load_text(path: Path) -> str:
+def raw_bytes(path: Path) -> bytes:
+    """The file's bytes, decompressed when its name ends in ``.gz`` (a torn or false
+    archive: `CorruptFileError` naming the file)."""
     raw = path.read_bytes()
     if path.name.lower().endswith(".gz"):
         try:
             raw = gzip.decompress(raw)
         except (OSError, EOFError, zlib.error) as e:
             raise CorruptFileError(f"{path}: not a readable gzip file ({e})") from e
+    return raw
+
+
+def _load_text(path: Path) -> str:
+    raw = raw_bytes(path)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:

@@ -52,6 +52,7 @@ from typing import Any
 
 from fxspace.config import ConfigError
 from fxspace.errors import CorruptFileError, FxspaceError
+from fxspace.runs import pid_alive
 
 __all__ = [
     "SEARCH_METHODS",
@@ -377,18 +378,6 @@ def _params_key(params: dict) -> tuple:
     return tuple(sorted((k, repr(v)) for k, v in params.items()))
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    except (OSError, ValueError, OverflowError):
-        return False
-    return True
-
-
 def _stale(t, out: Path) -> str | None:
     """Why a RUNNING trial is known to be dead (its process is gone), else ``None``
     (running, or on another host where that cannot be told)."""
@@ -397,7 +386,7 @@ def _stale(t, out: Path) -> str | None:
         k = _slot(t)
         locked = k is not None and (out / _slot_name(k) / ".fxspace-lock").exists()
         return None if locked else "interrupted (no process holds its folder)"
-    if host == socket.gethostname() and isinstance(pid, int) and not _alive(pid):
+    if host == socket.gethostname() and isinstance(pid, int) and not pid_alive(pid):
         return f"interrupted (its process, pid {pid}, is gone)"
     return None
 
