@@ -15,7 +15,7 @@ level's median nearest-centre spacing, the scale chosen by the paper's experimen
 - the level where every frame is a centre: a path with an interior frame passes that
   frame, itself a centre, so only the graph's steps that are shortest paths
   (`Paths.steps`) can be links, each tested against every frame near it with a k-d
-  tree (exact).
+  tree (exact, coarse to fine: `fxspace.navigation._segments`).
 
 Bridges (the cheapest geodesic links joining the pieces a level is left in, outside the
 rule) only on request (`LinkRule(bridges=True)`).
@@ -36,6 +36,7 @@ from fxspace._validate import checked
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
 from fxspace.navigation._level import LinkRadiusSweep, _components, pair_csr
+from fxspace.navigation._segments import segments_near_points
 
 if TYPE_CHECKING:
     from fxspace.navigation._level import Hierarchy
@@ -284,72 +285,17 @@ def _candidate_pairs(pos: np.ndarray, near: int) -> tuple[np.ndarray, np.ndarray
     return key // c, key % c
 
 
-def _near_segments(xy, tree, a, b, i, j, rho: float) -> np.ndarray:
-    """Whether another frame lies within ρ of each segment a→b (ends i, j excluded),
-    exact: the frames within ρ + |ab|/2 of its midpoint (k-d tree ``tree``), their
-    segment distances computed; batches are sized by the candidates they hold."""
-    out = np.zeros(len(a), bool)
-    if not len(a):
-        return out
-    ab = b - a
-    half = 0.5 * np.linalg.norm(ab, axis=1)
-    mid = 0.5 * (a + b)
-    cnt = tree.query_ball_point(mid, half + rho, return_length=True)
-    edges = np.concatenate([[0], np.cumsum(cnt)])
-    s = 0
-    while s < len(a):  # ≤ ~4M candidates at a time
-        e = max(s + 1, int(np.searchsorted(edges, edges[s] + (1 << 22), "right")) - 1)
-        e = min(e, len(a))
-        lists = tree.query_ball_point(mid[s:e], half[s:e] + rho, return_sorted=False)
-        n = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-        flat = np.fromiter((k for x in lists for k in x), np.int64, int(n.sum()))
-        own = np.repeat(np.arange(s, e), n)
-        q, a0, v = xy[flat], a[own], ab[own]
-        L2 = np.maximum(np.sum(v * v, axis=1), 1e-300)
-        t = np.clip(np.sum((q - a0) * v, axis=1) / L2, 0.0, 1.0)
-        d = np.linalg.norm(q - (a0 + t[:, None] * v), axis=1)
-        hit = (d < rho) & (flat != i[own]) & (flat != j[own])
-        out[np.unique(own[hit])] = True
-        s = e
-    return out
-
-
 def _step_links(xy, paths, rho: float):
     """The links of a level where every frame is a centre: the steps that are shortest
-    paths whose segment passes no other frame within ρ. ``(i, j, length)``.
-
-    Two passes with a k-d tree over the frames: points along each segment (at most 64,
-    each with its 4 nearest frames) find most blocked segments cheaply; the rest are
-    settled exactly against every frame within ρ of them."""
-    from scipy.spatial import cKDTree
-
+    paths whose segment passes no other frame within ρ (exact,
+    `fxspace.navigation._segments`). ``(i, j, length)``."""
     if not rho > 0:
         raise FxspaceError(
             f"rho must be > 0 on the level where every frame is a centre, got {rho}: the "
             "embedding's frames coincide"
         )
     i, j, w = paths.steps()
-    tree = cKDTree(xy)
-    blocked = np.zeros(len(i), bool)
-    for s in range(0, len(i), 1 << 15):  # pass 1: sampled points, 4 nearest frames each
-        ii, jj = i[s : s + (1 << 15)], j[s : s + (1 << 15)]
-        a, b = xy[ii], xy[jj]
-        m = np.minimum(np.ceil(np.linalg.norm(b - a, axis=1) / rho).astype(np.int64) + 1, 64)
-        own = np.repeat(np.arange(len(ii)), m)
-        frac = (np.arange(len(own)) - np.repeat(np.cumsum(m) - m, m)) / np.maximum(m[own] - 1, 1)
-        pts = a[own] + frac[:, None] * (b[own] - a[own])
-        _, nb = tree.query(pts, k=min(4, len(xy)))
-        nb = nb.reshape(len(pts), -1)
-        for col in range(nb.shape[1]):
-            q = xy[nb[:, col]]
-            v = b[own] - a[own]
-            L2 = np.maximum(np.sum(v * v, axis=1), 1e-300)
-            t = np.clip(np.sum((q - a[own]) * v, axis=1) / L2, 0.0, 1.0)
-            d = np.linalg.norm(q - (a[own] + t[:, None] * v), axis=1)
-            hit = (d < rho) & (nb[:, col] != ii[own]) & (nb[:, col] != jj[own])
-            blocked[s + np.unique(own[hit])] = True
-    rest = np.flatnonzero(~blocked)  # pass 2: exact, every frame within ρ of the segment
-    blocked[rest] = _near_segments(xy, tree, xy[i[rest]], xy[j[rest]], i[rest], j[rest], rho)
+    blocked = segments_near_points(xy, i, j, rho)
     return i[~blocked], j[~blocked], w[~blocked]
 
 

@@ -1,0 +1,5 @@
+"""``python -m fxspace`` is the ``fxspace`` command."""
+
+from fxspace.cli import main
+
+raise SystemExit(main())

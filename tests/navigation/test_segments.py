@@ -1,0 +1,49 @@
+"""The finest level's segment test (`fxspace.navigation._segments`) against brute force:
+every segment against every point, in numpy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fxspace.navigation._segments import segments_near_points
+
+
+def _brute(xy, i, j, rho):
+    a, b = xy[i], xy[j]
+    v = b - a
+    L2 = np.maximum(np.sum(v * v, axis=1), 1e-300)
+    q = xy[None, :, :]
+    t = np.clip(np.sum((q - a[:, None]) * v[:, None], axis=2) / L2[:, None], 0.0, 1.0)
+    d = np.linalg.norm(q - (a[:, None] + t[..., None] * v[:, None]), axis=2)
+    d[np.arange(len(i)), i] = np.inf
+    d[np.arange(len(i)), j] = np.inf
+    return (d < rho).any(axis=1)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_matches_every_segment_against_every_point(seed):
+    rng = np.random.default_rng(seed)
+    # clustered points with empty space between (long clear segments exist), as an
+    # embedding of a k-NN graph has
+    centres = rng.uniform(-10, 10, (12, 2))
+    xy = centres[rng.integers(0, 12, 1500)] + rng.normal(0, 0.6, (1500, 2))
+    i = rng.integers(0, len(xy), 4000)
+    j = rng.integers(0, len(xy), 4000)
+    keep = i != j
+    i, j = i[keep], j[keep]
+    spacing = np.median(np.sort(np.linalg.norm(xy[:, None] - xy[None], axis=2), axis=1)[:, 1])
+    for rho in (0.25 * spacing, 0.5 * spacing, 2.0 * spacing):
+        got = segments_near_points(xy, i, j, rho)
+        want = _brute(xy, i, j, rho)
+        assert np.array_equal(got, want), (rho, int((got != want).sum()))
+        assert 0 < got.sum() < len(got)  # both answers occur: the test can fail
+
+
+def test_known_answers():
+    xy = np.array([[0.0, 0.0], [10.0, 0.0], [5.0, 0.4], [5.0, -3.0], [20.0, 0.0]])
+    i, j = np.array([0, 0, 1]), np.array([1, 3, 4])
+    # 0→1 passes point 2 at 0.4; 0→3 passes nothing within 0.5; 1→4 passes nothing
+    assert segments_near_points(xy, i, j, 0.5).tolist() == [True, False, False]
+    # strictly closer: at exactly 0.4 the point does not block
+    assert segments_near_points(xy, i, j, 0.4).tolist() == [False, False, False]
