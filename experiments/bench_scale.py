@@ -180,6 +180,8 @@ def main(argv=None) -> int:
         g = fx.neighbourhood_graph(F, k=a.k)
         jax.block_until_ready(g.weights)
         out["max_degree"] = int(g.indices.shape[1])
+    with Stage("k-NN recall (1000 frames, exact)", "check"):
+        out["knn_recall"] = fx.expression.knn_recall(F, g, k=a.k, sample=1000, seed=a.seed)
         out["mean_degree"] = float(np.mean(g.degree))
     with Stage("landmark geodesics"):
         fx.expression.check_sparse_connected(g)
@@ -228,6 +230,9 @@ def main(argv=None) -> int:
                 Y = np.asarray(mds.embedding, np.float64)
                 scale = h[-1].radius / default_link_radius(Y[h[-1].center_frames], 1.0)
                 fine = finest_level(Y, g, rho=default_link_radius(Y, scale))  # ρ's scale
+                out["links_bridged"] += fine.n_bridges
+                done, total = (int(v) for v in out["levels_converged"].split("/"))
+                out["levels_converged"] = f"{done + bool(fine.converged)}/{total + 1}"
                 out["links_finest"] = fine.n_links
                 out["links_finest_bridges"] = fine.n_bridges
             with Stage("route: 4 keys, coarsest → frames"):
@@ -305,6 +310,15 @@ def main(argv=None) -> int:
         if key.startswith(("r_", "ratio_", "max_", "mean_", "levels", "links", "route", "ident")):
             v = out[key]
             print(f"{key}: {v:.4f}" if isinstance(v, float) else f"{key}: {v}")
+    ours = [r for r in Stage.rows if r["group"] == "ours"]
+    out["frames"] = T
+    out["seconds"] = round(sum(r["s"] for r in ours), 1)
+    out["peak_rss_gb"] = round(max((r["peak_mb"] for r in ours), default=base) / 1024, 2)
+    print("\nsummary (ours, features to the route down to frames):")
+    for key in ("frames", "seconds", "peak_rss_gb", "links_bridged", "levels_converged",
+                "knn_recall"):  # fmt: skip
+        if key in out:
+            print(f"{key}: {out[key]}")
     out["stages"] = Stage.rows
     record = []
     if "ratio_landmark_geodesics" in out:

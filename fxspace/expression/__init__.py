@@ -38,6 +38,7 @@ from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
 from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr
 from fxspace.expression._sparse import graph_from_dense as graph_from_dense
+from fxspace.expression._sparse import knn_recall as knn_recall
 from fxspace.expression._sparse import neighbourhood_graph as neighbourhood_graph
 from fxspace.expression._sparse import sparse_components as sparse_components
 from fxspace.expression._sparse import to_scipy as to_scipy
@@ -76,6 +77,7 @@ __all__ = [
     "NeighbourGraph",
     "Paths",
     "check_sparse_connected",
+    "knn_recall",
     "graph_from_dense",
     "neighbourhood_graph",
     "sparse_components",

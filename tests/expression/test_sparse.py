@@ -94,3 +94,25 @@ def test_bad_arguments(rng):
         fx.neighbourhood_graph(np.where(np.eye(20, 3) > 0, np.nan, X), k=3)
     with pytest.raises(FxspaceError, match="search"):
         fx.neighbourhood_graph(X, k=3, search="ball")  # type: ignore[arg-type]
+
+
+def test_knn_recall_against_sklearn():
+    """Issue 45: the recall of the graph's neighbours against the exact k nearest
+    (scikit-learn's brute force), 1.0 for the exact search, lower for a damaged graph."""
+    from sklearn.neighbors import NearestNeighbors
+
+    rng = np.random.default_rng(0)
+    F = rng.normal(size=(1500, 40)).astype(np.float32)
+    exact = fx.neighbourhood_graph(F, k=6, reduce_dim=None)
+    assert fx.expression.knn_recall(F, exact, k=6, sample=300) == 1.0
+    # the reduced search on isotropic noise misses many: the recall says how many
+    approx = fx.neighbourhood_graph(F, k=6, reduce_dim=2, candidates=8)
+    got = fx.expression.knn_recall(F, approx, k=6, sample=300, seed=1)
+    rows = np.random.default_rng(1).choice(1500, 300, replace=False)
+    nn = NearestNeighbors(n_neighbors=7).fit(F).kneighbors(F[rows])[1][:, 1:]
+    have = np.asarray(approx.indices)[rows]
+    want = float(np.mean([[a in set(h) for a in r] for r, h in zip(nn, have, strict=True)]))
+    assert got == pytest.approx(want, abs=1e-9)
+    assert got < 0.9
+    with pytest.raises(fx.FxspaceError, match="features"):
+        fx.expression.knn_recall(F[:100], exact, k=6)

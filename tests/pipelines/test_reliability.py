@@ -233,6 +233,15 @@ def test_cli_version_and_bench_list(capsys):
     assert "geodesic" in out and "distances" in out
 
 
+def test_python_m_fxspace_is_the_command():
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "fxspace", "--version"], capture_output=True,
+                       text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0 and fx.__version__ in r.stdout, r.stderr[-2000:]
+
+
 def test_cli_demo_real_has_its_own_folder(monkeypatch):
     import fxspace.pipelines as pl
 
