@@ -5,14 +5,15 @@ are the graph's steps whose segment passes no other frame within ρ. Segments ar
 against ρ (on a k-NN graph of 10⁵ frames the median step is ~200 ρ), so a test per
 segment against every frame near its midpoint costs O(T²) overall. Here:
 
-1. **Sure blocks, coarse to fine.** Points on each segment, 8 then 32 then one per ρ;
-   a frame (other than the segment's ends) within ρ of a point on the segment is within
-   ρ of the segment, so the segment is blocked. Each round keeps only the segments no
-   earlier round blocked; almost every blocked segment goes in the first round.
-2. **Exact, for the rest.** Points every ``s`` along the segment (ends included) and
-   every frame within ``sqrt(ρ² + (s/2)²)`` of one of them: a frame within ρ of the
-   segment has its foot within ``s/2`` of a point, so it is among them; their exact
-   segment distances decide.
+1. **Sure blocks.** 8 points on each segment: a frame (other than the segment's ends)
+   within ρ of a point on the segment is within ρ of the segment, so the segment is
+   blocked. Most blocked segments go here.
+2. **Exact, for the rest.** Points every ``s = max(2ρ, the frames' median spacing)``
+   along the segment (ends included) and every frame within ``sqrt(ρ² + (s/2)²)`` of
+   one of them (its 8 nearest, the whole ball where 8 do not exhaust it): a frame within
+   ρ of the segment has its foot within ``s/2`` of a point, so it is among them; their
+   exact segment distances decide. Cost: the segments' total length over ``s``, a few
+   frames per point.
 
 Both passes use one k-d tree over the frames (scipy ``cKDTree``).
 """
@@ -21,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-_ROUNDS = (8, 32)  # points per segment in the coarse rounds; then one per ρ
+_COARSE = 8  # points per segment in the sure-block pass
+_NEAREST = 8  # frames asked of each point in the exact pass (the whole ball past that)
 _BATCH = 1 << 21  # sample points per k-d tree call
 
 
@@ -63,25 +65,34 @@ def _sure_blocks(tree, xy, i, j, m, rho):
     return out
 
 
-def _exact_blocks(tree, xy, i, j, rho):
-    """Exactly which segments pass a frame (not i, not j) within ρ (module docstring)."""
+def _exact_blocks(tree, xy, i, j, rho, step):
+    """Exactly which segments pass a frame (not i, not j) within ρ (module docstring):
+    points every ``step`` (≥ 2ρ), each point's 8 nearest frames within the reach, and
+    the whole ball where 8 do not exhaust it."""
     out = np.zeros(len(i), bool)
     if not len(i):
         return out
-    step = 2.0 * rho
     reach = float(np.hypot(rho, 0.5 * step))
     length = np.linalg.norm(xy[j] - xy[i], axis=1)
     m = np.ceil(length / step).astype(np.int64) + 1
-    for sl in _batches(4 * m):  # the balls hold a few frames each
+    k = min(_NEAREST, len(xy))
+    for sl in _batches(m):
         ii, jj = i[sl], j[sl]
         own, pts = _samples(xy[ii], xy[jj], m[sl])
-        lists = tree.query_ball_point(pts, reach, return_sorted=False)
-        n = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-        flat = np.fromiter((k for x in lists for k in x), np.int64, int(n.sum()))
-        seg = own[np.repeat(np.arange(len(pts)), n)]
+        d, nb = tree.query(pts, k=k, distance_upper_bound=reach)
+        d, nb = d.reshape(len(pts), -1), nb.reshape(len(pts), -1)
+        full = np.flatnonzero(np.isfinite(d[:, -1]))  # the ball may hold more than k
+        seg = np.repeat(own, k)[np.isfinite(d).reshape(-1)]
+        flat = nb[np.isfinite(d)]
+        if len(full):
+            lists = tree.query_ball_point(pts[full], reach, return_sorted=False)
+            n = np.fromiter((len(x) for x in lists), np.int64, len(lists))
+            flat = np.concatenate([flat, np.fromiter((q for x in lists for q in x), np.int64,
+                                                     int(n.sum()))])  # fmt: skip
+            seg = np.concatenate([seg, np.repeat(own[full], n)])
         a = xy[ii[seg]]
-        d = _segment_distance(xy[flat], a, xy[jj[seg]] - a)
-        hit = (d < rho) & (flat != ii[seg]) & (flat != jj[seg])
+        dist = _segment_distance(xy[flat], a, xy[jj[seg]] - a)
+        hit = (dist < rho) & (flat != ii[seg]) & (flat != jj[seg])
         out[sl.start + np.unique(seg[hit])] = True
     return out
 
@@ -100,11 +111,9 @@ def segments_near_points(xy: np.ndarray, i: np.ndarray, j: np.ndarray, rho: floa
     tree = cKDTree(xy)
     blocked = np.zeros(len(i), bool)
     length = np.linalg.norm(xy[j] - xy[i], axis=1)
-    fine = np.ceil(length / rho).astype(np.int64) + 1
-    for pts in (*_ROUNDS, None):
-        rest = np.flatnonzero(~blocked)
-        m = fine[rest] if pts is None else np.minimum(fine[rest], pts)
-        blocked[rest] = _sure_blocks(tree, xy, i[rest], j[rest], m, rho)
+    m = np.minimum(np.ceil(length / rho).astype(np.int64) + 1, _COARSE)
+    blocked[:] = _sure_blocks(tree, xy, i, j, m, rho)
     rest = np.flatnonzero(~blocked)
-    blocked[rest] = _exact_blocks(tree, xy, i[rest], j[rest], rho)
+    spacing = float(np.median(tree.query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 0.0
+    blocked[rest] = _exact_blocks(tree, xy, i[rest], j[rest], rho, max(2.0 * rho, spacing))
     return blocked

@@ -33,7 +33,7 @@ def test_matches_every_segment_against_every_point(seed):
     keep = i != j
     i, j = i[keep], j[keep]
     spacing = np.median(np.sort(np.linalg.norm(xy[:, None] - xy[None], axis=2), axis=1)[:, 1])
-    for rho in (0.25 * spacing, 0.5 * spacing, 2.0 * spacing):
+    for rho in (0.05 * spacing, 0.25 * spacing, 0.5 * spacing, 2.0 * spacing):
         got = segments_near_points(xy, i, j, rho)
         want = _brute(xy, i, j, rho)
         assert np.array_equal(got, want), (rho, int((got != want).sum()))
