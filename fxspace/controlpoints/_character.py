@@ -47,8 +47,9 @@ from fxspace.controlpoints._rbf import face_surface, rbf_deform
 from fxspace.controlpoints._scene import SceneModel
 from fxspace.controlpoints._segment import segments_from_boundaries
 from fxspace.errors import FxspaceError
+from fxspace.rigid import fit_similarity, principal_axes
 
-__all__ = ["Character", "character", "standin_character", "drive_character", "similarity"]
+__all__ = ["Character", "character", "standin_character", "drive_character"]
 
 
 class Character(NamedTuple):
@@ -94,18 +95,6 @@ def character(
     return Character(V, F.astype(np.int32), mv.astype(np.int64), out[0], out[1])
 
 
-def similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """``(s, Q, t)`` minimising ``Σ‖s Q src_j + t − dst_j‖²`` (Umeyama 1991)."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    A, B = src - mu_s, dst - mu_d
-    U, S, Vt = np.linalg.svd(B.T @ A)
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    Q = U @ D @ Vt
-    s = float(np.trace(np.diag(S) @ D) / max(np.sum(A * A), 1e-300))
-    return s, Q, mu_d - s * Q @ mu_s
-
-
 @checked
 def standin_character(
     neutral_markers: Float[ArrayLike, "M 3"],
@@ -117,8 +106,7 @@ def standin_character(
     of the neutral markers) — another face, same marker layout."""
     m = np.asarray(neutral_markers, np.float64)
     surf = face_surface(m, n_vertices)
-    mu = m.mean(0)
-    _, _, vt = np.linalg.svd(m - mu, full_matrices=False)
+    mu, vt = principal_axes(m)
     V = mu + ((surf.vertices - mu) @ vt.T * np.asarray(proportions, np.float64)) @ vt
     return character(V, surf.faces, surf.marker_vertex)
 
@@ -165,7 +153,7 @@ def drive_character(
     if S0.shape != (scene.n_vertices, 3):
         raise FxspaceError(f"source_rest must be ({scene.n_vertices}, 3); got {S0.shape}")
     Pt = char.vertices[char.marker_vertex]
-    s, Q, _ = similarity(M[0], Pt)
+    Q, s, _ = fit_similarity(M[0], Pt)
     # correspondence: the character warped onto the capture's neutral face, nearest vertex
     warp = np.asarray(
         rbf_deform(jnp.asarray(char.vertices), jnp.asarray(Pt), jnp.asarray(M[0][None]))

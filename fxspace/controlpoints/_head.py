@@ -26,6 +26,7 @@ from jaxtyping import ArrayLike, Float
 
 from fxspace._validate import checked
 from fxspace.errors import FxspaceError
+from fxspace.rigid import principal_axes
 
 __all__ = ["HeadModel", "head_model", "head_vertices", "HEAD_COLOURS"]
 
@@ -90,8 +91,8 @@ def _rbf(targets: np.ndarray, sources: np.ndarray, kernel: str = "biharmonic",
 
 def _frame(m: np.ndarray, names) -> np.ndarray:
     """(3, 3) rows right, up, out of the face (PCA; with names, up from chin to forehead)."""
-    q = m - m.mean(0)
-    _, _, vt = np.linalg.svd(q, full_matrices=False)
+    mu, vt = principal_axes(m)
+    q = m - mu
     right, up = vt[0], vt[1]
     low = [n.lower() for n in names] if names is not None else []
     top = [i for i, n in enumerate(low) if "forehead" in n]

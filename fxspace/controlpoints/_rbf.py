@@ -28,6 +28,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from fxspace._validate import checked
 from fxspace.errors import FxspaceError
+from fxspace.rigid import principal_axes
 
 __all__ = ["rbf_transfer_matrix", "rbf_deform", "face_surface", "FaceSurface"]
 
@@ -193,8 +194,7 @@ def face_surface(
         raise FxspaceError("neutral_markers contain NaN; use a frame where every marker is seen")
     if n_vertices < 16:
         raise FxspaceError(f"n_vertices must be >= 16; got {n_vertices}")
-    mu = m.mean(0)
-    _, _, vt = np.linalg.svd(m - mu, full_matrices=False)
+    mu, vt = principal_axes(m)
     uvw = (m - mu) @ vt.T
     uv_m, w_m = uvw[:, :2], uvw[:, 2]
     hull = _convex_hull(uv_m)

@@ -35,6 +35,7 @@ import numpy as np
 
 from fxspace.errors import FxspaceError
 from fxspace.face._rig import Rig
+from fxspace.rigid import fit_similarity
 
 __all__ = ["Binding", "bind_markers", "LANDMARKS", "closest_points", "similarity_fit"]
 
@@ -106,20 +107,11 @@ class Binding(NamedTuple):
 
 
 def similarity_fit(src, dst, weights=None) -> tuple[float, np.ndarray, np.ndarray]:
-    """Umeyama's least-squares similarity ``dst ≈ s R src + t`` (``det R = +1``)."""
-    X, Y = np.asarray(src, np.float64), np.asarray(dst, np.float64)
-    w = np.ones(len(X)) if weights is None else np.asarray(weights, np.float64)
-    w = w / w.sum()
-    mx, my = w @ X, w @ Y
-    Xc, Yc = X - mx, Y - my
-    C = (Yc * w[:, None]).T @ Xc
-    U, S, Vt = np.linalg.svd(C)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    D = np.diag([1.0, 1.0, d])
-    R = U @ D @ Vt
-    var = float(w @ np.sum(Xc * Xc, axis=1))
-    s = float(np.sum(S * np.diag(D)) / var) if var > 0 else 1.0
-    return s, R, my - s * R @ mx
+    """Umeyama's least-squares similarity ``dst ≈ s R src + t`` (``det R = +1``), in
+    float64: `fxspace.rigid.fit_similarity`, kept under its name and ``(s, R, t)`` order."""
+    w = None if weights is None else np.asarray(weights, np.float64)
+    R, s, t = fit_similarity(np.asarray(src, np.float64), np.asarray(dst, np.float64), w)
+    return float(s), R, t
 
 
 def closest_points(points, vertices, faces, candidates: int = 48):

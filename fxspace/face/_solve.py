@@ -65,6 +65,7 @@ from fxspace.errors import FxspaceError
 from fxspace.face._bind import Binding
 from fxspace.face._rig import Rig
 from fxspace.results import RESULTS, check_result, result_from_flags, where_result
+from fxspace.rigid import fit_similarity
 
 __all__ = ["FaceSolve", "solve_weights", "kabsch"]
 
@@ -112,17 +113,10 @@ class FaceSolve(NamedTuple):
 
 def kabsch(P, Y, v):
     """Weighted rigid fit ``Y ≈ R P + τ`` per frame: ``P``, ``Y`` ``(T, M, 3)``, weights
-    ``v`` ``(T, M)``; returns ``R`` ``(T, 3, 3)`` (``det R = +1``) and ``τ`` ``(T, 3)``."""
-    n = jnp.maximum(jnp.sum(v, axis=1, keepdims=True), 1e-12)
-    cp = jnp.sum(v[..., None] * P, axis=1) / n
-    cy = jnp.sum(v[..., None] * Y, axis=1) / n
-    C = jnp.einsum("tm,tmi,tmj->tij", v, Y - cy[:, None], P - cp[:, None])
-    U, _, Vt = jnp.linalg.svd(C)
-    d = jnp.sign(jnp.linalg.det(U @ Vt))
-    d = jnp.where(d == 0, 1.0, d)
-    U = U.at[:, :, 2].multiply(d[:, None])
-    R = U @ Vt
-    return R, cy - jnp.einsum("tij,tj->ti", R, cp)
+    ``v`` ``(T, M)``; returns ``R`` ``(T, 3, 3)`` (``det R = +1``) and ``τ`` ``(T, 3)``.
+    `fxspace.rigid.fit_similarity` with ``scale=False``, kept under its name here."""
+    R, _, t = fit_similarity(jnp.asarray(P), jnp.asarray(Y), jnp.asarray(v), scale=False)
+    return R, t
 
 
 def _laplacian(w):

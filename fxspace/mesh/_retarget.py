@@ -50,6 +50,7 @@ from fxspace.mesh._ik_solvers import LevenbergMarquardt, _pick_solver, _solve
 from fxspace.mesh._markers import MarkerSet
 from fxspace.mesh._skinning import Pose
 from fxspace.results import RESULTS
+from fxspace.rigid import fit_rotation
 from fxspace.rotations import quat_normalize, quat_to_matrix
 
 __all__ = [
@@ -662,13 +663,13 @@ def _compiled(args, solver):
 
 def _align(bc: np.ndarray, bs: np.ndarray) -> np.ndarray:
     """The rotation ``Q`` best taking the character's bone vectors ``bc`` (rows) onto the
-    source's ``bs`` (Kabsch; one bone: the shortest arc)."""
+    source's ``bs`` (`fxspace.rigid.fit_rotation`; one bone, or bones on one line: the
+    shortest arc)."""
     if len(bc) >= 2:
-        h = bc.T @ bs
-        u, sv, vt = np.linalg.svd(h)
-        if sv[1] > 1e-6 * max(sv[0], 1e-12):
-            d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-            return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+        Q, sv = fit_rotation(np.asarray(bc, np.float64), np.asarray(bs, np.float64))
+        # sv of the mean Σ bs bcᵀ / n: the unnormalised test sv₁ > 1e-6 max(sv₀, 1e-12)
+        if sv[1] > 1e-6 * max(sv[0], 1e-12 / len(bc)):
+            return Q
     a = bc.sum(0)
     b = bs.sum(0)
     a, b = a / (np.linalg.norm(a) or 1.0), b / (np.linalg.norm(b) or 1.0)

@@ -1,4 +1,5 @@
-"""Absolute orientation (Horn 1987, closed form with unit quaternions)."""
+"""Absolute orientation (Horn 1987): the motion package's names for the one rigid fit of
+`fxspace.rigid`, with their argument checks and the `RigidTransform` record."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from jaxtyping import Array, Float
 
 from fxspace._validate import _is_tracer, as_float_array, checked
 from fxspace.errors import FxspaceError
-from fxspace.rotations import quat_to_matrix
+from fxspace.rigid import fit_rotation, fit_similarity
 
 __all__ = ["absolute_orientation", "absolute_rotation", "RigidTransform", "apply_rigid"]
 
@@ -28,14 +29,13 @@ def absolute_orientation(
 ) -> RigidTransform:
     """Rigid transform minimising ``Σ_k w_k ||R src_k + t − dst_k||²`` (Horn 1987).
 
-    Horn's closed form: with centred points and ``M = Σ w_k src_k dst_kᵀ``, the optimal
-    rotation is the unit quaternion eigenvector of the largest eigenvalue of the symmetric
-    4×4 matrix ``N(M)`` (Horn 1987, J. Opt. Soc. Am. A 4(4), the matrix N of §4); the
-    translation is ``t = d̄ − R s̄`` (the centroid result of §2). A quaternion is
-    always a proper rotation, so a reflection (``det = −1`` in the SVD solution) can never
-    be returned — the reflection case of Kabsch/Umeyama is handled by construction.
-    Needs ``k ≥ 3`` non-collinear points for a unique answer. O(k). Batched over leading
-    axes via ``jax.vmap``; differentiable where the top eigenvalue is simple.
+    The fit is `fxspace.rigid.fit_similarity` with ``scale=False`` (the package's one
+    rigid fit): the optimal rotation of the centred points — the rotation Horn finds as
+    the top eigenvector of his 4×4 matrix ``N`` (J. Opt. Soc. Am. A 4(4), §4), here by
+    the equivalent SVD with the sign correction (Umeyama 1991), so never a reflection —
+    and the translation ``t = d̄ − R s̄`` (Horn's centroid result, §2). Needs ``k ≥ 3``
+    non-collinear points for a unique answer. O(k). Batched over leading axes via
+    ``jax.vmap``; differentiable wherever the rotation is unique.
 
     **Returns:** ``RigidTransform(R, t)`` (unpacks as ``R, t = absolute_orientation(...)``).
     """
@@ -53,19 +53,8 @@ def absolute_orientation(
             raise FxspaceError(f"weights must have shape ({src.shape[0]},), got {w.shape}")
         if not _is_tracer(w) and (bool(jnp.any(w < 0)) or not bool(jnp.sum(w) > 0)):
             raise FxspaceError("weights must be >= 0 with a positive sum")
-    w = w / jnp.sum(w)
-    sbar = jnp.sum(w[:, None] * src, axis=0)
-    dbar = jnp.sum(w[:, None] * dst, axis=0)
-    # scaled before the products: float32 points at 1e19 or 1e-25 neither overflow nor
-    # underflow (the rotation does not depend on a common scale)
-    sc = jnp.maximum(jnp.max(jnp.abs(src - sbar[None])), jnp.max(jnp.abs(dst - dbar[None])))
-    sc = jnp.where(sc > 0, sc, 1.0)
-    S = jnp.einsum("k,ka,kb->ab", w, (src - sbar[None]) / sc, (dst - dbar[None]) / sc)
-    N = horn_matrix(S)
-    _, vecs = jnp.linalg.eigh(N)
-    q = vecs[:, -1]
-    R = quat_to_matrix(q)
-    return RigidTransform(R, dbar - R @ sbar)
+    R, _, t = fit_similarity(src, dst, w, scale=False)
+    return RigidTransform(R, t)
 
 
 def absolute_rotation(
@@ -74,9 +63,9 @@ def absolute_rotation(
     weights: Float[Array, " k"] | None = None,
 ) -> Float[Array, "3 3"]:
     """Rotation about the origin minimising ``Σ_k w_k ||R src_k − dst_k||²`` (no
-    translation): Horn's quaternion of the largest eigenvalue of ``N(M)`` with the
-    *uncentred* ``M = Σ w src dstᵀ`` (Horn 1987 §4; the centroids of §2 are what a
-    translation would absorb). Ha & Han §3.2 re-place the upper samples this way: both
+    translation): the rotation of Horn 1987 §4 for the *uncentred* ``M = Σ w src dstᵀ``
+    (the centroids of §2 are what a translation would absorb), computed by
+    `fxspace.rigid.fit_rotation`. Ha & Han §3.2 re-place the upper samples this way: both
     point clouds in the root frame, one rotation about the root. Needs 2 non-parallel
     points for a unique answer. Batched via ``jax.vmap``."""
     src = as_float_array(src, "src", finite="allow")
@@ -88,11 +77,7 @@ def absolute_rotation(
     w = jnp.ones(src.shape[0], src.dtype) if weights is None else jnp.asarray(weights, src.dtype)
     if w.shape != src.shape[:1]:
         raise FxspaceError(f"weights must have shape ({src.shape[0]},), got {w.shape}")
-    sc = jnp.maximum(jnp.max(jnp.abs(src)), jnp.max(jnp.abs(dst)))
-    sc = jnp.where(sc > 0, sc, 1.0)
-    S = jnp.einsum("k,ka,kb->ab", w / jnp.sum(w), src / sc, dst / sc)
-    _, vecs = jnp.linalg.eigh(horn_matrix(S))
-    return quat_to_matrix(vecs[:, -1])
+    return fit_rotation(src, dst, w).rotation
 
 
 @checked
@@ -100,21 +85,3 @@ def apply_rigid(tf: RigidTransform, x: Float[Array, "... 3"]) -> Float[Array, ".
     """``R x + t`` for points ``x`` (any leading shape)."""
     x = jnp.asarray(x)
     return jnp.einsum("ab,...b->...a", tf.R, x) + tf.t.reshape((1,) * (x.ndim - 1) + (3,))
-
-
-def horn_matrix(S: Float[Array, "3 3"]) -> Float[Array, "4 4"]:
-    """Horn's symmetric 4×4 matrix ``N`` of a cross-covariance ``S = Σ w src dstᵀ`` (Horn 1987,
-    §4): the best rotation is the unit quaternion (w, x, y, z) eigenvector of its largest
-    eigenvalue."""
-    sxx, sxy, sxz = S[0, 0], S[0, 1], S[0, 2]
-    syx, syy, syz = S[1, 0], S[1, 1], S[1, 2]
-    szx, szy, szz = S[2, 0], S[2, 1], S[2, 2]
-    N = jnp.stack(
-        [
-            jnp.stack([sxx + syy + szz, syz - szy, szx - sxz, sxy - syx]),
-            jnp.stack([syz - szy, sxx - syy - szz, sxy + syx, szx + sxz]),
-            jnp.stack([szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy]),
-            jnp.stack([sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz]),
-        ]
-    )
-    return N

@@ -12,7 +12,7 @@ from jaxtyping import Array, Bool, Float
 
 from fxspace._validate import _is_tracer, as_float_array, check_index, check_scalar, checked
 from fxspace.errors import FxspaceError
-from fxspace.motion._horn import horn_matrix
+from fxspace.rigid import fit_rotation
 from fxspace.rotations import (
     _xp,
     matrix_to_quat,
@@ -179,15 +179,6 @@ def torso_joints(parents: tuple[int, ...], mask, spine_root: int) -> tuple[int, 
     return tuple(sorted(j for j, d in depth.items() if d <= depth[branch] + 2))
 
 
-def _rotation_about_origin(src, dst):
-    """Rotation matrix ``R`` minimising ``Σ ||R src_k − dst_k||²`` (no translation): Horn's
-    quaternion, the top eigenvector of `horn_matrix` of ``Σ src dstᵀ``."""
-    S = src.T @ dst
-    sc = jnp.max(jnp.abs(S))
-    _, vecs = jnp.linalg.eigh(horn_matrix(S / jnp.where(sc > 0, sc, 1.0)))
-    return quat_to_matrix(vecs[:, -1])
-
-
 def _torso_frames(q, parents, offsets, chain, torso):
     """World rotation of each joint of ``chain`` (root → splice joint, root translation 0) and
     the torso joints' positions relative to the splice joint in its own frame, by unrolled
@@ -281,7 +272,7 @@ def heck_splice(
     RL, dL = _torso_frames(lower_q, parents, offsets, chain, torso)
     RU, src = _torso_frames(upper_q, parents, offsets, chain, torso)
     dst = dL @ RL[s].T  # the locomotion's torso (world, relative to the splice joint)
-    W1 = _rotation_about_origin(src, dst)  # step 1: the splice joint's world rotation
+    W1 = fit_rotation(src, dst).rotation  # step 1: the splice joint's world rotation
     up = jnp.mean(src, axis=0)  # the torso's long axis (splice-joint frame)
     H = quat_to_matrix(quat_mul(heading_quat(lower_q[0]), quat_conj(heading_quat(upper_q[0]))))
     W = _shortest_arc(W1 @ up, H @ RU[s] @ up, posture_transfer) @ W1  # step 2

@@ -17,6 +17,7 @@ import numpy as np
 
 from fxspace._validate import as_float_array, check_choice, check_memory, check_scalar
 from fxspace.errors import FxspaceError
+from fxspace.rigid import fit_similarity
 
 __all__ = ["Playback", "playback", "rigid_align"]
 
@@ -34,7 +35,8 @@ class Playback(NamedTuple):
 
 def rigid_align(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Rotate and translate every frame of ``positions`` (T, M, 3) onto ``reference``
-    (M, 3) in the least-squares sense (Kabsch/Horn, with reflection guard)."""
+    (M, 3) in the least-squares sense (`fxspace.rigid.fit_similarity` with
+    ``scale=False``: Kabsch, never a reflection); a frame with a NaN marker stays NaN."""
     P = as_float_array(positions, "positions", shape=(None, None, 3), finite="nan", xp="numpy")
     P = P.astype(np.float64)
     R0 = as_float_array(reference, "reference", shape=(P.shape[1], 3), xp="numpy")
@@ -43,15 +45,8 @@ def rigid_align(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
     if missing.any():
         filled = rigid_align(np.where(missing[:, None, None], R0[None], P), R0)
         return np.where(missing[:, None, None], np.nan, filled)
-    pc = P.mean(axis=1, keepdims=True)
-    rc = R0.mean(axis=0)
-    H = np.einsum("tmi,mj->tij", P - pc, R0 - rc)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", U, Vt)))
-    S = np.ones((len(P), 3))
-    S[:, 2] = d
-    R = np.einsum("tji,tj,tkj->tik", Vt, S, U)  # V diag(S) Uᵀ
-    return np.einsum("tij,tmj->tmi", R, P - pc) + rc
+    R, _, t = fit_similarity(P, np.broadcast_to(R0, P.shape), scale=False)
+    return np.einsum("tij,tmj->tmi", R, P) + t[:, None]
 
 
 def playback(

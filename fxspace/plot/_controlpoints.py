@@ -8,6 +8,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
+from fxspace.rigid import principal_axes
+
 __all__ = ["plot_segmentation", "plot_control_points", "plot_reconstruction_frames"]
 
 
@@ -41,8 +43,7 @@ def plot_segmentation(seg, n_channels: int = 3, rate: float | None = None) -> Fi
 
 def _project(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Front view: the two principal axes of the vertices, depth the third."""
-    mu = V.mean(0)
-    _, _, vt = np.linalg.svd(V - mu, full_matrices=False)
+    mu, vt = principal_axes(np.asarray(V))
     return vt, mu
 
 

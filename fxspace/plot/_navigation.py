@@ -21,6 +21,8 @@ import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
+from fxspace.rigid import principal_axes
+
 __all__ = [
     "plot_level",
     "plot_levels_grid",
@@ -214,8 +216,7 @@ def face_frame(neutral: np.ndarray, names: Sequence[str] | None = None) -> np.nd
     """(3, 3) rows: the face's right, up and out axes from a PCA of the neutral frame; with
     marker names, 'up' points from the chin to the forehead."""
     p = np.asarray(neutral, np.float64)
-    q = p - p.mean(0)
-    _, _, Vt = np.linalg.svd(q, full_matrices=False)
+    _, Vt = principal_axes(p)
     right, up = Vt[0], Vt[1]
     if names is not None:
         low = [n.lower() for n in names]

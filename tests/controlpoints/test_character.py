@@ -40,9 +40,9 @@ def test_the_character_carries_the_edits(capture):
     Y = drive_character(ch, scene, pos, X[0], edits=[key])
     D = fx.controlpoints.edit_displacements(scene, [key])
     nn = np.argmin(((surf.vertices[:, None] - X[0][None]) ** 2).sum(-1), 1)
-    from fxspace.controlpoints._character import similarity
+    from fxspace.rigid import fit_similarity
 
-    s, Q, _ = similarity(pos[0], surf.vertices[surf.marker_vertex])
+    Q, s, _ = fit_similarity(pos[0], surf.vertices[surf.marker_vertex])
     np.testing.assert_allclose(Y - Y0, s * D[:, nn] @ Q.T, atol=1e-9)
     assert np.linalg.norm(Y[20] - Y0[20], axis=1).max() > 0.01
     still = np.linalg.norm(D, axis=2).max(0)[nn] == 0
