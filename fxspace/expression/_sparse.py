@@ -22,6 +22,7 @@ refinement plus the candidate search (O(T²·d) brute force, ~O(T log T) for the
 
 from __future__ import annotations
 
+import weakref
 from functools import partial
 from typing import Literal, NamedTuple
 
@@ -150,12 +151,28 @@ def dijkstra_csr(graph: NeighbourGraph):
     twice the work of ``directed=True``). A symmetric matrix gives the same distances either
     way (each ``d[v] = min_u d[u] + w_uv`` is an exact minimum), so a symmetric graph — every
     `neighbourhood_graph` is — is passed as float64 with ``directed=True`` (validated and
-    converted once, not per call); an asymmetric one keeps ``directed=False``.
+    converted once, not per call); an asymmetric one keeps ``directed=False``. The
+    answer is kept while the graph's two arrays live, so a route's many searches build it
+    once; treat it as read-only.
     """
+    key = (id(graph.indices), id(graph.weights))
+    hit = _CSR_CACHE.get(key)
+    if hit is not None and hit[0]() is graph.indices and hit[1]() is graph.weights:
+        return hit[2]
     csr = to_scipy(graph).astype(np.float64)
     csr.sort_indices()
     symmetric = (csr != csr.T).nnz == 0
-    return csr, bool(symmetric)  # directed=True is exact on a symmetric matrix
+    out = (csr, bool(symmetric))  # directed=True is exact on a symmetric matrix
+    try:  # kept while the graph's arrays live (a route asks once per link)
+        refs = tuple(weakref.ref(a, lambda _, k=key: _CSR_CACHE.pop(k, None))
+                     for a in (graph.indices, graph.weights))  # fmt: skip
+    except TypeError:  # arrays without weak references: not cached
+        return out
+    _CSR_CACHE[key] = (*refs, out)
+    return out
+
+
+_CSR_CACHE: dict = {}  # (id(indices), id(weights)) -> (weakref, weakref, (csr, directed))
 
 
 def _principal_axes(F: np.ndarray, dim: int, sample: int = 20000, seed: int = 0) -> np.ndarray:

@@ -116,3 +116,17 @@ def test_knn_recall_against_sklearn():
     assert got < 0.9
     with pytest.raises(fx.FxspaceError, match="features"):
         fx.expression.knn_recall(F[:100], exact, k=6)
+
+
+def test_dijkstra_csr_is_built_once_per_graph_and_never_served_to_another():
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(200, 4))
+    g = fx.neighbourhood_graph(X, k=5, reduce_dim=None)
+    a, b = g.dijkstra_csr(), g.dijkstra_csr()
+    assert a[0] is b[0]  # one build for the many searches of a route
+    h = fx.expression.NeighbourGraph(g.indices, g.weights * 2.0)  # same indices, new weights
+    np.testing.assert_allclose(h.dijkstra_csr()[0].toarray(), 2.0 * a[0].toarray())
+    del h
+    g2 = fx.neighbourhood_graph(X[::-1].copy(), k=5, reduce_dim=None)
+    ref = fx.expression.to_scipy(g2).toarray()
+    np.testing.assert_allclose(g2.dijkstra_csr()[0].toarray(), ref)
