@@ -34,6 +34,7 @@ from fxspace import mesh as mesh
 from fxspace import motion as motion
 from fxspace import navigation as navigation
 from fxspace import results as results
+from fxspace import rigid as rigid
 from fxspace import rotations as rotations
 from fxspace import runs as runs
 from fxspace import synthetic as synthetic

@@ -45,6 +45,7 @@ SUBPACKAGES = (
     "navigation",
     "synthetic",
     "rotations",
+    "rigid",
 )
 
 # parameter annotations naming constructed objects: a function taking one is not drawn
