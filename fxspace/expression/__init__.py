@@ -34,6 +34,7 @@ from fxspace.expression._paths import Paths as Paths
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
 from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
+from fxspace.expression._blocks import neighbourhood_graph_blocks as neighbourhood_graph_blocks
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
 from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr
@@ -78,6 +79,7 @@ __all__ = [
     "Paths",
     "check_sparse_connected",
     "knn_recall",
+    "neighbourhood_graph_blocks",
     "graph_from_dense",
     "neighbourhood_graph",
     "sparse_components",

@@ -327,20 +327,19 @@ def knn_recall(
     if not 1 <= k < n:
         raise FxspaceError(f"k must be in [1, n) = [1, {n}), got {k}")
     rows = np.random.default_rng(seed).choice(n, size=min(int(sample), n), replace=False)
-    Q = jnp.asarray(F[rows])
-    best = jnp.full((len(rows), k), jnp.inf, Q.dtype)
-    idx = jnp.zeros((len(rows), k), jnp.int32)
-    step = max(1, 2**24 // max(len(rows), 1))
+    Q = F[rows].astype(np.float64)  # float64: near-ties among the nearest are common
+    qq = np.sum(Q * Q, axis=1)[:, None]
+    best = np.full((len(rows), k), np.inf)
+    idx = np.zeros((len(rows), k), np.int64)
+    step = max(1, 2**22 // max(len(rows), 1))
     for s in range(0, n, step):
-        B = jnp.asarray(F[s : s + step])
-        d = jnp.sum(Q * Q, 1)[:, None] - 2 * Q @ B.T + jnp.sum(B * B, 1)[None]
-        d = jnp.where(jnp.arange(s, s + B.shape[0])[None] == jnp.asarray(rows)[:, None],
-                      jnp.inf, d)  # fmt: skip
-        both = jnp.concatenate([best, d], axis=1)
-        ids = jnp.concatenate([idx, jnp.broadcast_to(jnp.arange(s, s + B.shape[0]),
-                                                      d.shape).astype(jnp.int32)], axis=1)  # fmt: skip
-        neg, at = jax.lax.top_k(-both, k)
-        best, idx = -neg, jnp.take_along_axis(ids, at, axis=1)
+        B = F[s : s + step].astype(np.float64)
+        d = qq - 2.0 * (Q @ B.T) + np.sum(B * B, axis=1)[None]
+        d[rows[:, None] == np.arange(s, s + len(B))[None]] = np.inf
+        both = np.concatenate([best, d], axis=1)
+        ids = np.concatenate([idx, np.broadcast_to(np.arange(s, s + len(B)), d.shape)], axis=1)
+        at = np.argpartition(both, k - 1, axis=1)[:, :k]
+        best, idx = np.take_along_axis(both, at, axis=1), np.take_along_axis(ids, at, axis=1)
     have = np.asarray(graph.indices)[rows]
     held = (np.asarray(idx)[:, :, None] == have[:, None, :]).any(axis=2)
     return float(held.mean())

@@ -1,0 +1,183 @@
+"""The k-NN graph of marker frames a block at a time, in this process or on a Dask cluster.
+
+`neighbourhood_graph` takes the whole ``(T, P)`` feature matrix (P = M(M−1)/2 marker
+distances: 1770 for 60 markers, 7 GB at 10⁶ frames). Here the features are never held
+whole: each block of frames makes its own from the positions, and each stage is a task
+per block, run in this process (``client=None``) or as Dask tasks on any
+``dask.distributed.Client`` (a `LocalCluster` or a real scheduler):
+
+1. **features** (a task per block): the block's features, written into one
+   memory-mapped ``.npy`` on disk (``T × P``);
+2. **axes** (here): principal axes of the features of ≤ 20 000 frames drawn with a
+   fixed seed — the candidate search's low-dimensional space — and (a task per block)
+   every frame's projection ``(T, d)``;
+3. **neighbours** (a task per block): each frame's ``C`` nearest in the projection
+   (a k-d tree over every frame's projection, built once per worker), then the exact
+   feature distances to them (the candidates' rows read from the ``.npy``) and the
+   ``k`` nearest kept;
+4. **pack** (here): the symmetric `NeighbourGraph`.
+
+Every block runs the same code wherever it runs, so a cluster gives the graph of one
+process, bit for bit. What travels: the positions once to each worker (``T × M × 3``
+floats), the projection once (``T × d``), per block the indices and lengths back
+(``T_b × k``); the features go through the ``.npy``, which every worker must reach (a
+local cluster shares this machine's disk; a real one needs a shared folder, as the
+sweep's run folders do). Memory: the positions, the projection and a few blocks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxspace._validate import check_int
+from fxspace.errors import FxspaceError
+from fxspace.expression._features import PAIR_WEIGHT
+from fxspace.expression._sparse import NeighbourGraph, _pack, _principal_axes
+
+__all__ = ["neighbourhood_graph_blocks"]
+
+_AXES_SAMPLE = 20000
+_ROWS = 256  # frames whose candidates are compared at once
+_TREES: dict[tuple, Any] = {}  # one k-d tree per projection, per process (worker)
+
+
+def _block_features(positions: np.ndarray, rows: np.ndarray, block: int) -> np.ndarray:
+    """`fxspace.distance_features` of ``positions[rows]`` in numpy (float64 arithmetic,
+    stored in the positions' float type), ``block`` rows at a time: the same numbers in
+    every process, whatever its JAX settings."""
+    M = positions.shape[1]
+    iu, ju = np.triu_indices(M, 1)
+    dtype = positions.dtype if positions.dtype.kind == "f" else np.float64
+    out = np.empty((len(rows), len(iu)), dtype)
+    for s in range(0, len(rows), block):
+        x = np.asarray(positions[rows[s : s + block]], np.float64)
+        out[s : s + len(x)] = PAIR_WEIGHT * np.linalg.norm(x[:, iu] - x[:, ju], axis=-1)
+    return out
+
+
+def _features_to_disk(positions, start: int, stop: int, path: str, block: int) -> None:
+    """Write the features of frames [start, stop) into rows [start, stop) of the ``.npy``
+    at ``path``."""
+    out = np.load(path, mmap_mode="r+")
+    out[start:stop] = _block_features(positions, np.arange(start, stop), block)
+    out.flush()
+    del out
+
+
+def _project(path: str, start: int, stop: int, mean, axes) -> np.ndarray:
+    F = np.load(path, mmap_mode="r")[start:stop]
+    return ((F - mean) @ axes).astype(axes.dtype)
+
+
+def _tree(Z: np.ndarray):
+    from scipy.spatial import cKDTree
+
+    key = (id(Z), Z.shape)
+    hit = _TREES.get(key)
+    if hit is None or hit[0] is not Z:
+        _TREES.clear()
+        hit = _TREES[key] = (Z, cKDTree(Z))
+    return hit[1]
+
+
+def _neighbours(path: str, Z, start: int, stop: int, num: int, k: int):
+    """``(cand, dist)`` ``(stop − start, k)``: each frame's k nearest (exact features,
+    read from the ``.npy`` at ``path``, among its ``num`` nearest in the projection Z;
+    itself excluded)."""
+    n = len(Z)
+    _, ii = _tree(Z).query(Z[start:stop], k=min(num + 1, n))
+    own = ii == np.arange(start, stop)[:, None]
+    own[:, -1] |= ~own.any(axis=1)
+    cand = ii[~own].reshape(stop - start, -1).astype(np.int64)
+    feats = np.load(path, mmap_mode="r")
+    out_c = np.empty((stop - start, k), np.int64)
+    out_d = np.empty((stop - start, k), feats.dtype)
+    for s in range(0, stop - start, _ROWS):  # ≤ _ROWS × num candidate rows at once
+        c = cand[s : s + _ROWS]
+        F = np.asarray(feats[start + s : start + s + len(c)], np.float64)
+        uniq, inv = np.unique(c, return_inverse=True)
+        G = np.asarray(feats[uniq], np.float64)[inv.reshape(c.shape)]
+        d = np.sqrt(np.sum((G - F[:, None, :]) ** 2, axis=2))
+        order = np.argsort(d, axis=1, kind="stable")[:, :k]
+        out_c[s : s + len(c)] = np.take_along_axis(c, order, axis=1)
+        out_d[s : s + len(c)] = np.take_along_axis(d, order, axis=1)
+    return out_c, out_d
+
+
+def _spans(T: int, rows: int) -> list[tuple[int, int]]:
+    return [(s, min(s + rows, T)) for s in range(0, T, rows)]
+
+
+def _map(client, fn, shared: tuple, items: list[tuple]) -> list:
+    """``fn(*shared, *item)`` for each item: here, or as Dask tasks (``shared`` sent to
+    every worker once)."""
+    if client is None:
+        return [fn(*shared, *it) for it in items]
+    # hash=False: each call its own keys (a content key shared with the call before
+    # could be released under the tasks that need it)
+    sent = [client.scatter(v, broadcast=True, hash=False) if isinstance(v, np.ndarray) else v
+            for v in shared]  # fmt: skip
+    futures = [client.submit(fn, *sent, *it, pure=False) for it in items]
+    return client.gather(futures)
+
+
+def neighbourhood_graph_blocks(
+    positions, k: int = 10, *, reduce_dim: int = 8, candidates: int | None = None,
+    rows_per_task: int = 20000, block: int = 2048, store=None, client=None,
+) -> NeighbourGraph:  # fmt: skip
+    """The symmetric k-NN graph of the frames' marker-distance features, a block of
+    frames at a time (module docstring), never the whole feature matrix.
+
+    **Arguments:**
+
+    - `positions`: ``(T, M, 3)`` marker frames (no NaN), a numpy array or memory-mapped.
+    - `k`: neighbours chosen by each frame (degrees are ``≥ k`` after symmetrising).
+    - `reduce_dim`, `candidates`: the candidate search's principal axes and candidates per
+      frame (default ``max(3k, k + 16)``), as in `fxspace.neighbourhood_graph`.
+    - `rows_per_task`: frames per task; `block`: frames per compiled feature call.
+    - `store`: where the ``(T, P)`` features are written (a ``.npy``, memory-mapped; a
+      path every worker can reach); default a temporary file, deleted at the end.
+    - `client`: a ``dask.distributed.Client`` to run the tasks on (``None``: here).
+
+    **Returns:** a `NeighbourGraph`; the same with or without a client.
+
+    **Example:** ``g = fx.expression.neighbourhood_graph_blocks(positions, k=10)``
+    """
+    X = positions if isinstance(positions, np.memmap) else np.asarray(positions)
+    if X.ndim != 3 or X.shape[-1] != 3 or X.shape[1] < 2:
+        raise FxspaceError(f"positions must be (frames, markers >= 2, 3), got shape {X.shape}")
+    T = X.shape[0]
+    k = check_int(k, "k", low=1, high=T - 1)
+    num = min(T - 1, candidates or max(3 * k, k + 16))
+    if num < k:
+        raise FxspaceError(f"candidates must be >= k = {k}, got {candidates}")
+    rows_per_task = check_int(rows_per_task, "rows_per_task", low=1)
+    block = check_int(block, "block", low=1)
+    if not all(np.isfinite(X[s:e]).all() for s, e in _spans(T, rows_per_task)):
+        raise FxspaceError("positions contain NaN/inf: clean the frames first (clean_frames)")
+    dtype = X.dtype if X.dtype.kind == "f" else np.dtype(np.float64)
+    spans = _spans(T, rows_per_task)
+    with contextlib.ExitStack() as stack:
+        if store is None:
+            store = Path(stack.enter_context(tempfile.TemporaryDirectory())) / "features.npy"
+        path = str(store)
+        P = X.shape[1] * (X.shape[1] - 1) // 2
+        np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(T, P)).flush()
+        _map(client, _features_to_disk, (X,), [(*sp, path, block) for sp in spans])
+        rng = np.random.default_rng(0)
+        sample = np.sort(rng.choice(T, min(T, _AXES_SAMPLE), replace=False))
+        S = np.load(path, mmap_mode="r")[sample]
+        mean = S.mean(axis=0)
+        axes = _principal_axes(S, min(int(reduce_dim), P))
+        del S
+        Z = np.concatenate(_map(client, _project, (path,), [(*sp, mean, axes) for sp in spans]))
+        got = _map(client, _neighbours, (path, Z), [(*sp, num, k) for sp in spans])
+    cand = np.concatenate([c for c, _ in got])
+    dist = np.concatenate([d for _, d in got])
+    rows = np.repeat(np.arange(T, dtype=np.int32), k)
+    return _pack(rows, cand.reshape(-1).astype(np.int32), dist.reshape(-1), T, dist.dtype)
