@@ -13,16 +13,22 @@ segment against every frame near its midpoint costs O(T²) overall. Here:
    one of them (its 8 nearest, the whole ball where 8 do not exhaust it): a frame within
    ρ of the segment has its foot within ``s/2`` of a point, so it is among them; their
    exact segment distances decide. Cost: the segments' total length over ``s``, a few
-   frames per point.
+   frames per point. Where the frames are few and the segments long (an ε-graph of a
+   few thousand frames: 2 × 10⁶ steps, each ~100 spacings long), every remaining
+   segment against every frame instead, under jit, when that costs less.
 
 Both passes use one k-d tree over the frames (scipy ``cKDTree``).
 """
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 _COARSE = 8  # points per segment in the sure-block pass
+_BRUTE_PAIRS = 1 << 23  # segment-frame pairs per jit call of the brute pass
+_BRUTE_PER_POINT = 500  # segment-frame pairs that cost about one point of the exact pass (measured)
 _NEAREST = 8  # frames asked of each point in the exact pass (the whole ball past that)
 _BATCH = 1 << 21  # sample points per k-d tree call
 
@@ -97,6 +103,42 @@ def _exact_blocks(tree, xy, i, j, rho, step):
     return out
 
 
+@jax.jit
+def _brute_chunk(xy, a_idx, b_idx):
+    a, b = xy[a_idx], xy[b_idx]
+    v = b - a
+    L2 = jnp.maximum(jnp.sum(v * v, axis=1), jnp.finfo(xy.dtype).tiny)
+    t = jnp.clip(((xy[None, :, 0] - a[:, None, 0]) * v[:, None, 0]
+                  + (xy[None, :, 1] - a[:, None, 1]) * v[:, None, 1]) / L2[:, None], 0.0, 1.0)
+    dx = xy[None, :, 0] - (a[:, None, 0] + t * v[:, None, 0])
+    dy = xy[None, :, 1] - (a[:, None, 1] + t * v[:, None, 1])
+    ids = jnp.arange(xy.shape[0])[None, :]
+    end = (ids == a_idx[:, None]) | (ids == b_idx[:, None])
+    return jnp.min(jnp.where(end, jnp.inf, jnp.sqrt(dx * dx + dy * dy)), axis=1)  # fmt: skip
+
+
+def _brute_blocks(tree, xy, i, j, rho, step):
+    """Every segment against every frame (jit, a chunk of segments at a time): cheaper
+    than the points along the segments when the frames are few and the segments long.
+    Segments whose nearest frame is within float32 rounding of ρ are settled again in
+    float64 (`_exact_blocks`)."""
+    dmin = np.zeros(len(i))
+    chunk = int(max(1, min(len(i), _BRUTE_PAIRS // max(len(xy), 1))))
+    xyj = jnp.asarray(xy)
+    for s in range(0, len(i), chunk):
+        a, b = i[s : s + chunk], j[s : s + chunk]
+        pad = chunk - len(a)
+        a = np.concatenate([a, np.zeros(pad, a.dtype)])
+        b = np.concatenate([b, np.zeros(pad, b.dtype) + (1 if len(xy) > 1 else 0)])
+        got = _brute_chunk(xyj, jnp.asarray(a, jnp.int32), jnp.asarray(b, jnp.int32))
+        dmin[s : s + chunk - pad] = np.asarray(got, np.float64)[: chunk - pad]
+    out = dmin < rho
+    scale = float(np.max(np.abs(xy))) if len(xy) else 1.0
+    close = np.flatnonzero(np.abs(dmin - rho) <= 2e-6 * max(rho, scale))  # float32 error
+    out[close] = _exact_blocks(tree, xy, i[close], j[close], rho, step)
+    return out
+
+
 def segments_near_points(xy: np.ndarray, i: np.ndarray, j: np.ndarray, rho: float):
     """For each segment ``xy[i[k]] → xy[j[k]]``, whether a point of ``xy`` other than
     its two ends lies within ``rho`` of it (strictly closer). Exact.
@@ -109,11 +151,13 @@ def segments_near_points(xy: np.ndarray, i: np.ndarray, j: np.ndarray, rho: floa
     xy = np.asarray(xy, np.float64)
     i, j = np.asarray(i, np.int64), np.asarray(j, np.int64)
     tree = cKDTree(xy)
-    blocked = np.zeros(len(i), bool)
     length = np.linalg.norm(xy[j] - xy[i], axis=1)
-    m = np.minimum(np.ceil(length / rho).astype(np.int64) + 1, _COARSE)
-    blocked[:] = _sure_blocks(tree, xy, i, j, m, rho)
-    rest = np.flatnonzero(~blocked)
     spacing = float(np.median(tree.query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 0.0
-    blocked[rest] = _exact_blocks(tree, xy, i[rest], j[rest], rho, max(2.0 * rho, spacing))
+    step = max(2.0 * rho, spacing)
+    if float(len(i)) * len(xy) <= _BRUTE_PER_POINT * float(np.sum(length / step + 1.0)):
+        return _brute_blocks(tree, xy, i, j, rho, step)  # few frames, long segments
+    m = np.minimum(np.ceil(length / rho).astype(np.int64) + 1, _COARSE)
+    blocked = _sure_blocks(tree, xy, i, j, m, rho)
+    rest = np.flatnonzero(~blocked)
+    blocked[rest] = _exact_blocks(tree, xy, i[rest], j[rest], rho, step)
     return blocked

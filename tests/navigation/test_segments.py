@@ -47,3 +47,24 @@ def test_known_answers():
     assert segments_near_points(xy, i, j, 0.5).tolist() == [True, False, False]
     # strictly closer: at exactly 0.4 the point does not block
     assert segments_near_points(xy, i, j, 0.4).tolist() == [False, False, False]
+
+
+@pytest.mark.parametrize("which", ["points", "brute"])
+def test_each_exact_pass_alone_matches_brute_force(which):
+    from scipy.spatial import cKDTree
+
+    from fxspace.navigation import _segments as S
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 10, (800, 2))
+    i, j = rng.integers(0, 800, 3000), rng.integers(0, 800, 3000)
+    keep = i != j
+    i, j = i[keep], j[keep]
+    rho = 0.12
+    tree = cKDTree(xy)
+    if which == "points":
+        got = S._exact_blocks(tree, xy, i, j, rho, 0.3)
+    else:
+        got = S._brute_blocks(tree, xy, i, j, rho, 0.3)
+    want = _brute(xy, i, j, rho)
+    assert np.array_equal(got, want) and 0 < want.sum() < len(want)
