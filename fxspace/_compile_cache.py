@@ -25,7 +25,11 @@ off, never an error.
 `cached_executable` goes one step further for an app's hot per-frame kernel: the compiled
 executable itself is serialised to disk (CPU), keyed by the function, fxspace's code, JAX's
 version, the device and the arguments' structure and shapes, so a new process skips tracing
-and lowering too (seconds for a large step function), not only XLA's compilation.
+and lowering too (seconds for a large step function), not only XLA's compilation. It is
+kept by measurement (`experiments/bench_compile_cache.py`: every later start of the motion
+app about 2 s shorter than with JAX's cache alone; figures in
+``docs/concepts/architecture.md``, "Compilation cache"). Only public JAX is used here; the
+one step JAX has no public way for (LAPACK's function pointers) is in `fxspace._jax_private`.
 
 `compile_timer` splits a block's wall time into compile time (tracing, lowering and
 backend compilation or cache retrieval, from `jax.monitoring`'s duration events) and the
@@ -40,6 +44,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from fxspace._jax_private import prepare_lapack
 
 __all__ = [
     "ENV",
@@ -231,6 +237,7 @@ MAX_EXECUTABLES = 32
 _LAPACK = "lapack_"
 _MEMO: dict[str, Any] = {}
 _MEMO_LOCK = threading.Lock()
+_SWITCH_LOCK = threading.Lock()
 _CODE: list[str] = []
 
 
@@ -294,15 +301,7 @@ def _prepare_targets(targets: set[str]) -> bool:
     that and would call a null pointer). False when a target is not one we can prepare."""
     if any(not t.startswith(_LAPACK) for t in targets):
         return False
-    if targets:
-        try:
-            import numpy as np
-            from jaxlib import lapack
-
-            lapack.prepare_lapack_call("syevd_ffi", np.dtype(np.float32))
-        except Exception:  # noqa: BLE001 - another jaxlib layout: do not deserialise
-            return False
-    return True
+    return not targets or prepare_lapack()
 
 
 def _mark_unserialisable(path: Path) -> None:
@@ -379,6 +378,23 @@ def _drop_executable(path: Path) -> None:
     _mark_unserialisable(path)
 
 
+def _compile_outside_cache(lowered: Any) -> Any:
+    """``lowered.compile()`` with JAX's persistent cache switched off meanwhile: an
+    executable that was itself read from that cache serialises without its code (its calls
+    then fail). The switch is JAX's public ``jax_enable_compilation_cache`` option, which
+    is process-wide: it is flipped under a lock and restored, and another thread compiling
+    meanwhile only misses the cache (compiles, never a wrong program)."""
+    import jax
+
+    with _SWITCH_LOCK:
+        before = jax.config.jax_enable_compilation_cache
+        jax.config.update("jax_enable_compilation_cache", False)
+        try:
+            return lowered.compile()
+        finally:
+            jax.config.update("jax_enable_compilation_cache", before)
+
+
 def cached_executable(fn: Any, *args: Any) -> CachedExecutable:
     """`fn` (a ``jax.jit`` function) compiled for `args`' structure and shapes, kept on disk.
 
@@ -426,12 +442,7 @@ def cached_executable(fn: Any, *args: Any) -> CachedExecutable:
     if out is None:
         lowered = fn.lower(*args)
         targets = _custom_targets(lowered)
-        # compiled here, not read from the persistent cache: an executable that was itself
-        # loaded from that cache serialises without its code (calls then fail)
-        from jax._src import config as _config
-
-        with _config.enable_compilation_cache(False):
-            compiled = lowered.compile()
+        compiled = _compile_outside_cache(lowered)
         out = CachedExecutable(fn, compiled, "compiled")
         if not _prepare_targets(targets):
             _mark_unserialisable(path)

@@ -276,13 +276,10 @@ def use_all_cpu_cores() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:
         return
-    try:
-        from jax._src import xla_bridge
+    from fxspace._jax_private import backends_started
 
-        if getattr(xla_bridge, "_backends", None):
-            return  # too late: JAX has already started its backends
-    except ImportError:  # pragma: no cover
-        pass
+    if backends_started():
+        return  # too late: JAX has already started its backends
     n = os.cpu_count() or 1
     if n > 1:
         os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()

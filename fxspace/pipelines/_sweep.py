@@ -33,6 +33,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from fxspace._jax_private import backends_started
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -529,14 +530,9 @@ def _start_method() -> str:
     """How local workers start: ``fork`` while this process has not started a JAX backend
     (a worker then begins with fxspace imported, about 2 s sooner on two cores; its JAX
     starts afresh with `WORKER_ENV`), else ``spawn`` (forking a running XLA runtime is
-    unsafe). JAX has no public test for a started backend, so any doubt means spawn."""
-    try:
-        from jax._src import xla_bridge
-
-        started = xla_bridge.backends_are_initialized()
-    except Exception:  # noqa: BLE001 - the private test moved: the safe choice
-        return "spawn"
-    return "spawn" if started else "fork"
+    unsafe). JAX has no public test for a started backend (`fxspace._jax_private`), so
+    any doubt means spawn."""
+    return "fork" if backends_started() is False else "spawn"
 
 
 def _blocks(n: int, workers: int) -> list[int]:
