@@ -46,13 +46,12 @@ from fxspace.expression import (
     check_sparse_connected,
     choose_threshold,
     connecting_threshold,
-    distance_features,
     epsilon_graph,
     expression_space,
     farthest_point_landmarks,
     landmark_mds,
     landmark_score,
-    neighbourhood_graph,
+    neighbourhood_graph_blocks,
     threshold_grid,
 )
 from fxspace.navigation import (
@@ -73,6 +72,7 @@ from fxspace.navigation import (
     playback,
     threshold_from_run,
 )
+from fxspace.pipelines._dask import check_stage_scheduler, dask_client
 from fxspace.pipelines.threshold_sweep import state_distances, sweep_stage
 from fxspace.results import result_message
 from fxspace.runs import (
@@ -115,7 +115,13 @@ class GraphConfig:
     ``kind``: ``"epsilon"`` (that ε-graph, dense geodesics) or ``"knn"`` (``k`` nearest
     neighbours per frame on the marker-distance features, ``landmarks`` max-min
     landmarks for the geodesics and the landmark MDS); unset (""), ``epsilon`` up to
-    ``epsilon_max_frames`` frames, else ``knn``."""
+    ``epsilon_max_frames`` frames, else ``knn``.
+
+    ``scheduler`` (``knn``): where the graph's per-block stages run
+    (`fxspace.expression.neighbourhood_graph_blocks`) — "" in this process, ``"local"`` a
+    local Dask cluster of ``workers`` processes, or a running Dask scheduler's address
+    (``tcp://HOST:PORT``; its workers must reach the run folder). The graph, and so
+    the whole run, is the same wherever it runs."""
 
     kind: str = ""
     threshold: float | str = "max_r"
@@ -125,8 +131,11 @@ class GraphConfig:
     k: int = 10
     landmarks: int = 256
     epsilon_max_frames: int = 5000
+    scheduler: str = ""
+    workers: int = 2
 
     def validate(self) -> None:
+        check_stage_scheduler(self.scheduler, self.workers)
         if self.kind not in ("", *GRAPH_KINDS):
             raise ConfigError(
                 f"graph.kind must be one of {GRAPH_KINDS} (or unset), got {self.kind!r}"
@@ -337,17 +346,19 @@ def build_levels(cfg: Config, Y, paths, seed: int, restarts: int | None = None,
     )  # fmt: skip
 
 
-def _knn_space(cfg: GraphConfig, positions) -> dict[str, Any]:
-    """The k-NN graph of the frames' marker-distance features, landmark geodesics and the
-    landmark MDS (memory O(T·k))."""
-    import jax.numpy as jnp
-
-    X = jnp.asarray(positions, jnp.float64 if cfg.dtype == "float64" else jnp.float32)
+def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None = None) -> dict[str, Any]:
+    """The k-NN graph of the frames' marker-distance features (a block at a time, here or
+    on the config's Dask scheduler), landmark geodesics and the landmark MDS (memory
+    O(T·k) besides the positions)."""
+    X = np.asarray(positions, np.float64 if cfg.dtype == "float64" else np.float32)
     T = int(X.shape[0])
-    F = jax.block_until_ready(jax.jit(distance_features)(X))
-    g = neighbourhood_graph(F, k=cfg.k)
-    jax.block_until_ready(g.weights)
-    del F
+    # a remote cluster's workers write the features where they all reach: the run folder
+    store = (run_dir / "cache" / "features.npy"
+             if run_dir is not None and cfg.scheduler not in ("", "local") else None)  # fmt: skip
+    with dask_client(cfg.scheduler, cfg.workers) as client:
+        g = neighbourhood_graph_blocks(X, k=cfg.k, store=store, client=client)
+    if store is not None:
+        store.unlink(missing_ok=True)
     try:
         check_sparse_connected(g)
     except FxspaceError as e:  # the user's fix is the config's k
@@ -367,7 +378,7 @@ def _load_knn(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpa
     T = int(np.shape(positions)[0])
     gc = cfg.graph
     stage(f"{T} frames: k-NN graph (k = {gc.k}), landmark geodesics, landmark MDS")
-    sp = _stage(run_dir, "space", lambda: _knn_space(gc, positions))
+    sp = _stage(run_dir, "space", lambda: _knn_space(gc, positions, run_dir))
     g = NeighbourGraph(jnp.asarray(sp["indices"]), jnp.asarray(sp["weights"]))
     Y = np.asarray(sp["embedding"], np.float64)
     stage("fuzzy c-means levels and their links")

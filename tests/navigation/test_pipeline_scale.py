@@ -123,3 +123,28 @@ def test_shipped_config_is_valid():
 
     assert issubclass(nsc.Config, nav.Config) and nsc.run is nav.run
     assert nsc.load_space is nav.load_space
+
+
+@pytest.mark.slow
+def test_a_two_worker_local_cluster_runs_the_same_hierarchy(tmp_path):
+    """Issue 45: the scale pipeline with its graph stages on a 2-worker Dask
+    ``LocalCluster`` (``[graph] scheduler = "local"``) gives the hierarchy of one process."""
+    pytest.importorskip("dask.distributed")
+    (one,) = run_dict(SMALL, tmp_path / "one")
+    raw = {**SMALL, "graph": {**SMALL["graph"], "scheduler": "local", "workers": 2}}
+    (two,) = run_dict(raw, tmp_path / "two")
+    a, b = _metrics(one), _metrics(two)
+    for key in ("centres_per_level", "levels", "links_bridged", "levels_converged", "r"):
+        assert a[key] == b[key], key
+    ha, hb = np.load(one / "hierarchy.npz"), np.load(two / "hierarchy.npz")
+    assert sorted(ha.files) == sorted(hb.files)
+    for name in ha.files:
+        np.testing.assert_array_equal(ha[name], hb[name], err_msg=name)
+
+
+def test_graph_scheduler_is_checked(tmp_path):
+    for bad, msg in (({"scheduler": "http://127.0.0.1:8787"}, "dashboard"),
+                     ({"scheduler": "local", "workers": 0}, "workers")):  # fmt: skip
+        raw = {**SMALL, "graph": {**SMALL["graph"], **bad}}
+        with pytest.raises(ConfigError, match=msg):
+            run_dict(raw, tmp_path / "bad")
