@@ -47,7 +47,13 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-APPS = ("navigation", "reconstruction", "parametric_synthesis", "mesh_ik", "navigation_scale")
+def _apps() -> list[str]:
+    """The experiments with an app (the pipelines' ``APP``), each with a shipped config."""
+    from fxspace.studio import APPS
+
+    return [n for n in sorted(APPS) if (ROOT / "configs" / f"{n}.toml").is_file()]
+
+
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync"]
 VIEWPORT = {"width": 960, "height": 640}
 
@@ -280,7 +286,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.clean:
         a.needs = []
-    configs = [Path(c) for c in a.configs] or [ROOT / "configs" / f"{n}.toml" for n in APPS]
+    configs = [Path(c) for c in a.configs] or [ROOT / "configs" / f"{n}.toml" for n in _apps()]
     from playwright.sync_api import sync_playwright
 
     exe = _chromium()

@@ -115,6 +115,9 @@ class Pipeline(Protocol):
       app shows, from the run's own cached stages (`prepare_config`: ``fxspace studio
       CONFIG`` opens the app without running the whole experiment; ``fxspace run``
       completes the run later, reusing those stages).
+    - ``APP`` (optional): ``"module:function"`` of its browser app (``fxspace studio``
+      reads it here: the one registry of experiments); ``APP_OPENS_CONFIG = True`` when
+      the app builds what it shows from the config itself, with no run first.
     """
 
     Config: type[PipelineConfig]

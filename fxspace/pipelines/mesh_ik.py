@@ -64,6 +64,8 @@ from fxspace.runs import cached, save_figure_atomic, save_npz_atomic, write_text
 __all__ = ["Config", "STAGES", "run", "median_time", "random_view"]
 
 STAGES: tuple[str, ...] = ("per_mesh", "regularizers")
+APP = "fxspace.studio._ik:serve_ik"  # `fxspace studio`: the IK studio ...
+APP_OPENS_CONFIG = True  # ... built from the config (one mesh), no run first
 """The costly stages, in order: ``per_mesh`` (every solver and start along the frames, per
 mesh and marker count; cached per mesh as ``cache/per_mesh_<mesh>.json``) and
 ``regularizers`` (few markers with and without the constraints)."""

@@ -101,6 +101,7 @@ __all__ = [
 GRAPH_KINDS = ("epsilon", "knn")
 
 STAGES = ("sweep", "space", "hierarchy", "cold_levels")
+APP = "fxspace.studio._navigator:serve"  # `fxspace studio` of a run: the navigator
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,6 +13,7 @@ import dataclasses
 from fxspace.datasets import FaceData
 from fxspace.pipelines import navigation as _nav
 from fxspace.pipelines.navigation import (
+    APP,
     STAGES,
     NavConfig,
     NavSpace,
@@ -22,7 +23,7 @@ from fxspace.pipelines.navigation import (
     run,
 )
 
-__all__ = ["Config", "GraphConfig", "HierarchyConfig", "NavConfig", "NavSpace", "STAGES",
+__all__ = ["APP", "Config", "GraphConfig", "HierarchyConfig", "NavConfig", "NavSpace", "STAGES",
            "prepare_app", "run", "load_space", "auto_key_centres"]  # fmt: skip
 
 

@@ -82,6 +82,7 @@ STAGES: tuple[str, ...] = (
     "dense", "segmentation", "sweep", "scene", "refine", "character", "gltf_source",
     "other_source", "app_scene",
 )  # fmt: skip
+APP = "fxspace.studio._editor:serve"  # `fxspace studio` of a run: the control-point editor
 SYNTHETIC = "synthetic"
 
 

@@ -1,9 +1,9 @@
 """Browser apps (viser): one module per paper's interactive system, plus shared helpers.
 
 ``fxspace studio RUN_DIR|CONFIG`` picks the app from the run's experiment through
-`APPS` (experiment name → ``"module:function"``; the function takes the target and
-``port=``). viser is an optional extra (``pip install -e ".[viewer]"``); it is imported
-only when an app starts.
+the pipeline's ``APP`` (``"module:function"``; the function takes the target and
+``port=``; `APPS` lists them all). viser is an optional extra
+(``pip install -e ".[viewer]"``); it is imported only when an app starts.
 """
 
 from __future__ import annotations
@@ -63,20 +63,33 @@ __all__ = [
     "ServeOptions",
 ]
 
-#: experiment name → ``"module:function"`` serving that experiment's app
-APPS: dict[str, str] = {
-    "navigation": "fxspace.studio._navigator:serve",
-    "navigation_scale": "fxspace.studio._navigator:serve",
-    "reconstruction": "fxspace.studio._editor:serve",
-    "parametric_synthesis": "fxspace.studio._motion:serve",
-    "mesh_ik": "fxspace.studio._ik:serve_ik",
-}
+def _apps() -> dict[str, str]:
+    """experiment name → ``"module:function"`` of its app: the pipelines' ``APP``
+    (`fxspace.pipelines.Pipeline`), the one registry of experiments."""
+    from fxspace.pipelines import available, load_pipeline
+
+    out = {}
+    for name in available():
+        app = getattr(load_pipeline(name), "APP", None)
+        if isinstance(app, str):
+            out[name] = app
+    return out
 
 
-#: experiments whose app builds what it shows from the config itself (one mesh and its
-#: markers for the IK studio): ``fxspace studio CONFIG`` opens them without running the
-#: paper's whole experiment first (that stays ``fxspace run CONFIG``)
-OPENS_CONFIG: frozenset[str] = frozenset({"mesh_ik"})
+def _opens_config() -> frozenset[str]:
+    from fxspace.pipelines import load_pipeline
+
+    return frozenset(n for n in _apps() if getattr(load_pipeline(n), "APP_OPENS_CONFIG", False))
+
+
+def __getattr__(name: str) -> Any:
+    # APPS / OPENS_CONFIG (stable names) read off the pipeline objects when asked
+    if name == "APPS":
+        return _apps()
+    if name == "OPENS_CONFIG":
+        return _opens_config()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: files the IK studio opens as they are (a skinned mesh)
 MESH_SUFFIXES: tuple[str, ...] = (".glb", ".gltf")
@@ -88,7 +101,7 @@ def opens_directly(target: str | Path) -> bool:
     p = Path(target)
     if p.is_dir() or p.suffix.lower() in MESH_SUFFIXES:
         return True
-    return experiment_of(p) in OPENS_CONFIG
+    return experiment_of(p) in _opens_config()
 
 
 def experiment_of(target: str | Path) -> str:
@@ -105,12 +118,13 @@ def experiment_of(target: str | Path) -> str:
 
 def app_for(experiment: str) -> Callable[..., Any]:
     """The serve function registered for ``experiment`` (imported on demand)."""
-    if experiment not in APPS:
+    apps = _apps()
+    if experiment not in apps:
         raise FxspaceError(
             f"no studio app for experiment {experiment!r}; apps: "
-            + ", ".join(f"{k} ({v})" for k, v in sorted(APPS.items()))
+            + ", ".join(f"{k} ({v})" for k, v in sorted(apps.items()))
         )
-    mod, _, fn = APPS[experiment].partition(":")
+    mod, _, fn = apps[experiment].partition(":")
     return getattr(importlib.import_module(mod), fn)
 
 
@@ -140,7 +154,7 @@ def serve_config(config: str | Path, port: int = 8080, out: str | Path | None = 
     check_port(port)
     exp = experiment_of(config)
     app = app_for(exp)
-    if exp in OPENS_CONFIG or Path(config).is_dir():
+    if exp in _opens_config() or Path(config).is_dir():
         return app(config, port=port, **kwargs)
     host = kwargs.get("host", "127.0.0.1")
     with waiting_page(port, host, bool(kwargs.get("environment_map", False)),

@@ -388,3 +388,21 @@ def test_head_markers_follow_the_shown_surface_and_edits(scene_data):
     assert isinstance(face, DenseFace) and "landmarks" in note
     with pytest.raises(fx.FxspaceError, match="no markers"):
         EditorController(EditorData(X, faces, scene)).head_markers()
+
+
+def test_one_registry_an_experiment_and_its_app_are_one_module(monkeypatch):
+    """Issue 46.4: the apps are read off the pipeline objects (``APP``); a registered
+    pipeline with an ``APP`` is served by ``fxspace studio`` with no other entry."""
+    import types
+
+    from fxspace import pipelines, studio
+
+    assert studio.APPS["navigation_scale"] == studio.APPS["navigation"]
+    assert studio.OPENS_CONFIG == frozenset({"mesh_ik"})
+    mod = types.ModuleType("my_nav")
+    nav = pipelines.load_pipeline("navigation")
+    mod.Config, mod.STAGES, mod.run = nav.Config, nav.STAGES, nav.run
+    mod.APP = "fxspace.studio._navigator:serve"
+    monkeypatch.setattr(pipelines, "_REGISTERED", {**pipelines._REGISTERED})
+    pipelines.register(mod, "my_nav")
+    assert studio.app_for("my_nav") is studio.app_for("navigation")
