@@ -31,6 +31,7 @@ def _declared() -> tuple[set[str], set[str]]:
 # modules that import an optional extra's package lazily, with a fallback where it is absent
 OPTIONAL = {
     "pipelines/_sweep.py": "cluster",
+    "pipelines/_dask.py": "cluster",
     "report.py": "report",  # collect(as_frame=True): pandas
     "pipelines/_search.py": "search",
 }
