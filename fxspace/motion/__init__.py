@@ -40,6 +40,9 @@ from fxspace.motion._horn import RigidTransform as RigidTransform
 from fxspace.motion._horn import absolute_orientation as absolute_orientation
 from fxspace.motion._horn import absolute_rotation as absolute_rotation
 from fxspace.motion._horn import apply_rigid as apply_rigid
+from fxspace.motion._joint_guard import example_joint_steps as example_joint_steps
+from fxspace.motion._locomotion import JOINT_GUARD_STEPS as JOINT_GUARD_STEPS
+from fxspace.motion._locomotion import JOINT_GUARD_TARGET as JOINT_GUARD_TARGET
 from fxspace.motion._locomotion import WRAP_BLEND_FRAMES as WRAP_BLEND_FRAMES
 from fxspace.motion._locomotion import LocomotionState as LocomotionState
 from fxspace.motion._locomotion import TurnTable as TurnTable
@@ -193,6 +196,7 @@ __all__ = [
     "swing_signal",
     "clock_bounds",
     "clock_cycle_rate",
+    "example_joint_steps",
     "alignment_curve",
     "drop_root",
     "gait_window",
@@ -223,6 +227,8 @@ __all__ = [
     "warp_slopes",
     "Motion",
     "WRAP_BLEND_FRAMES",
+    "JOINT_GUARD_STEPS",
+    "JOINT_GUARD_TARGET",
     "LocomotionState",
     "TurnTable",
     "heading_angle",

@@ -32,6 +32,7 @@ from fxspace.motion._synthesis import (
     SynthState,
     _advance,
     _blends,
+    _fk1,
     _lower_weights,
     check_step_controls,
     init_state,
@@ -63,6 +64,12 @@ _UP = (0.0, 1.0, 0.0)
 WRAP_BLEND_FRAMES = 6.0
 #: time constant (output frames) of the low-pass on the lower blend weights
 WEIGHT_SMOOTH_FRAMES = 8.0
+#: bisection halvings of the joint-speed guard's share of a frame (`locomotion_step`)
+JOINT_GUARD_STEPS = 10
+#: the share of the examples' joint steps the guard aims a frame's predicted step at: the
+#: next frame's controls, which it cannot see, move the blend by a few per cent of them
+#: (at most 8 % measured on the shipped walks)
+JOINT_GUARD_TARGET = 0.95
 
 
 class LocomotionState(NamedTuple):
@@ -161,8 +168,10 @@ def _init_locomotion(sp, lower_param, position, yaw):
     return LocomotionState(s, pos, yaw, z, ident, z, wU)
 
 
-def _wrap_offset(sp, state, wL, wU, wrapped, decay):
-    """The decayed offset, plus (at a wrap) the end-of-cycle pose relative to the start."""
+def _wrap_offsets(sp, state, wL, wU, decay):
+    """The wrap offset and height offset after one frame: decayed, and (the second pair,
+    used when the lower clock wraps) decayed then composed with the end-of-cycle pose
+    relative to the start."""
     dtype = sp.lam.dtype
     ident = jnp.zeros_like(state.offset).at[:, 0].set(1.0)
     off = quat_nlerp(ident, state.offset, jnp.full(state.offset.shape[:1], decay, dtype))
@@ -171,8 +180,75 @@ def _wrap_offset(sp, state, wL, wU, wrapped, decay):
     qe, re = _spliced_local(sp, wL, wU, end, sp.lam[-1])
     qs, rs = _spliced_local(sp, wL, wU, jnp.zeros((), dtype), sp.lam[0])
     new = quat_mul(qe, quat_conj(qs)).at[0].set(ident[0])
-    off = jnp.where(wrapped, quat_mul(off, new), off)
-    return off, jnp.where(wrapped, h + re[1] - rs[1], h)
+    return (off, h), (quat_mul(off, new), h + re[1] - rs[1])
+
+
+def _world_pose(sp, synth, position, yaw, offset, height_offset, wL, wU):
+    """The output frame of a walker state: the spliced blends at its clocks under the
+    wrap offset, the root at the integrated ground position and heading with the blend's
+    height (plus the height offset) and tilt."""
+    up = jnp.asarray(_UP, sp.lam.dtype)
+    q, rL = _spliced_local(sp, wL, wU, synth.t_lower, synth.t_upper)
+    q = quat_normalize(quat_mul(offset, q))
+    root_q = quat_mul(_yaw_quat(yaw - heading_angle(q[0])), q[0])
+    # concatenate, not ``q.at[0].set``: XLA on CPU (jaxlib 0.10.2) miscompiles that scatter
+    # of a quaternion product when forward kinematics follows in the same program (the
+    # joint guard's, `_joint_guard`): joints off by decimetres
+    q = jnp.concatenate([root_q[None], q[1:]], axis=0)
+    return q, position + (rL + up * height_offset) * up
+
+
+def _walk_on(sp, state, wL, wU, alpha, dt, offsets):
+    """One frame of ``dt``: the clocks (eqs. 1–3, wrapping), the ground position and heading
+    integrated from the lower blend (across a wrap: end of cycle, then start), and the
+    wrap offsets of `_wrap_offsets`. Returns ``(t_lower, t_upper, wrapped, position, yaw,
+    offset, height_offset)``."""
+    s = state.synth
+    tl, tu, wrapped = _advance(sp, s, wL, wU, alpha, dt, wrap=True)
+    end = jnp.asarray(sp.lam.shape[0] - 1.0, sp.lam.dtype)
+    d1, y1 = _delta(sp, wL, s.t_lower, jnp.where(wrapped, end, tl))
+    d2, y2 = _delta(sp, wL, jnp.where(wrapped, 0.0, tl), tl)
+    pos, yaw = _move(state.position, state.yaw, d1, y1)
+    pos, yaw = _move(pos, yaw, d2, y2)
+    (off0, h0), (off1, h1) = offsets
+    off, h = jnp.where(wrapped, off1, off0), jnp.where(wrapped, h1, h0)
+    return tl, tu, wrapped, pos, _wrap_angle(yaw), off, h
+
+
+def _joint_guard(sp, state, pose, w_now, w_next, alpha, dt, offsets):
+    """The joint-speed half of the bound on the clocks: the largest share ``c`` of this
+    frame's ``dt`` (bisection, `JOINT_GUARD_STEPS` halvings) such that the next frame —
+    the clocks advanced by ``c · dt``, the blend weights ``w_next`` the low-pass is heading
+    for — moves no joint further from ``pose`` than `JOINT_GUARD_TARGET` × ``max_clock_rate
+    × joint_steps × dt`` (the fastest captured clip's same joint). ``1`` where the full
+    step already keeps every joint inside; where the weights alone (``c = 0``) would pass
+    it, ``c`` only keeps the clocks from adding to that."""
+    dtype = sp.lam.dtype
+    limit = JOINT_GUARD_TARGET * sp.max_clock_rate * sp.joint_steps * dt
+    X0 = _fk1(sp, pose.root, pose.rotations)
+
+    def excess(c):
+        tl, tu, _, pos, yaw, off, h = _walk_on(sp, state, *w_now, alpha, c * dt, offsets)
+        synth = state.synth._replace(t_lower=tl, t_upper=tu)
+        q, r = _world_pose(sp, synth, pos, yaw, off, h, *w_next)
+        step = jnp.linalg.norm(_fk1(sp, r, q) - X0, axis=-1)
+        return jnp.max(step / jnp.maximum(limit, 1e-12))
+
+    def body(carry):  # one call site of `excess` (one copy of the pose in the program)
+        i, lo, hi, allowed, _ = carry
+        c = jnp.where(i == 0, 1.0, jnp.where(i == 1, 0.0, 0.5 * (lo + hi))).astype(dtype)
+        e = excess(c)
+        # i = 0: the full step, done if inside; i = 1: what the weights alone do; then halve
+        allowed = jnp.where(i == 1, jnp.maximum(1.0, e), allowed)
+        ok = e <= allowed
+        lo = jnp.where(i == 0, jnp.where(ok, 1.0, 0.0), jnp.where((i >= 2) & ok, c, lo))
+        hi = jnp.where((i >= 2) & ~ok, c, hi)
+        return i + 1, lo.astype(dtype), hi, allowed, (i == 0) & ok
+
+    one, zero = jnp.ones((), dtype), jnp.zeros((), dtype)
+    carry = (jnp.zeros((), jnp.int32), zero, one, one, jnp.zeros((), bool))
+    carry = jax.lax.while_loop(lambda c: ~c[4] & (c[0] < JOINT_GUARD_STEPS + 2), body, carry)
+    return carry[1]
 
 
 @jax.jit
@@ -186,27 +262,25 @@ def _locomotion_step(sp, state, upper_param, lower_param, alpha, dt):
     beta = 1.0 - np.exp(-1.0 / WEIGHT_SMOOTH_FRAMES)
     wL = s.lower_weights + beta * (w_raw - s.lower_weights)
     wL, wU, params, lower_param = _blends(sp, s, upper_param, lower_param, wL)
+    wU_next = wU  # what the next frame's weights head for (the guard's prediction)
     if sp.upper_joint >= 0:  # the upper k-NN weights jump the same way
-        prev = state.upper_weights
-        wU = jnp.where(jnp.sum(prev) > 0, prev + beta * (wU - prev), wU)
-    q, rL = _spliced_local(sp, wL, wU, s.t_lower, s.t_upper)
-    q = quat_normalize(quat_mul(state.offset, q))
-    rL = rL + jnp.asarray(_UP, dtype) * state.height_offset
-    # world pose: integrated ground position and heading, the blend's height and tilt
-    root_q = quat_mul(_yaw_quat(state.yaw - heading_angle(q[0])), q[0])
-    root = state.position + rL * jnp.asarray(_UP, dtype)
+        prev, wU_raw = state.upper_weights, wU
+        wU = jnp.where(jnp.sum(prev) > 0, prev + beta * (wU_raw - prev), wU_raw)
+        wU_next = wU + beta * (wU_raw - wU)
+    rot, root = _world_pose(sp, s, state.position, state.yaw, state.offset,
+                            state.height_offset, wL, wU)  # fmt: skip
     ok = jnp.isfinite(alpha) & jnp.isfinite(dt) & (alpha >= 0) & (alpha <= 1) & (dt >= 0)
-    pose = Pose(jnp.where(ok, q.at[0].set(root_q), jnp.nan), jnp.where(ok, root, jnp.nan))
-    tl, tu, wrapped = _advance(sp, s, wL, wU, alpha, dt, wrap=True)
-    end = jnp.asarray(sp.lam.shape[0] - 1.0, dtype)
-    d1, y1 = _delta(sp, wL, s.t_lower, jnp.where(wrapped, end, tl))
-    d2, y2 = _delta(sp, wL, jnp.where(wrapped, 0.0, tl), tl)
-    pos, yaw = _move(state.position, state.yaw, d1, y1)
-    pos, yaw = _move(pos, yaw, d2, y2)
+    pose = Pose(jnp.where(ok, rot, jnp.nan), jnp.where(ok, root, jnp.nan))
+    offsets = _wrap_offsets(sp, state, wL, wU, np.exp(-1.0 / WRAP_BLEND_FRAMES))
+    if sp.aligned and sp.max_clock_rate != float("inf"):  # the bound's joint-speed half
+        # the next frame's lower weights: the low-pass heading for the parameter
+        # extrapolated one frame (the controls move smoothly)
+        w_ahead = _lower_weights(sp, 2.0 * lower_param - s.lower_param)
+        w_next = (wL + beta * (w_ahead - wL), wU_next)
+        dt = dt * _joint_guard(sp, state, pose, (wL, wU), w_next, alpha, dt, offsets)
+    tl, tu, wrapped, pos, yaw, off, h = _walk_on(sp, state, wL, wU, alpha, dt, offsets)
     synth = SynthState(tl, tu, lower_param, params, wL)
-    off, h = _wrap_offset(sp, state, wL, wU, wrapped, np.exp(-1.0 / WRAP_BLEND_FRAMES))
-    new = LocomotionState(synth, pos, _wrap_angle(yaw), state.cycles + wrapped, off, h, wU)
-    return new, pose
+    return LocomotionState(synth, pos, yaw, state.cycles + wrapped, off, h, wU), pose
 
 
 @checked
@@ -226,7 +300,10 @@ def locomotion_step(
     across a wrap, end-of-cycle then start-of-cycle). The lower k-NN weights are low-passed
     (time constant `WEIGHT_SMOOTH_FRAMES`), and so are the upper ones of a parametric upper
     space: over dense random samples they jump between very different blends as the
-    parameter moves.
+    parameter moves. With the default bound (finite ``sp.max_clock_rate``, clocks aligned)
+    a frame whose step would move a joint further than the fastest captured clip's same
+    joint (``sp.joint_steps``) advances its clocks by a shorter share of ``dt``
+    (`_joint_guard`); ``max_clock_rate = inf`` is eqs. 2–3 as printed, unguarded.
 
     **Returns:** ``(state, pose)``; ``pose`` in the world (root translation = integrated
     ground position + the blend's root height; root rotation = world heading ⊗ the blend's

@@ -26,6 +26,7 @@ from fxspace.errors import FxspaceError
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._horn import absolute_orientation, absolute_rotation, apply_rigid
+from fxspace.motion._joint_guard import example_joint_steps
 from fxspace.motion._splice import heading_quat, heck_splice, splice_pose, torso_joints
 from fxspace.motion._timewarp import (
     advance_clock,
@@ -62,7 +63,9 @@ class SynthesisSpaces:
     ``lower_weights`` ``(S_L, E_L)`` / ``lower_params`` ``(S_L, d)``, the upper samples
     ``upper_weights`` ``(S_U, E_U)`` / ``upper_params`` ``(S_U, 3)`` (``ṗ``: root frame, for
     the initial lower blend ``lower_w0``), ``lower_time`` / ``upper_time`` (reference frames
-    where each parameter is measured), ``posture_transfer``. Static: ``parents``, ``mask``
+    where each parameter is measured), ``posture_transfer``, ``joint_steps`` ``(J,)`` (each
+    joint's largest step per example frame in any example, `example_joint_steps`: the
+    joint-speed half of the bound). Static: ``parents``, ``mask``
     (upper-body joints), ``spine`` (splice joint), ``lower_joint``/``lower_dims``,
     ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
     walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``max_clock_rate`` (the
@@ -70,7 +73,9 @@ class SynthesisSpaces:
     eq.-(1) advance of the *fastest example of its own set at that phase*,
     ``max_i Δt / C_i'(T)`` — so α moves a body's tempo anywhere between its own blend's
     and the other's, but never past a captured clip's; ``inf``: eqs. 2–3 as printed,
-    see `clock_bounds`), ``aligned`` (``False``: eq. 1 only, each body half on its own
+    see `clock_bounds`; the continuous session also holds a frame's clock advance back
+    where it would move a joint more than this × ``joint_steps``, `locomotion_step`),
+    ``aligned`` (``False``: eq. 1 only, each body half on its own
     clock — Fig. 3(a), for measurement), ``splice`` (``"heck"``:
     `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
     ``torso`` (`torso_joints`, used by ``"heck"``), ``replace`` (§3.2's re-placement:
@@ -90,6 +95,7 @@ class SynthesisSpaces:
     lower_time: Float[Array, ""]
     upper_time: Float[Array, ""]
     posture_transfer: Float[Array, ""]
+    joint_steps: Float[Array, " J"]
     parents: tuple[int, ...]
     mask: tuple[bool, ...]
     spine: int
@@ -111,6 +117,7 @@ jax.tree_util.register_dataclass(
     data_fields=[
         "lower", "upper", "lam", "offsets", "lower_weights", "lower_params", "upper_weights",
         "upper_params", "lower_w0", "lower_time", "upper_time", "posture_transfer",
+        "joint_steps",
     ],
     meta_fields=[
         "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
@@ -532,6 +539,9 @@ def build_spaces(
         lower_time=jnp.asarray(lower_time, dtype),
         upper_time=jnp.asarray(upper_time, dtype),
         posture_transfer=jnp.asarray(posture_transfer, dtype),
+        joint_steps=jnp.asarray(
+            example_joint_steps(lower, upper, tuple(int(p) for p in parents), offsets), dtype
+        ),
         parents=tuple(int(p) for p in parents),
         mask=tuple(bool(b) for b in np.asarray(mask)),
         spine=int(spine),

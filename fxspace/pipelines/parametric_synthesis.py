@@ -439,6 +439,7 @@ _SP_ARRAYS = (
     "lower_time",
     "upper_time",
     "posture_transfer",
+    "joint_steps",
 )
 _SP_META = (
     "parents",
@@ -487,6 +488,13 @@ def _setup_from_arrays(a: dict) -> M.Setup:
         for s in ("lower", "upper")
     }
     tup = {k: tuple(v) if isinstance(v, list) else v for k, v in meta.items() if k in _SP_META}
+    if "joint_steps" not in a:  # a set-up stored before the joint-speed bound: derived
+        a = {
+            **a,
+            "joint_steps": M.example_joint_steps(
+                ex["lower"], ex["upper"], tuple(meta["parents"]), np.asarray(a["offsets"])
+            ),
+        }
     sp = M.SynthesisSpaces(**ex, **{k: jnp.asarray(a[k]) for k in _SP_ARRAYS}, **tup)
     skel = Motion(
         tuple(meta["names"]),
@@ -973,7 +981,9 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
     held at 1 on the mood walk), the lower body's cadence read off the feet
     (`fxspace.motion.cadence`, strides per second) at α = 0 and at α = 1, beside what
     eqs. 1–3 predict from the clocks alone (`fxspace.motion.clock_cycle_rate` per
-    control segment, blends held; with the bound, and as printed); and each joint's
+    control segment, blends held; with the bound, and as printed) and what the walker's
+    own clocks do with the controls held (``predicted_walker_*``: the clock-rate bound
+    plus the joint-speed guard, which reads the poses); and each joint's
     fastest speed against the fastest captured clip's same joint (body heights per
     second, `fxspace.motion.joint_speeds`)."""
     sp, sk = st.spaces, st.skeleton
@@ -1000,7 +1010,7 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
             row[f"cadence_alpha{a:g}"] = M.cadence(X, feet, hips, fps)
             row[f"joint_speed_ratio_alpha{a:g}"] = float(
                 np.max(M.joint_speeds(X, fps, height) / ex_speed))
-            pred, pred_free = [], []
+            pred, pred_free, pred_walk = [], [], []
             for _t, c in sched:  # per control segment, blends held (no smoothing)
                 v = np.asarray([[{**c, "alpha": a}[n] for n in names]], np.float64)
                 up, low, _ = M.controls_to_params(st, names, v, table)
@@ -1013,15 +1023,32 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
                     wU = jnp.asarray(up[0] / up[0].sum(), sp.lam.dtype)
                 pred.append(float(M.clock_cycle_rate(sp, wL, wU, a)))
                 pred_free.append(float(M.clock_cycle_rate(free, wL, wU, a)))
+                pred_walk.append(_held_walk_rate(sp, up[0], low[0], a))
             row[f"predicted_alpha{a:g}"] = float(np.mean(pred)) * fps
+            row[f"predicted_walker_alpha{a:g}"] = float(np.mean(pred_walk)) * fps
             row[f"predicted_as_printed_alpha{a:g}"] = float(np.mean(pred_free)) * fps
         row["ratio_measured"] = row["cadence_alpha0"] / row["cadence_alpha1"]
         row["ratio_predicted"] = row["predicted_alpha0"] / row["predicted_alpha1"]
         row["ratio_predicted_as_printed"] = (row["predicted_as_printed_alpha0"]
                                              / row["predicted_as_printed_alpha1"])  # fmt: skip
+        row["ratio_predicted_walker"] = (row["predicted_walker_alpha0"]
+                                         / row["predicted_walker_alpha1"])  # fmt: skip
         rows.append(row)
     return {"sessions": rows, "examples_joint_speed_max_bh_per_s": ex_speed.tolist(),
             "body_height_m": height}  # fmt: skip
+
+
+def _held_walk_rate(sp, up, low, alpha: float, n_frames: int = 600) -> float:
+    """Lower reference cycles per output frame of the walker's own clocks
+    (`fxspace.motion.locomotion`, controls held for ``n_frames``): `clock_cycle_rate`'s
+    eqs. 1–3 with the clock-rate bound, plus the joint-speed guard, which needs the poses."""
+    dtype = sp.lam.dtype
+    low = jnp.asarray(low, dtype)
+    F = int(n_frames)
+    final, _ = M.locomotion(sp, M.init_locomotion(sp, low),
+                            jnp.tile(jnp.asarray(up, dtype), (F, 1)), jnp.tile(low, (F, 1)),
+                            jnp.full((F,), alpha, dtype))  # fmt: skip
+    return (float(final.cycles) + float(final.synth.t_lower) / (sp.lam.shape[0] - 1.0)) / F
 
 
 def _joy_sweep(st: M.Setup, cfg: Config, run_dir: Path, qL) -> dict:
