@@ -982,8 +982,8 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
     (`fxspace.motion.cadence`, strides per second) at α = 0 and at α = 1, beside what
     eqs. 1–3 predict from the clocks alone (`fxspace.motion.clock_cycle_rate` per
     control segment, blends held; with the bound, and as printed) and what the walker's
-    own clocks do with the controls held (``predicted_walker_*``: the clock-rate bound
-    plus the joint-speed guard, which reads the poses); and each joint's
+    own clocks do with each segment's controls held (``predicted_walker_*``: the
+    clock-rate bound plus the joint-speed guard, which reads the poses); and each joint's
     fastest speed against the fastest captured clip's same joint (body heights per
     second, `fxspace.motion.joint_speeds`)."""
     sp, sk = st.spaces, st.skeleton
@@ -1010,7 +1010,7 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
             row[f"cadence_alpha{a:g}"] = M.cadence(X, feet, hips, fps)
             row[f"joint_speed_ratio_alpha{a:g}"] = float(
                 np.max(M.joint_speeds(X, fps, height) / ex_speed))
-            pred, pred_free, pred_walk = [], [], []
+            pred, pred_free, seg_up, seg_low = [], [], [], []
             for _t, c in sched:  # per control segment, blends held (no smoothing)
                 v = np.asarray([[{**c, "alpha": a}[n] for n in names]], np.float64)
                 up, low, _ = M.controls_to_params(st, names, v, table)
@@ -1023,9 +1023,14 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
                     wU = jnp.asarray(up[0] / up[0].sum(), sp.lam.dtype)
                 pred.append(float(M.clock_cycle_rate(sp, wL, wU, a)))
                 pred_free.append(float(M.clock_cycle_rate(free, wL, wU, a)))
-                pred_walk.append(_held_walk_rate(sp, up[0], low[0], a))
+                seg_up.append(up[0])
+                seg_low.append(low[0])
             row[f"predicted_alpha{a:g}"] = float(np.mean(pred)) * fps
-            row[f"predicted_walker_alpha{a:g}"] = float(np.mean(pred_walk)) * fps
+            starts = np.asarray([t for t, _ in sched], np.float64)
+            seg = np.searchsorted(starts, np.arange(int(round(seconds * fps))) / fps, "right") - 1
+            row[f"predicted_walker_alpha{a:g}"] = fps * _held_walk_rate(
+                sp, np.asarray(seg_up)[seg], np.asarray(seg_low)[seg], a
+            )
             row[f"predicted_as_printed_alpha{a:g}"] = float(np.mean(pred_free)) * fps
         row["ratio_measured"] = row["cadence_alpha0"] / row["cadence_alpha1"]
         row["ratio_predicted"] = row["predicted_alpha0"] / row["predicted_alpha1"]
@@ -1038,15 +1043,15 @@ def alpha_cadence(st: M.Setup, cfg: Config, seeds=range(5), seconds: float = 60.
             "body_height_m": height}  # fmt: skip
 
 
-def _held_walk_rate(sp, up, low, alpha: float, n_frames: int = 600) -> float:
+def _held_walk_rate(sp, ups, lows, alpha: float) -> float:
     """Lower reference cycles per output frame of the walker's own clocks
-    (`fxspace.motion.locomotion`, controls held for ``n_frames``): `clock_cycle_rate`'s
-    eqs. 1–3 with the clock-rate bound, plus the joint-speed guard, which needs the poses."""
+    (`fxspace.motion.locomotion` over ``(F, ·)`` parameters, each control segment's held
+    without the session's lags): `clock_cycle_rate`'s eqs. 1–3 with the clock-rate bound,
+    plus the joint-speed guard, which needs the poses."""
     dtype = sp.lam.dtype
-    low = jnp.asarray(low, dtype)
-    F = int(n_frames)
-    final, _ = M.locomotion(sp, M.init_locomotion(sp, low),
-                            jnp.tile(jnp.asarray(up, dtype), (F, 1)), jnp.tile(low, (F, 1)),
+    ups, lows = jnp.asarray(ups, dtype), jnp.asarray(lows, dtype)
+    F = ups.shape[0]
+    final, _ = M.locomotion(sp, M.init_locomotion(sp, lows[0]), ups, lows,
                             jnp.full((F,), alpha, dtype))  # fmt: skip
     return (float(final.cycles) + float(final.synth.t_lower) / (sp.lam.shape[0] - 1.0)) / F
 
