@@ -41,6 +41,7 @@ from fxspace.io import Motion, read_amc, read_bvh, write_bvh
 from fxspace.runs import cached, cached_arrays, run_key, save_figure_atomic, write_json_atomic
 
 STAGES: tuple[str, ...] = ("setup", "targets", "timewarp", "session")
+APP = "fxspace.studio._motion:serve"  # `fxspace studio` of a run: the motion app
 
 __all__ = [
     "Config",
