@@ -58,13 +58,15 @@ START_DELAY_S = 1.0
 
 
 def alpha_help(max_clock_rate: float) -> str:
-    """What α does and what bounds it (eqs. 2–3 and `fxspace.motion.clock_bounds`)."""
+    """What α does and what bounds it (eqs. 2–3, `fxspace.motion.clock_bounds` and the
+    joint-speed bound, `fxspace.motion.example_joint_steps`)."""
     base = "α: 1 keeps the lower body's tempo, 0 gives it the upper body's"
     if max_clock_rate == float("inf"):
         return base + " (eqs. 2–3 as printed: no bound, a body half may outrun every capture)"
     rate = "" if max_clock_rate == 1 else f" × {max_clock_rate:g}"
     return (base + f"; bounded: neither half runs faster than its fastest captured "
-            f"example at that phase{rate}")  # fmt: skip
+            f"example at that phase{rate}, and no joint steps farther in a frame than "
+            "in any captured clip")  # fmt: skip
 
 
 def status_text(st: dict) -> str:

@@ -13,5 +13,6 @@ def test_status_line_names_the_bound():
     text = status_text(_status(1.0))
     assert "α: 1 keeps the lower body's tempo, 0 gives it the upper body's" in text
     assert "fastest captured example at that phase" in text
+    assert "no joint steps farther in a frame than in any captured clip" in text
     assert "as printed" in status_text(_status(float("inf")))
     assert "× 0.9" in alpha_help(0.9)
