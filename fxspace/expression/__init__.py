@@ -2,6 +2,7 @@
 Pearson r, and threshold sweeps over that one chain.
 """
 
+from fxspace.expression._blocks import neighbourhood_graph_blocks as neighbourhood_graph_blocks
 from fxspace.expression._features import PAIR_WEIGHT as PAIR_WEIGHT
 from fxspace.expression._features import clean_frames as clean_frames
 from fxspace.expression._features import distance_features as distance_features
@@ -34,7 +35,6 @@ from fxspace.expression._paths import Paths as Paths
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
 from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
-from fxspace.expression._blocks import neighbourhood_graph_blocks as neighbourhood_graph_blocks
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
 from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr

@@ -61,8 +61,10 @@ def dask_client(scheduler: str, workers: int = 2) -> Iterator[Any]:
     with _worker_env(WORKER_ENV), dask.config.set(
         {"distributed.worker.multiprocessing-method": _start_method()}
     ):  # fmt: skip
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None, host="127.0.0.1", env=dict(WORKER_ENV))  # fmt: skip
+        cluster = LocalCluster(
+            n_workers=int(workers), threads_per_worker=1, processes=True,
+            dashboard_address=None, host="127.0.0.1", env=dict(WORKER_ENV),
+        )  # fmt: skip
     try:
         with Client(cluster) as client:
             client.wait_for_workers(int(workers))
