@@ -28,6 +28,7 @@ sweep's run folders do). Memory: the positions, the projection and a few blocks.
 from __future__ import annotations
 
 import contextlib
+import os
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -141,7 +142,8 @@ def neighbourhood_graph_blocks(
       frame (default ``max(3k, k + 16)``), as in `fxspace.neighbourhood_graph`.
     - `rows_per_task`: frames per task; `block`: frames per compiled feature call.
     - `store`: where the ``(T, P)`` features are written (a ``.npy``, memory-mapped; a
-      path every worker can reach); default a temporary file, deleted at the end.
+      path every worker can reach, not existing yet); default a temporary file,
+      deleted at the end.
     - `client`: a ``dask.distributed.Client`` to run the tasks on (``None``: here).
 
     **Returns:** a `NeighbourGraph`; the same with or without a client.
@@ -165,6 +167,11 @@ def neighbourhood_graph_blocks(
     with contextlib.ExitStack() as stack:
         if store is None:
             store = Path(stack.enter_context(tempfile.TemporaryDirectory())) / "features.npy"
+        elif os.path.lexists(store):
+            raise FxspaceError(
+                f"store={str(store)!r} already exists (a file, folder or link); the features "
+                "are never written over anything: remove it or give another path"
+            )
         path = str(store)
         P = X.shape[1] * (X.shape[1] - 1) // 2
         np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(T, P)).flush()

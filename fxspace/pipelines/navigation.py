@@ -356,6 +356,8 @@ def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None = None) -> dict
     # a remote cluster's workers write the features where they all reach: the run folder
     store = (run_dir / "cache" / "features.npy"
              if run_dir is not None and cfg.scheduler not in ("", "local") else None)  # fmt: skip
+    if store is not None and store.is_file() and not store.is_symlink():
+        store.unlink()  # our own, left by an interrupted run (anything else is refused)
     with dask_client(cfg.scheduler, cfg.workers) as client:
         g = neighbourhood_graph_blocks(X, k=cfg.k, store=store, client=client)
     if store is not None:

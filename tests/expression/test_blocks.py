@@ -49,6 +49,17 @@ def test_blocks_refuse_bad_input():
         neighbourhood_graph_blocks(pos, k=0)
 
 
+def test_blocks_never_write_over_a_file(tmp_path):
+    mine = tmp_path / "mine.npy"
+    mine.write_bytes(b"the user's")
+    link = tmp_path / "link.npy"
+    link.symlink_to(mine)
+    for store in (mine, link):
+        with pytest.raises(fx.FxspaceError, match="already exists"):
+            neighbourhood_graph_blocks(_positions(200), k=4, store=store)
+    assert mine.read_bytes() == b"the user's"
+
+
 @pytest.mark.slow
 def test_a_two_worker_local_cluster_gives_the_graph_of_one_process():
     distributed = pytest.importorskip("dask.distributed")
