@@ -9,7 +9,8 @@ factored into per-joint sums accumulated up the hierarchy (eq. (13),
 
 This is the subpackage's one public front; the implementation lives in private modules
 (`_types`, `_skinning`, `_markers`, `_ik_model`, `_ik_gradients`, `_ik_constraints`,
-`_ik_regularizers`, `_ik_solvers`, `_procedural`).
+`_ik_regularizers`, `_ik_solvers`, `_procedural`, `_retarget`, `_retarget_inputs`,
+`_retarget_kinematics`, `_retarget_live`).
 
 Example:
 
@@ -84,12 +85,12 @@ from fxspace.mesh._markers import triangle_normals as triangle_normals
 from fxspace.mesh._markers import visible_triangles as visible_triangles
 from fxspace.mesh._procedural import chain_mesh as chain_mesh
 from fxspace.mesh._procedural import subdivide_mesh as subdivide_mesh
-from fxspace.mesh._retarget import LiveRetarget as LiveRetarget
 from fxspace.mesh._retarget import Retargeted as Retargeted
-from fxspace.mesh._retarget import RetargetError as RetargetError
-from fxspace.mesh._retarget import joint_positions as joint_positions
-from fxspace.mesh._retarget import live_retarget as live_retarget
 from fxspace.mesh._retarget import retarget as retarget
+from fxspace.mesh._retarget_inputs import RetargetError as RetargetError
+from fxspace.mesh._retarget_kinematics import joint_positions as joint_positions
+from fxspace.mesh._retarget_live import LiveRetarget as LiveRetarget
+from fxspace.mesh._retarget_live import live_retarget as live_retarget
 from fxspace.mesh._skinning import Pose as Pose
 from fxspace.mesh._skinning import SkinTables as SkinTables
 from fxspace.mesh._skinning import ancestor_table as ancestor_table

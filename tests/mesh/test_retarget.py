@@ -8,7 +8,7 @@ import pytest
 from mesh_toys import branching_mesh
 
 import fxspace as fx
-from fxspace.mesh._retarget import _global_frames_np
+from fxspace.mesh._retarget_kinematics import _global_frames_np
 from fxspace.rotations import matrix_to_quat
 
 
@@ -135,7 +135,7 @@ def test_default_joint_map_pairs_by_role_across_naming_styles():
     """joint_map=None uses the one joint-name map (fxspace.joints): a Mixamo-named source
     pairs with a VRM-named character by role, not by spelling; unknown names fall back to
     joints of the same name."""
-    from fxspace.mesh._retarget import _pairs
+    from fxspace.mesh._retarget_inputs import _pairs
 
     sides = ("UpLeg", "Leg", "Foot", "ToeBase", "Shoulder", "Arm", "ForeArm", "Hand")
     vrm_sides = ("UpperLeg", "LowerLeg", "Foot", "Toes", "Shoulder", "UpperArm", "LowerArm",
