@@ -34,6 +34,9 @@ OPTIONAL = {
     "pipelines/_dask.py": "cluster",
     "report.py": "report",  # collect(as_frame=True): pandas
     "pipelines/_search.py": "search",
+    "pipelines/_search_space.py": "search",
+    "pipelines/_study.py": "search",
+    "pipelines/_scheduler.py": "cluster",
 }
 
 

@@ -10,14 +10,9 @@ from collections.abc import Iterator
 from typing import Any
 
 from fxspace.config import ConfigError
-from fxspace.pipelines._sweep import (
-    SCHEDULER_TIMEOUT_S,
-    WORKER_ENV,
-    _connect,
-    _start_method,
-    _worker_env,
-    check_scheduler,
-)
+from fxspace.pipelines._scheduler import _connect, check_scheduler
+from fxspace.pipelines._sweep import SCHEDULER_TIMEOUT_S, _start_method
+from fxspace.pipelines._sweep_worker import WORKER_ENV, _worker_env
 
 __all__ = ["check_stage_scheduler", "dask_client"]
 

@@ -34,25 +34,53 @@ the study as failed with the reason, the search goes on, and the command exits n
 fxspace wrote in its trial folders removed). ``fxspace report OUT`` compares the trials.
 """
 
+
 from __future__ import annotations
 
 import copy
-import io
 import json
-import math
 import os
 import random
+import re
 import socket
-import sys
-import time
 import traceback
-from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from pathlib import Path
-from typing import Any
 
-from fxspace.config import ConfigError
-from fxspace.errors import CorruptFileError, FxspaceError
-from fxspace.runs import pid_alive
+from fxspace.config import ConfigError, load_toml
+from fxspace.pipelines._output import named_output
+from fxspace.pipelines._planner import resolve_config
+from fxspace.pipelines._runner import run_dict
+from fxspace.pipelines._search_space import (
+    SEARCH_METHODS,
+    _distribution,
+    _params_key,
+    _set_dotted,
+    _untried,
+    check_search,
+    metric_value,
+)
+from fxspace.pipelines._study import (
+    _DESIGN,
+    _ERROR,
+    _HOST,
+    _INTERRUPTED,
+    _PID,
+    _RETRY_OF,
+    _SETTINGS,
+    _SKIP,
+    _SLOT,
+    _TPE_STARTUP,
+    _db_errors,
+    _latest,
+    _queued_params,
+    _recover,
+    _sampler,
+    _slot_name,
+    _storage,
+    _study_lock,
+    search_study,
+)
+from fxspace.runs import clean_run, read_status
 
 __all__ = [
     "SEARCH_METHODS",
@@ -65,449 +93,10 @@ __all__ = [
     "named_output",
 ]
 
-SEARCH_METHODS = ("tpe", "random")
-_KEYS = {"method", "trials", "metric", "direction", "seed", "space"}
-# the start design's size for TPE (its default n_startup_trials: random draws before the model)
-_TPE_STARTUP = 10
-# trial user attributes (fxspace's bookkeeping in the study)
-_SLOT = "fxspace_slot"  # the configuration's index k: its folder trial_KKKK
-_SKIP = "fxspace_skip"  # a drawn repeat (or an unneeded draw): not a configuration
-_ERROR = "fxspace_error"
-_INTERRUPTED = "fxspace_interrupted"
-_HOST, _PID = "fxspace_host", "fxspace_pid"
-_RETRY_OF = "fxspace_retry_of"
-# study user attributes
-_SETTINGS = "fxspace_search"
-_DESIGN = "fxspace_design"
-_LOCK_NAME = ".search-lock"
-
-
-def check_search(table: Any) -> dict:
-    """The ``[search]`` table checked (every problem named with its key); returns it with
-    defaults filled in."""
-    if not isinstance(table, dict):
-        raise ConfigError("[search] must be a table (method, trials, metric, direction, space)")
-    extra = set(table) - _KEYS
-    if extra:
-        raise ConfigError(f"[search] has unknown keys {sorted(extra)}; allowed: {sorted(_KEYS)}")
-    s = {"method": "tpe", "direction": "minimize", "seed": 0, **table}
-    if s["method"] not in SEARCH_METHODS:
-        raise ConfigError(f"search.method must be one of {SEARCH_METHODS}, got {s['method']!r}")
-    if s["direction"] not in ("minimize", "maximize"):
-        raise ConfigError(
-            f"search.direction must be 'minimize' or 'maximize', got {s['direction']!r}"
-        )
-    t = s.get("trials")
-    if isinstance(t, bool) or not isinstance(t, int) or t < 1:
-        raise ConfigError(f"search.trials must be an integer >= 1, got {t!r}")
-    sd = s.get("seed")
-    if isinstance(sd, bool) or not isinstance(sd, int) or not 0 <= sd < 2**31:
-        raise ConfigError(f"search.seed must be an integer in [0, 2**31), got {sd!r}")
-    if not isinstance(s.get("metric"), str) or not s["metric"]:
-        raise ConfigError('search.metric must name a key of metrics.json (e.g. metric = "r")')
-    space = s.get("space")
-    if not isinstance(space, dict) or not space:
-        raise ConfigError("[search.space] must give at least one key to draw")
-    for k, v in space.items():
-        _distribution(k, v)
-    return s
-
-
-def _distribution(key: str, spec: Any):
-    """The Optuna distribution of one ``[search.space]`` entry (checked)."""
-    import optuna.distributions as od
-
-    if isinstance(spec, list):
-        if not spec:
-            raise ConfigError(f"search.space.{key}: an empty list of choices")
-        return od.CategoricalDistribution(spec)
-    if not isinstance(spec, dict) or not {"low", "high"} <= set(spec):
-        raise ConfigError(
-            f"search.space.{key} must be a list of choices or {{low = …, high = …}}, got {spec!r}"
-        )
-    lo, hi, log = spec["low"], spec["high"], bool(spec.get("log", False))
-    if set(spec) - {"low", "high", "log"}:
-        raise ConfigError(f"search.space.{key}: only low, high and log are allowed")
-    if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in (lo, hi)):
-        raise ConfigError(f"search.space.{key}: low and high must be numbers")
-    if not lo < hi or (log and lo <= 0):
-        raise ConfigError(f"search.space.{key}: need low < high (and low > 0 with log = true)")
-    if isinstance(lo, int) and isinstance(hi, int):
-        return od.IntDistribution(lo, hi, log=log)
-    return od.FloatDistribution(float(lo), float(hi), log=log)
-
-
-def _set_dotted(raw: dict, key: str, value: Any) -> None:
-    node = raw
-    *path, last = key.split(".")
-    for p in path:
-        node = node.setdefault(p, {})
-        if not isinstance(node, dict):
-            raise ConfigError(f"search.space.{key}: {p!r} is not a table of the config")
-    node[last] = value
-
-
-def metric_value(metrics: dict, name: str) -> float:
-    """``metrics[name]`` (a dotted path reaches into tables) as a finite float, or a
-    `ConfigError` saying what was found."""
-    node: Any = metrics
-    for p in name.split("."):
-        if not isinstance(node, dict) or p not in node:
-            raise ConfigError(f"metrics.json has no {name!r} (search.metric); keys: "
-                              f"{sorted(metrics)[:12]} …")  # fmt: skip
-        node = node[p]
-    if isinstance(node, bool) or not isinstance(node, int | float) or not math.isfinite(node):
-        raise ConfigError(f"metric {name!r} is {node!r}, not a finite number")
-    return float(node)
-
-
-# ------------------------------------------------------------------ worker output
-
-
-class _Prefixed(io.TextIOBase):
-    """A text stream that writes each whole line to ``stream`` behind ``prefix``; a line
-    redrawn with ``\r`` (a progress bar) keeps only its last state, a blank one is
-    dropped, so N workers' bars never interleave into garbage."""
-
-    def __init__(self, stream: Any, prefix: str) -> None:
-        self._stream, self._prefix, self._buf = stream, prefix, ""
-
-    def writable(self) -> bool:
-        return True
-
-    def write(self, s: str) -> int:
-        self._buf += s
-        *lines, rest = self._buf.split("\n")
-        self._buf = rest.rsplit("\r", 1)[-1]
-        lines = [ln.rsplit("\r", 1)[-1] for ln in lines]
-        for ln in lines:
-            if ln.strip():
-                self._stream.write(f"{self._prefix}{ln}\n")
-        if lines:
-            self._stream.flush()
-        return len(s)
-
-    def flush(self) -> None:
-        self._stream.flush()
-
-    def finish(self) -> None:
-        if self._buf.strip():
-            self._stream.write(f"{self._prefix}{self._buf}\n")
-            self._buf = ""
-        self._stream.flush()
-
-
-@contextmanager
-def named_output(name: str | None):
-    """Within this block, every line printed to stdout or stderr starts with ``[name]``
-    (a worker's lines among other workers'; progress bars reduced to nothing, the
-    sweep's own progress lines say how far it is); ``None``: unchanged."""
-    if name is None:
-        yield
-        return
-    out = _Prefixed(sys.stdout, f"[{name}] ")
-    err = _Prefixed(sys.stderr, f"[{name}] ")
-    try:
-        with redirect_stdout(out), redirect_stderr(err):
-            yield
-    finally:
-        out.finish()
-        err.finish()
-
-
-# ------------------------------------------------------------------ the study file
-
-
-def _slot_name(slot: int) -> str:
-    return f"trial_{slot:04d}"
-
-
-@contextmanager
-def _study_lock(out: Path, timeout: float = 300.0):
-    """Hold ``out/.search-lock`` (an exclusive ``flock``) while the study is prepared or a
-    worker takes its next trial, so two workers or two commands never draw at once."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - no flock (Windows): SQLite's own locking only
-        yield
-        return
-    p = out / _LOCK_NAME
-    fd = os.open(p, os.O_CREAT | os.O_RDWR, 0o644)
-    t0, said = time.monotonic(), False
-    try:
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                waited = time.monotonic() - t0
-                if waited > timeout:
-                    raise FxspaceError(
-                        f"{p}: another process has held the search's lock for {waited:.0f} s; "
-                        "if no fxspace sweep of this search is running, rerun"
-                    ) from None
-                if waited > 10 and not said:
-                    print(f"[search] waiting for {p} (another worker is drawing)", flush=True)
-                    said = True
-                time.sleep(0.05)
-        yield
-    finally:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-        finally:
-            os.close(fd)
-
-
-def _check_db(db: Path) -> None:
-    """``search.db`` is absent, empty, or an SQLite file holding an Optuna study
-    database; anything else is a `CorruptFileError` naming it and the fix (checked
-    read-only, before Optuna writes to it)."""
-    import sqlite3
-
-    fix = "move it aside (or delete it) and rerun, or choose another --out"
-    if not (db.exists() or db.is_symlink()):
-        return
-    if not db.is_file():
-        raise CorruptFileError(f"{db} is not a regular file (a folder, a FIFO or a broken "
-                               f"link), so it cannot hold the search's study; {fix}")  # fmt: skip
-    if db.stat().st_size == 0:
-        return
-    try:
-        con = sqlite3.connect(f"{db.resolve().as_uri()}?mode=ro", uri=True, timeout=30)
-        try:
-            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master")}
-        finally:
-            con.close()
-    except sqlite3.Error as e:
-        raise CorruptFileError(f"{db} is not an SQLite database ({e}); {fix}") from None
-    if tables and not {"studies", "trials", "alembic_version"} <= tables:
-        raise CorruptFileError(f"{db} is an SQLite database but not an Optuna study's (its "
-                               f"tables: {sorted(tables)[:6]}); {fix}")  # fmt: skip
-
-
-@contextmanager
-def _db_errors(db: Path):
-    """A database error inside this block becomes a `CorruptFileError` naming ``db``."""
-    import sqlite3
-
-    try:
-        from sqlalchemy.exc import SQLAlchemyError
-    except ImportError:  # pragma: no cover - optuna always brings sqlalchemy
-        SQLAlchemyError = sqlite3.Error  # noqa: N806
-    try:
-        yield
-    except (SQLAlchemyError, sqlite3.Error) as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CorruptFileError(
-            f"{db}: the search's study database cannot be used ({first}); move it aside "
-            "and rerun (or pass --force for a fresh study), or choose another --out"
-        ) from None
-
-
-def _storage(out: Path):
-    import optuna
-
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    db = out / "search.db"
-    _check_db(db)
-    with _db_errors(db):
-        return optuna.storages.RDBStorage(
-            f"sqlite:///{db.resolve()}", engine_kwargs={"connect_args": {"timeout": 60}}
-        )
-
-
-def _sampler(search: dict, worker: int):
-    import optuna
-
-    seed = int(search["seed"]) + 1000 * int(worker)  # workers draw different points
-    if search["method"] == "tpe":
-        return optuna.samplers.TPESampler(seed=seed, n_startup_trials=_TPE_STARTUP,
-                                          constant_liar=True)  # fmt: skip
-    return optuna.samplers.RandomSampler(seed=seed)
-
-
-def search_study(out: Path, name: str, search: dict, worker: int = 0):
-    """The Optuna study of this search (SQLite ``out/search.db``, shared by workers),
-    loaded with worker ``worker``'s sampler; `prepare_search` creates it (once)."""
-    import optuna
-
-    out = Path(out)
-    storage = _storage(out)
-    with _db_errors(out / "search.db"):
-        names = [s.study_name for s in storage.get_all_studies()]
-        if name not in names:
-            raise FxspaceError(f"{out / 'search.db'} holds no study {name!r} (it holds "
-                               f"{names}); fxspace sweep CONFIG creates it")  # fmt: skip
-        return optuna.load_study(study_name=name, storage=storage,
-                                 sampler=_sampler(search, worker))  # fmt: skip
-
-
-# ------------------------------------------------------------------ bookkeeping
-
-
-def _slot(t) -> int | None:
-    """The configuration index of a trial (``None``: a skipped draw, or a queued start
-    point not taken yet). A trial of a study from before slots is its own number."""
-    from optuna.trial import TrialState
-
-    if _SKIP in t.user_attrs or t.state == TrialState.PRUNED:
-        return None
-    if _SLOT in t.user_attrs:
-        return int(t.user_attrs[_SLOT])
-    if t.state in (TrialState.COMPLETE, TrialState.FAIL, TrialState.RUNNING):
-        return t.number
-    return None
-
-
-def _latest(trials) -> dict[int, Any]:
-    """Each configuration's latest trial (a retry supersedes the failed one)."""
-    got: dict[int, Any] = {}
-    for t in sorted(trials, key=lambda t: t.number):
-        k = _slot(t)
-        if k is not None:
-            got[k] = t
-    return got
-
-
-def _queued_params(t) -> dict:
-    """The configuration of a queued (WAITING) trial: Optuna keeps it as its fixed params."""
-    return dict(t.params or t.system_attrs.get("fixed_params") or {})
-
-
-def _params_key(params: dict) -> tuple:
-    return tuple(sorted((k, repr(v)) for k, v in params.items()))
-
-
-def _stale(t, out: Path) -> str | None:
-    """Why a RUNNING trial is known to be dead (its process is gone), else ``None``
-    (running, or on another host where that cannot be told)."""
-    host, pid = t.user_attrs.get(_HOST), t.user_attrs.get(_PID)
-    if host is None:  # from before this bookkeeping: dead unless its folder is locked
-        k = _slot(t)
-        locked = k is not None and (out / _slot_name(k) / ".fxspace-lock").exists()
-        return None if locked else "interrupted (no process holds its folder)"
-    if host == socket.gethostname() and isinstance(pid, int) and not pid_alive(pid):
-        return f"interrupted (its process, pid {pid}, is gone)"
-    return None
-
-
-def _trial_id(storage, study, number: int) -> int:
-    sid = storage.get_study_id_from_name(study.study_name)
-    return storage.get_trial_id_from_study_id_trial_number(sid, number)
-
-
-def _fail(study, storage, t, why: str, interrupted: bool = True) -> None:
-    """Mark the RUNNING trial ``t`` failed with ``why`` (it is queued again later)."""
-    from optuna.trial import TrialState
-
-    tid = _trial_id(storage, study, t.number)
-    storage.set_trial_user_attr(tid, _ERROR, why)
-    if interrupted:
-        storage.set_trial_user_attr(tid, _INTERRUPTED, True)
-    storage.set_trial_state_values(tid, TrialState.FAIL)
-
-
-def _recover(study, storage, out: Path, retry_failed: bool) -> tuple[int, list[str]]:
-    """Fail the RUNNING trials whose process is gone, and queue them again; with
-    ``retry_failed``, every configuration whose latest trial failed is queued again too.
-    Returns (queued, notes)."""
-    from optuna.trial import TrialState
-
-    notes, queued = [], 0
-    trials = study.get_trials(deepcopy=False)
-    for t in trials:
-        if t.state == TrialState.RUNNING:
-            why = _stale(t, out)
-            if why is not None:
-                _fail(study, storage, t, why)
-                k = _slot(t)
-                notes.append(f"{_slot_name(t.number if k is None else k)}: {why}; queued again")
-                if not retry_failed:
-                    _queue_retry(study, t)
-                    queued += 1
-    if retry_failed:
-        trials = study.get_trials(deepcopy=False)
-        for k, t in sorted(_latest(trials).items()):
-            if t.state == TrialState.FAIL:
-                _queue_retry(study, t, k)
-                queued += 1
-    return queued, notes
-
-
-def _queue_retry(study, t, slot: int | None = None) -> None:
-    k = _slot(t) if slot is None else slot
-    study.enqueue_trial(dict(t.params), user_attrs={_SLOT: k, _RETRY_OF: t.number})
-
-
-def _space_size(space: dict) -> float:
-    import optuna.distributions as od
-
-    n = 1.0
-    for d in space.values():
-        if isinstance(d, od.CategoricalDistribution):
-            n *= len(d.choices)
-        elif isinstance(d, od.IntDistribution):
-            n *= (d.high - d.low) // d.step + 1
-        else:
-            return math.inf
-    return n
-
-
-def _draw(space: dict, rng: random.Random) -> dict:
-    import optuna.distributions as od
-
-    p: dict[str, Any] = {}
-    for k, d in space.items():
-        if isinstance(d, od.CategoricalDistribution):
-            p[k] = rng.choice(list(d.choices))
-        elif isinstance(d, od.IntDistribution):
-            if d.log:
-                v = round(math.exp(rng.uniform(math.log(d.low), math.log(d.high))))
-                p[k] = int(min(max(v, d.low), d.high))
-            else:
-                p[k] = rng.randrange(d.low, d.high + 1, d.step)
-        elif d.log:
-            p[k] = math.exp(rng.uniform(math.log(d.low), math.log(d.high)))
-        else:
-            p[k] = rng.uniform(d.low, d.high)
-    return p
-
-
-def _untried(space: dict, taken: set, rng: random.Random, n: int = 1) -> list[dict]:
-    """Up to ``n`` configurations of ``space`` whose keys are not in ``taken`` (none when
-    every point of a finite space is taken)."""
-    import itertools
-
-    import optuna.distributions as od
-
-    size = _space_size(space)
-    if size <= 20000:  # finite and small: choose among the points left
-        axes = []
-        for k, d in space.items():
-            vals = d.choices if isinstance(d, od.CategoricalDistribution) else range(
-                d.low, d.high + 1, d.step)  # fmt: skip
-            axes.append([(k, v) for v in vals])
-        left = [dict(c) for c in itertools.product(*axes) if _params_key(dict(c)) not in taken]
-        rng.shuffle(left)
-        return left[:n]
-    got = []
-    for _ in range(200 * n):
-        p = _draw(space, rng)
-        key = _params_key(p)
-        if key not in taken:
-            taken = taken | {key}
-            got.append(p)
-            if len(got) == n:
-                break
-    return got
-
-
 # ------------------------------------------------------------------ preparing
 
 
 def _trial_folders(out: Path) -> list[Path]:
-    import re
-
     return sorted(
         d for d in out.glob("trial_*") if re.fullmatch(r"trial_\d{4,}", d.name)
         and ((d / ".fxspace-manifest").is_file() or (d / "status.json").is_file())
@@ -517,8 +106,6 @@ def _trial_folders(out: Path) -> list[Path]:
 def _clean_trials(out: Path) -> list[str]:
     """``--force``: remove the files fxspace wrote in ``out``'s trial folders (their
     manifests); a folder left empty goes too, a user's file stays."""
-    from fxspace.runs import clean_run
-
     gone = []
     for d in _trial_folders(out):
         clean_run(d)
@@ -712,9 +299,6 @@ def search_worker(config: str, out: str, worker: int = 0, force: bool = False,
     (kept for callers)."""
     from optuna.trial import TrialState
 
-    from fxspace.config import load_toml
-    from fxspace.pipelines import run_dict
-
     raw = load_toml(config)
     search = check_search(raw.get("search"))
     base = {k: v for k, v in raw.items() if k not in ("search", "sweep")}
@@ -787,9 +371,6 @@ def _finished(cfg: dict, run_dir: Path) -> Path | None:
     """``run_dir`` when it holds the finished run of exactly ``cfg`` (a failed trial
     whose run had completed, say under a misspelt metric: only its metric is read again,
     even where fxspace's code changed since), else ``None``."""
-    from fxspace.pipelines import resolve_config
-    from fxspace.runs import read_status
-
     if read_status(run_dir).get("status") != "complete":
         return None
     try:

@@ -25,16 +25,24 @@ of the config's order, so each compiles its shapes once.
 from __future__ import annotations
 
 import os
-import re
-import threading
 import time
-import traceback
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 from fxspace._jax_private import backends_started
-from fxspace.errors import FxspaceError
+from fxspace.config import ConfigError, load_toml
+from fxspace.pipelines._planner import _clean_tree, _plan, _refuse_overwrite
+from fxspace.pipelines._scheduler import SchedulerError, _connect, check_scheduler
+from fxspace.pipelines._search import prepare_search, search_outcomes, search_worker
+from fxspace.pipelines._search_space import check_search
+from fxspace.pipelines._sweep_worker import (
+    LOCK_WAIT_S,
+    WORKER_ENV,
+    SweepResult,
+    _init_worker,
+    _progress,
+    _task,
+    _worker_env,
+)
 
 __all__ = [
     "sweep_config",
@@ -47,117 +55,9 @@ __all__ = [
     "SCHEDULER_TIMEOUT_S",
 ]
 
-#: The environment each worker runs with: one XLA/Eigen thread per worker process.
-WORKER_ENV = {
-    "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false",
-    "OMP_NUM_THREADS": "1",
-    "OPENBLAS_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-    "TF_CPP_MIN_LOG_LEVEL": "2",
-}
-#: How long (seconds) a sweep waits for a run folder another process holds, by default.
-LOCK_WAIT_S = 600.0
 #: How long (seconds) ``--scheduler`` may take to connect and greet like a Dask scheduler.
 SCHEDULER_TIMEOUT_S = 10.0
 _ENGINES = ("auto", "dask", "processes", "serial")
-
-
-class SweepResult(dict):
-    """One run's outcome: ``run_dir``, ``status`` (complete/failed), ``error``, ``metrics``."""
-
-
-class SchedulerError(FxspaceError, ConnectionError):
-    """``--scheduler`` is malformed, unreachable, or not a Dask scheduler (names which)."""
-
-
-# ------------------------------------------------------------------ worker side
-
-
-def _run_waiting(entry: Any, experiment: str, force: bool, lock_wait: float | None,
-                 defer: bool) -> str:  # fmt: skip
-    """Run ``entry`` under its folder's lock; a lock another process holds is reported
-    (who holds it: `fxspace.runs.run_lock` says) and waited for at most ``lock_wait`` s
-    (``None``: until it is free), then a `RunLockedError` with the fix. Returns
-    ``"ran"``, or ``"locked"`` when ``defer`` and it is held now."""
-    from fxspace.pipelines import _run_one
-    from fxspace.runs import RunLockedError
-
-    args = (entry.pipeline, entry.run_dir, entry.config, entry.seed, entry.text, experiment,
-            force)  # fmt: skip
-    try:
-        _run_one(*args, wait=0.0)
-        return "ran"
-    except RunLockedError as e:
-        if defer:
-            print(f"[sweep] {entry.run_dir}: {e}; coming back to it after the other runs",
-                  flush=True)  # fmt: skip
-            return "locked"
-        if lock_wait is not None and lock_wait <= 0:
-            raise RunLockedError(f"skipped: {e}") from None
-    limit = "until it is free" if lock_wait is None else f"up to {lock_wait:g} s (--lock-wait)"
-    print(f"[sweep] {entry.run_dir} is held by another process; waiting {limit}", flush=True)
-    try:
-        _run_one(*args, wait=lock_wait)
-    except RunLockedError as e:
-        raise RunLockedError(
-            f"still locked after {lock_wait:g} s, skipped: {e} (rerun later, or give "
-            "--lock-wait SECONDS)"
-        ) from None
-    return "ran"
-
-
-def _task(config: str, out: str, run_dir: str, force: bool, lock_wait: float | None = LOCK_WAIT_S,
-          named: bool = False, defer: bool = False) -> dict[str, Any]:  # fmt: skip
-    """Run one run of ``config`` (the one whose folder is ``run_dir``) in this process."""
-    import json
-
-    from fxspace.config import load_toml
-    from fxspace.pipelines import _plan
-    from fxspace.pipelines._search import named_output
-
-    name = Path(run_dir).name or run_dir
-    try:
-        raw = load_toml(config)
-        plan = _plan(raw, Path(out), Path(config).resolve().parent)
-        (entry,) = [p for p in plan if str(p.run_dir) == run_dir]
-        with named_output(name if named else None):
-            how = _run_waiting(entry, raw["experiment"], force, lock_wait, defer)
-        if how == "locked":
-            return SweepResult(run_dir=run_dir, status="locked", error=None)
-        metrics = json.loads((entry.run_dir / "metrics.json").read_text())
-        return SweepResult(run_dir=run_dir, status="complete", error=None, metrics=metrics)
-    except Exception as e:  # noqa: BLE001 - reported per run, the sweep goes on
-        tb = traceback.format_exc(limit=3)
-        return SweepResult(
-            run_dir=run_dir, status="failed", error=f"{type(e).__name__}: {e}", traceback=tb
-        )
-
-
-def _init_worker(env: dict[str, str]) -> None:
-    os.environ.update(env)
-
-
-@contextmanager
-def _worker_env(env: dict[str, str]):
-    """Set ``env`` in this process while workers start (they inherit it)."""
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _progress(done: int, running: int, failed: int, total: int, last: dict | None) -> None:
-    tail = ""
-    if last is not None:
-        name = last.get("name") or Path(last["run_dir"]).name or last["run_dir"]
-        tail = f" — {name}: {last['status']}" + (f" ({last['error']})" if last["error"] else "")
-    print(f"[sweep] done {done}/{total}, running {running}, failed {failed}{tail}", flush=True)
 
 
 # ------------------------------------------------------------------ checks
@@ -184,114 +84,6 @@ def cap_workers(workers: int, jobs: int, what: str = "runs") -> int:
     return n
 
 
-_ADDRESS = re.compile(
-    r"^(?:(?P<scheme>[A-Za-z][A-Za-z0-9+.-]*)://)?"
-    r"(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(?P<port>[0-9]+)/?$"
-)
-_SCHEMES = ("tcp", "tls", "ucx", "ws", "wss")
-
-
-def check_scheduler(address: Any) -> tuple[str, str, int]:
-    """``(scheme, host, port)`` of a ``--scheduler`` address (``tcp://HOST:PORT``,
-    ``tls://…``, or ``HOST:PORT`` for tcp), or a `SchedulerError` saying what is wrong."""
-    ex = "e.g. tcp://10.0.0.5:8786 (the address `dask scheduler` prints)"
-    if not isinstance(address, str) or not address.strip():
-        raise SchedulerError(f"--scheduler must be an address like tcp://HOST:PORT, got "
-                             f"{address!r}; {ex}")  # fmt: skip
-    a = address.strip()
-    m = _ADDRESS.match(a)
-    scheme = (m.group("scheme") if m else a.partition("://")[0] if "://" in a else "") or "tcp"
-    if scheme.lower() in ("http", "https"):
-        raise SchedulerError(
-            f"--scheduler {a}: an http:// address is the Dask dashboard (port 8787), not the "
-            f"scheduler; give tcp://HOST:PORT, {ex}"
-        )
-    if scheme.lower() not in _SCHEMES:
-        raise SchedulerError(f"--scheduler {a}: unknown protocol {scheme!r}; one of "
-                             f"{', '.join(s + '://' for s in _SCHEMES)}, {ex}")  # fmt: skip
-    if m is None:
-        raise SchedulerError(f"--scheduler {a}: not HOST:PORT after {scheme}://; {ex}")
-    port = int(m.group("port"))
-    if not 0 < port < 65536:
-        raise SchedulerError(f"--scheduler {a}: port {port} is not in 1-65535; {ex}")
-    return scheme.lower(), m.group("host"), port
-
-
-def _probe_scheduler(address: str, host: str, port: int, timeout: float) -> None:
-    """Connect to ``host:port`` within ``timeout`` s and read the greeting a Dask
-    scheduler sends unasked (a length-prefixed handshake); a `SchedulerError` otherwise."""
-    import socket
-
-    h = host[1:-1] if host.startswith("[") else host
-    try:
-        sock = socket.create_connection((h, port), timeout=timeout)
-    except socket.gaierror as e:
-        raise SchedulerError(f"--scheduler {address}: unknown host {h!r} ({e.strerror}); "
-                             "check the name") from None  # fmt: skip
-    except ConnectionRefusedError:
-        raise SchedulerError(
-            f"--scheduler {address}: nothing listens on port {port} of {h} (connection "
-            f"refused); start `dask scheduler --port {port}` there, or check the address"
-        ) from None
-    except TimeoutError:
-        raise SchedulerError(f"--scheduler {address}: no answer within {timeout:g} s (the host "
-                             "is down or a firewall drops the port)") from None  # fmt: skip
-    except OSError as e:
-        raise SchedulerError(f"--scheduler {address}: cannot connect ({e.strerror or e})") from None
-    head = b""
-    with sock:
-        sock.settimeout(timeout)
-        try:
-            while len(head) < 8:
-                chunk = sock.recv(64)
-                if not chunk:
-                    break
-                head += chunk
-        except (TimeoutError, OSError):
-            pass
-    n = int.from_bytes(head[:8], "little") if len(head) >= 8 else 0
-    if not head:
-        raise SchedulerError(
-            f"--scheduler {address}: the port accepted the connection but sent no Dask "
-            f"greeting within {timeout:g} s, so it speaks another protocol (an HTTP server? "
-            "the scheduler listens on 8786 by default, its dashboard on 8787)"
-        )
-    if not 0 < n < 1 << 20:
-        raise SchedulerError(
-            f"--scheduler {address}: the port answered {head[:16]!r}, not a Dask scheduler's "
-            "greeting (another service; the scheduler listens on 8786 by default)"
-        )
-
-
-def _connect(address: str, timeout: float) -> Any:
-    """A ``dask.distributed.Client`` of the scheduler at ``address``, or a
-    `SchedulerError` within about ``timeout`` s (the address checked and, for tcp,
-    probed first; the handshake itself bounded too)."""
-    from dask.distributed import Client
-
-    scheme, host, port = check_scheduler(address)
-    if scheme == "tcp":
-        _probe_scheduler(address, host, port, timeout)
-    box: dict[str, Any] = {}
-
-    def go() -> None:
-        try:
-            box["client"] = Client(address, timeout=timeout)
-        except BaseException as e:  # noqa: BLE001 - handed to the caller
-            box["error"] = e
-
-    t = threading.Thread(target=go, name="fxspace-scheduler-connect", daemon=True)
-    t.start()
-    t.join(timeout + 5.0)
-    if t.is_alive():
-        raise SchedulerError(f"--scheduler {address}: no Dask handshake within "
-                             f"{timeout + 5:g} s; is it a Dask scheduler?")  # fmt: skip
-    if "error" in box:
-        e = box["error"]
-        raise SchedulerError(f"--scheduler {address}: {type(e).__name__}: {e}") from e
-    return box["client"]
-
-
 # ------------------------------------------------------------------ the sweep
 
 
@@ -313,9 +105,6 @@ def sweep_config(
     ``workers`` is capped at the runs and the CPU cores (with a message). A run folder
     another process holds is waited for at most ``lock_wait`` seconds (``None``: until
     it is free), then reported as failed naming the holder."""
-    from fxspace.config import ConfigError, load_toml
-    from fxspace.pipelines import _clean_tree, _plan, _refuse_overwrite
-
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers must be an integer >= 1, got {workers!r}")
     if engine not in _ENGINES:
@@ -387,13 +176,6 @@ def _search(path: Path, raw: dict, out: Path, workers: int, scheduler, fail_fast
     trials failed, failed ones queued again), then ``workers`` loops of `search_worker`
     (asking and telling one Optuna study in ``out/search.db``); returns one outcome per
     trial of the study (`search_outcomes`)."""
-    from fxspace.pipelines._search import (
-        check_search,
-        prepare_search,
-        search_outcomes,
-        search_worker,
-    )
-
     s = check_search(raw["search"])
     todo = prepare_search(path, out, s, force)
     if engine == "serial" or todo <= 1:

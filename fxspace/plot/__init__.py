@@ -13,6 +13,7 @@ if _mpl.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend
     except Exception:  # pragma: no cover
         pass
 
+from fxspace.plot._bench import plot_bench_record as plot_bench_record
 from fxspace.plot._controlpoints import plot_control_points as plot_control_points
 from fxspace.plot._controlpoints import plot_reconstruction_frames as plot_reconstruction_frames
 from fxspace.plot._controlpoints import plot_scene_errors as plot_scene_errors
@@ -38,6 +39,7 @@ from fxspace.plot._navigation import plot_link_radius_sweep as plot_link_radius_
 from fxspace.plot._navigation import write_navigation_animation as write_navigation_animation
 from fxspace.plot._report import plot_report_grid as plot_report_grid
 from fxspace.plot._report import plot_report_metric as plot_report_metric
+from fxspace.plot._synthesis import plot_arm_swing_coupling as plot_arm_swing_coupling
 
 __all__ = [
     "plot_control_points",
@@ -65,4 +67,6 @@ __all__ = [
     "write_navigation_animation",
     "plot_report_metric",
     "plot_report_grid",
+    "plot_bench_record",
+    "plot_arm_swing_coupling",
 ]

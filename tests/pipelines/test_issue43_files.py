@@ -438,7 +438,7 @@ def test_finished_run_kept_after_a_data_change(tmp_path, toy, monkeypatch):
     r = tmp_path / "r"
     run_dict({"experiment": toy}, r)
     monkeypatch.setattr(runs, "run_key", lambda *a, **k: "data-changed")
-    import fxspace.pipelines as P
+    import fxspace.pipelines._runner as P
 
     monkeypatch.setattr(P, "run_key", lambda *a, **k: "data-changed")
     with pytest.raises(ConfigError, match=r"other data"):

@@ -183,7 +183,6 @@ def test_plot_report_metric_refuses_a_best_without_direction():
 def test_torn_setup_cache_is_rebuilt_with_a_message(tmp_path, monkeypatch, capsys):
     """A torn ``cache/*_setup.npz`` (BadZipFile) is not raised into the studio: the set-up
     is rebuilt, with a message naming the file."""
-    import fxspace.pipelines as P
     from fxspace.pipelines import parametric_synthesis as ps
 
     (tmp_path / "cache").mkdir()
@@ -195,7 +194,7 @@ def test_torn_setup_cache_is_rebuilt_with_a_message(tmp_path, monkeypatch, capsy
     with pytest.raises(zipfile.BadZipFile):  # what the studio hit before
         zipfile.ZipFile(io.BytesIO(torn))
     monkeypatch.setattr(ps, "run_key", lambda *a, **k: "k")
-    monkeypatch.setattr(P, "_data_files", lambda *a, **k: [])
+    monkeypatch.setattr(ps, "_data_files", lambda *a, **k: [])
     assert ps._stored_setup(tmp_path, "walk", None) is None
     out = capsys.readouterr().out
     assert "walk_setup.npz is damaged (BadZipFile); rebuilding the walk set-up" in out

@@ -403,6 +403,6 @@ def test_one_registry_an_experiment_and_its_app_are_one_module(monkeypatch):
     nav = pipelines.load_pipeline("navigation")
     mod.Config, mod.STAGES, mod.run = nav.Config, nav.STAGES, nav.run
     mod.APP = "fxspace.studio._navigator:serve"
-    monkeypatch.setattr(pipelines, "_REGISTERED", {**pipelines._REGISTERED})
+    monkeypatch.setitem(pipelines._REGISTERED, "my_nav", None)  # removed again after the test
     pipelines.register(mod, "my_nav")
     assert studio.app_for("my_nav") is studio.app_for("navigation")
