@@ -9,8 +9,8 @@ factored into per-joint sums accumulated up the hierarchy (eq. (13),
 
 This is the subpackage's one public front; the implementation lives in private modules
 (`_types`, `_skinning`, `_markers`, `_ik_model`, `_ik_gradients`, `_ik_constraints`,
-`_ik_regularizers`, `_ik_solvers`, `_procedural`, `_retarget`, `_retarget_inputs`,
-`_retarget_kinematics`, `_retarget_live`).
+`_ik_regularizers`, `_ik_problem`, `_ik_methods`, `_ik_solvers`, `_procedural`,
+`_retarget`, `_retarget_inputs`, `_retarget_kinematics`, `_retarget_live`).
 
 Example:
 
@@ -53,6 +53,11 @@ from fxspace.mesh._ik_gradients import ik_gradient_naive as ik_gradient_naive
 from fxspace.mesh._ik_gradients import ik_jacobian as ik_jacobian
 from fxspace.mesh._ik_gradients import ik_normal_equations as ik_normal_equations
 from fxspace.mesh._ik_gradients import value_and_gradient as value_and_gradient
+from fxspace.mesh._ik_methods import BFGS as BFGS
+from fxspace.mesh._ik_methods import Adam as Adam
+from fxspace.mesh._ik_methods import LevenbergMarquardt as LevenbergMarquardt
+from fxspace.mesh._ik_methods import OptimistixGaussNewton as OptimistixGaussNewton
+from fxspace.mesh._ik_methods import OptimistixLM as OptimistixLM
 from fxspace.mesh._ik_model import IK_STATUS as IK_STATUS
 from fxspace.mesh._ik_model import IKForward as IKForward
 from fxspace.mesh._ik_model import IKModel as IKModel
@@ -67,13 +72,8 @@ from fxspace.mesh._ik_regularizers import (
     constraints_from_regularization as constraints_from_regularization,
 )
 from fxspace.mesh._ik_regularizers import ik_regularization as ik_regularization
-from fxspace.mesh._ik_solvers import BFGS as BFGS
 from fxspace.mesh._ik_solvers import DEFAULT_METHOD as DEFAULT_METHOD
 from fxspace.mesh._ik_solvers import METHODS as METHODS
-from fxspace.mesh._ik_solvers import Adam as Adam
-from fxspace.mesh._ik_solvers import LevenbergMarquardt as LevenbergMarquardt
-from fxspace.mesh._ik_solvers import OptimistixGaussNewton as OptimistixGaussNewton
-from fxspace.mesh._ik_solvers import OptimistixLM as OptimistixLM
 from fxspace.mesh._ik_solvers import solve_ik as solve_ik
 from fxspace.mesh._ik_solvers import solver_from_method as solver_from_method
 from fxspace.mesh._ik_solvers import track_ik as track_ik
