@@ -53,7 +53,7 @@ def test_tiled_minplus_update_equals_numpy(rng, cols):
     """The phase-3 update (whole row blocks, or column tiles once a row block passes
     1 MiB) is the plain ``min(D, C ⊗ R)``; `_col_pad` always gives a column count the
     update can tile."""
-    from fxspace.expression._geodesic import _col_pad, _col_tiles, _minplus_update
+    from fxspace.expression._floyd_kernels import _col_pad, _col_tiles, _minplus_update
 
     D = rng.uniform(0, 4, (128, cols)).astype(np.float32)
     C = rng.uniform(0, 2, (128, 8)).astype(np.float32)
@@ -225,11 +225,11 @@ def test_folded_floyd_matches_scipy(rng, n, q, block):
 
 def test_folded_floyd_column_groups(rng, monkeypatch):
     """A strip cut into several column groups (as past ~1 MiB) gives the same distances."""
-    from fxspace.expression import _geodesic
+    from fxspace.expression import _floyd_fold
 
-    monkeypatch.setattr(_geodesic, "_FOLD_GROUP_BYTES", 3 * 8 * 8 * 8)  # 3 slots a group
+    monkeypatch.setattr(_floyd_fold, "_FOLD_GROUP_BYTES", 3 * 8 * 8 * 8)  # 3 slots a group
     P, W, _ = _graph(rng, 123, 0.06)  # a shape no other test compiles
-    _, _, groups, per = _geodesic._fold_layout(16, 8, 8)
+    _, _, groups, per = _floyd_fold._fold_layout(16, 8, 8)
     assert groups > 1 and per == 3
     D = np.asarray(fx.floyd_warshall(W, method="blocked", block=8, symmetric=True))
     ref = _scipy(W)
