@@ -16,11 +16,11 @@ OVER_MODULE_LIMIT: frozenset[str] = frozenset({
     "fxspace/io/_gltf_write.py", "fxspace/face/_solve.py", "fxspace/io/_table.py",
     "fxspace/studio/_motion.py", "fxspace/report.py",
     "fxspace/motion/_synthesis.py",
-    "fxspace/motion/_setups.py", "fxspace/pipelines/mesh_ik.py",
-    "fxspace/studio/_nav_controller.py", "fxspace/pipelines/navigation.py",
+    "fxspace/motion/_setups.py",
+    "fxspace/studio/_nav_controller.py",
     "fxspace/expression/_geodesic.py",
     "fxspace/mesh/_ik_solvers.py", "fxspace/_validate.py",
-    "fxspace/pipelines/reconstruction.py", "fxspace/runs.py",
+    "fxspace/runs.py",
 })
 
 

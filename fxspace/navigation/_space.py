@@ -1,12 +1,17 @@
 """The navigable space in one call: expression space at a threshold + its FCM hierarchy.
 
 Shared by the navigation pipeline and the browser navigator (one home for the wiring of
-the library's chain into a hierarchy).
+the library's chain into a hierarchy). ε is a number or the library's own rule over the
+frames (a factor of the connecting ε, or a criterion's sweep); the library reads no run
+folder: a finished threshold-sweep run's ε is read in the pipeline layer
+(`fxspace.pipelines.navigation.threshold_from_run`) and passed here as a number.
 """
 
 from __future__ import annotations
 
 import json
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
@@ -19,6 +24,7 @@ from fxspace.errors import FxspaceError
 from fxspace.expression import (
     CRITERIA,
     ExpressionSpace,
+    SweepResult,
     choose_threshold,
     connecting_threshold,
     distance_features,
@@ -44,8 +50,8 @@ SWEEP_THRESHOLDS = 16
 
 class NavigationSpace(NamedTuple):
     """An expression space, its hierarchy, the connecting ε, the ε used and where it came
-    from (``threshold_source``: ``"value"``, ``"factor 1.25 × connecting"``,
-    ``"criterion max_r (sweep of 16)"`` or ``"from:RUN_DIR (bounded_degree)"``)."""
+    from (``threshold_source``: ``"value"``, ``"factor 1.25 × connecting"`` or
+    ``"criterion max_r (sweep of 16 …)"``)."""
 
     space: ExpressionSpace
     hierarchy: Hierarchy | None
@@ -56,8 +62,19 @@ class NavigationSpace(NamedTuple):
 
 @checked
 def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
-    """``(ε, criterion)`` chosen by a finished threshold-sweep run (its ``metrics.json``:
+    """Deprecated: use `fxspace.pipelines.navigation.threshold_from_run` (reading a run
+    folder is the pipeline layer's job; nothing in the library calls this, and it goes in
+    a later release).
+
+    ``(ε, criterion)`` chosen by a finished threshold-sweep run (its ``metrics.json``:
     ``best_threshold`` and ``criterion``). Raises ``FxspaceError`` naming what is missing."""
+    warnings.warn(
+        "fxspace.navigation.threshold_from_run is deprecated: use "
+        "fxspace.pipelines.navigation.threshold_from_run (a run folder is read in the "
+        "pipeline layer) and pass the number as the threshold",
+        DeprecationWarning,
+        stacklevel=2,
+    )
     p = Path(run_dir)
     m = p / "metrics.json"
     if not m.is_file():
@@ -74,21 +91,25 @@ def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
 def _threshold_value(
     pairwise, threshold: float | str | None, threshold_factor: float, t_conn: float,
     num_thresholds: int = SWEEP_THRESHOLDS,
+    sweep: Callable[..., SweepResult] = threshold_sweep,
 ) -> tuple[float, str]:  # fmt: skip
     if isinstance(threshold, str):
         if threshold.startswith("from:"):
-            eps, crit = threshold_from_run(threshold.removeprefix("from:"))
-            return eps, f"{threshold} ({crit})"
+            raise FxspaceError(
+                f"threshold = {threshold!r}: the library reads no run folder; read that "
+                "run's ε with fxspace.pipelines.navigation.threshold_from_run("
+                f"{threshold.removeprefix('from:')!r}) and pass the number (a navigation "
+                "config's graph.threshold = 'from:RUN_DIR' does this)"
+            )
         if threshold in THRESHOLD_CRITERIA:
             grid = threshold_grid(pairwise, num_thresholds)
-            ch = choose_threshold(threshold_sweep(pairwise, grid), threshold)
+            ch = choose_threshold(sweep(pairwise, grid), threshold)
             return ch["threshold"], (
                 f"criterion {threshold} (sweep of {len(grid)} from the connecting ε to the "
                 f"largest distance; r = {ch['score']:.4f})"
             )
         raise FxspaceError(
-            f"threshold must be a number, 'from:RUN_DIR' (a threshold_sweep run) or a "
-            f"criterion {THRESHOLD_CRITERIA}; got {threshold!r}"
+            f"threshold must be a number or a criterion {THRESHOLD_CRITERIA}; got {threshold!r}"
         )
     if threshold:
         return check_scalar(threshold, "threshold", low=0.0, low_open=True), "value"
@@ -102,20 +123,25 @@ def resolve_threshold(
     *,
     with_source: bool = False,
     num_thresholds: int = SWEEP_THRESHOLDS,
+    sweep: Callable[..., SweepResult] | None = None,
 ) -> tuple[float, float] | tuple[float, float, str]:
     """``(ε, connecting ε)`` (and the source with ``with_source``): ``threshold`` when a
-    number; ``"from:RUN_DIR"`` → the ε a finished threshold-sweep run chose; a criterion
-    name (``"max_r"`` — the paper's, ``"bounded_degree"``, ``"elbow"``) → a sweep of
-    `num_thresholds` thresholds from the connecting ε to the largest distance
-    (`fxspace.threshold_grid`) here and `fxspace.choose_threshold`; ``None``/0 →
-    ``threshold_factor`` × the smallest threshold that connects the graph. Raises
+    number; a criterion name (``"max_r"`` — the paper's, ``"bounded_degree"``,
+    ``"elbow"``) → a sweep of `num_thresholds` thresholds from the connecting ε to the
+    largest distance (`fxspace.threshold_grid`) here and `fxspace.choose_threshold`;
+    ``None``/0 → ``threshold_factor`` × the smallest threshold that connects the graph.
+    A finished threshold-sweep run's ε (``"from:RUN_DIR"``) is not read here: read it with
+    `fxspace.pipelines.navigation.threshold_from_run` and pass the number. `sweep`: how a
+    criterion's sweep runs, ``sweep(pairwise, thresholds) -> SweepResult`` (default
+    `fxspace.threshold_sweep`; the navigation pipeline passes its cached stage). Raises
     ``FxspaceError`` when ε leaves the graph disconnected."""
     if not isinstance(threshold, str) and threshold is not None:
         threshold = check_scalar(threshold, "threshold", low=0.0)
     threshold_factor = check_scalar(threshold_factor, "threshold_factor", low=1.0)
     num_thresholds = check_int(num_thresholds, "num_thresholds", low=2)
     t_conn = float(connecting_threshold(pairwise))
-    eps, source = _threshold_value(pairwise, threshold, threshold_factor, t_conn, num_thresholds)
+    eps, source = _threshold_value(pairwise, threshold, threshold_factor, t_conn, num_thresholds,
+                                   threshold_sweep if sweep is None else sweep)  # fmt: skip
     if eps < t_conn:
         raise FxspaceError(
             f"threshold = {eps:.4g} leaves the graph disconnected; the smallest connecting "
@@ -141,9 +167,10 @@ def navigation_space(
 
     - `positions`: ``(n, M, 3)`` marker frames without NaN.
     - `threshold`: ε; ``None`` or 0 → `threshold_factor` × the connecting threshold;
-      ``"from:runs/threshold_sweep"`` → the ε that sweep run chose; ``"max_r"``,
-      ``"bounded_degree"`` or ``"elbow"`` → a sweep here, chosen by that criterion
-      (see `resolve_threshold`). The result's ``threshold_source`` records which.
+      ``"max_r"``, ``"bounded_degree"`` or ``"elbow"`` → a sweep here, chosen by that
+      criterion (see `resolve_threshold`). A finished sweep run's ε: read it with
+      `fxspace.pipelines.navigation.threshold_from_run` and pass the number. The
+      result's ``threshold_source`` records which.
     - `dtype`: ``"float32"`` or ``"float64"`` for the chain.
     - `key`: PRNG key of the FCM seeding.
     - `hierarchy`: keyword arguments of `fxspace.build_hierarchy`.
