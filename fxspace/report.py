@@ -9,7 +9,9 @@ key(s) (`fxspace.plot.plot_report_metric`).
 What the report knows of a metric — its words, its unit and which way is better — is in
 one place, `KNOWN` (an experiment's own entries first, then everyone's); a unit is else
 read from the name's suffix (`SUFFIX_UNITS`: ``_mm``, ``_s``, ``_hz``, ...). A metric
-with no known direction gets no "best" mark.
+with no known direction gets no "best" mark. That vocabulary lives in
+``fxspace._report_known`` (re-exported here); the figures are drawn by
+`fxspace.plot.plot_report_figure` and saved here.
 
 This module is the report's one home (it draws with ``fxspace.plot``, a layer above
 ``fxspace.runs``, so it sits beside the command line, not in ``fxspace.runs``).
@@ -22,12 +24,16 @@ import os
 import shutil
 import sys
 import textwrap
-from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from fxspace._report_known import KNOWN as KNOWN
+from fxspace._report_known import SUFFIX_UNITS as SUFFIX_UNITS
+from fxspace._report_known import Known as Known
+from fxspace._report_known import _lookup as _lookup
+from fxspace._report_known import describe as describe
 from fxspace.errors import CorruptFileError
 from fxspace.runs import (
     UnsafePathError,
@@ -42,98 +48,6 @@ from fxspace.runs import (
 
 __all__ = ["collect", "write_report", "KNOWN", "SUFFIX_UNITS", "Known", "describe"]
 
-
-class Known(NamedTuple):
-    """What the report says of a key or metric: its words (``{1}`` is the name's second
-    dotted part, ...), its unit ("" for a pure number, None when unknown) and which way
-    is better (``"higher"``, ``"lower"``, or None: no direction, no "best" mark)."""
-
-    words: str | None = None
-    unit: str | None = None
-    better: str | None = None
-
-
-#: Known keys and metrics: ``{experiment or "*": {name pattern: Known}}``. A pattern
-#: (`fnmatch`) is tried against the full dotted name, then its last part; an
-#: experiment's own entries before everyone's (``"*"``). Add a metric's unit and
-#: direction here.
-KNOWN: dict[str, dict[str, Known]] = {
-    "threshold_sweep": {
-        "dim": Known("embedding dimension", ""),
-        "graph.num_thresholds": Known("number of thresholds swept", ""),
-        "best_threshold": Known("chosen threshold ε", "mm"),
-        "r_at_best": Known("r at the chosen ε", "", "higher"),
-        "choices.*.threshold": Known("ε chosen by {1}", "mm"),
-        "choices.*.score": Known("r at the {1} choice", "", "higher"),
-        "choices.*.mean_degree": Known("mean degree at the {1} choice", "neighbours"),
-        "connecting_threshold": Known("smallest connecting ε", "mm"),
-        "largest_distance": Known("largest pairwise distance", "mm"),
-        "paper.threshold_mm": Known("paper's ε", "mm"),
-        "paper.r": Known("paper's r", ""),
-        "seed_paper_r": Known("paper's r", ""),
-    },
-    "*": {
-        "seed": Known("random seed", ""),
-        "wall_s": Known("wall time", "s"),
-        "compile_s": Known("compile time", "s"),
-        "frames": Known("frames", "frames"),
-        "n_frames": Known("frames", "frames"),
-        "markers": Known("markers", "markers"),
-        "missing.max_gap": Known("longest gap filled", "frames"),
-        "missing.filled_frames": Known("frames with a filled gap", "frames"),
-        "missing.dropped_frames": Known("frames dropped", "frames"),
-        "missing.filled_samples": Known("samples filled", "samples"),
-        "r": Known("Pearson r", "", "higher"),
-        "*rmse*": Known(None, None, "lower"),
-        "*error*": Known(None, None, "lower"),
-        "*accuracy*": Known(None, None, "higher"),
-    },
-}
-
-#: Units read from a name's last suffix when `KNOWN` gives none (longest first).
-SUFFIX_UNITS: tuple[tuple[str, str], ...] = (
-    ("_percent", "%"), ("_frames", "frames"), ("_deg", "°"), ("_rad", "rad"),
-    ("_pct", "%"), ("_mm", "mm"), ("_cm", "cm"), ("_ms", "ms"), ("_us", "µs"),
-    ("_hz", "Hz"), ("_px", "px"), ("_mb", "MB"), ("_gb", "GB"), ("_s", "s"), ("_m", "m"),
-)  # fmt: skip
-
-
-def _lookup(name: str, experiment: str | None) -> Known:
-    """The first entry of `KNOWN` whose pattern matches (the experiment's, then "*")."""
-    last = name.rsplit(".", 1)[-1]
-    for table in (KNOWN.get(experiment or "", {}), KNOWN["*"]):
-        for pat, k in table.items():
-            if fnmatchcase(name, pat) or ("." not in pat and fnmatchcase(last, pat)):
-                words = k.words.format(*name.split("."), *[""] * 4) if k.words else None
-                return Known(words, k.unit, k.better)
-    return Known()
-
-
-def describe(name: str, experiment: str | None = None) -> Known:
-    """The words, unit and direction of a config key or metric (`KNOWN`, else the name:
-    ``missing.max_gap_mm`` → "max gap (missing)", ``mm``, no direction)."""
-    k = _lookup(name, experiment)
-    last = name.rsplit(".", 1)[-1]
-    unit, stem = k.unit, last
-    for part in reversed(name.split(".")):  # ``rates_hz.synthetic``: the parent's unit
-        suf, u = next(((s, u) for s, u in SUFFIX_UNITS
-                       if part.lower().endswith(s) and len(part) > len(s)), ("", None))  # fmt: skip
-        if u is not None:
-            unit = u if unit is None else unit
-            stem = last[: -len(suf)] if part == last else stem
-            break
-    words = k.words
-    if words is None:
-        w = stem.replace("_", " ")
-        w = "number of " + w[4:] if w.startswith("num ") else w
-        parents = name.split(".")[:-1]
-        words = w + (f" ({' '.join(parents)})" if parents else "")
-    return Known(words, unit, k.better)
-
-
-def _axis_label(name: str, experiment: str | None) -> str:
-    k = describe(name, experiment)
-    return f"{k.words} [{k.unit}]" if k.unit else k.words
 
 
 # ------------------------------------------------------------------ reading the runs
@@ -515,11 +429,13 @@ def _x_key(rows: list[dict[str, Any]], swept: list[str]) -> str:
     return max(swept, key=lambda k: (*rank(k), -swept.index(k)))
 
 
+
+
 def _report_figures(rows: list[dict[str, Any]], plan: _Plan, out: Path) -> list[Path]:
-    """One figure per differing numeric metric, against the swept key(s): lines per
-    combination of the other keys, or one panel per key when the runs vary several keys
-    at once (more than 6 combinations, or none repeated: a search)."""
-    from fxspace.plot import plot_report_grid, plot_report_metric
+    """One figure per differing numeric metric, against the swept key(s), drawn by
+    `fxspace.plot.plot_report_figure` (lines per combination of the other keys, or one
+    panel per key for a search) and saved as ``out/NAME.png``, NAME the figure's label."""
+    from fxspace.plot import plot_report_figure
 
     ok = [r for r in rows if r["status"] == "complete"]
     if not plan.swept or not ok:
@@ -529,31 +445,9 @@ def _report_figures(rows: list[dict[str, Any]], plan: _Plan, out: Path) -> list[
         vals = [r for r in ok if _num(r[m]) is not None and np.isfinite(r[m])]
         if len({r[m] for r in vals}) < 2:
             continue  # a text metric, or one value among the complete runs
-        x = _x_key(vals, plan.swept)
-        others = [k for k in plan.swept if k != x]
-        d = describe(m, exp)
-        best = _best_index(vals, m, d.better)
-        kw = dict(y_label=_axis_label(m, exp), title=m, best=best or None,
-                  better=d.better if best else None)  # fmt: skip
-        combos = [tuple(json.dumps(r[k]) for k in others) for r in vals]
-        sizes = [combos.count(c) for c in set(combos)]
-        if others and (len(sizes) > 6 or max(sizes) < 2):
-            # several keys vary at once (a search, a large grid): one panel per key
-            xs = {_axis_label(k, exp): [r[k] for r in vals] for k in plan.swept}
-            fig = plot_report_grid(xs, [r[m] for r in vals], **kw)
-            name = f"{m}_vs_{'_'.join(plan.swept)}"
-        else:
-            if len(others) == 1:
-                u = describe(others[0], exp).unit
-                group = [f"{r[others[0]]}" + (f" {u}" if u else "") for r in vals]
-                glabel = describe(others[0], exp).words
-            else:
-                group = [", ".join(f"{k} = {r[k]}" for k in others) for r in vals]
-                glabel = ""
-            fig = plot_report_metric(
-                [r[x] for r in vals], [r[m] for r in vals], x_label=_axis_label(x, exp),
-                group=group if others else None, group_label=glabel, **kw,
-            )  # fmt: skip
-            name = f"{m}_vs_{x}" + (f"_by_{'_'.join(others)}" if others else "")
+        best = _best_index(vals, m, describe(m, exp).better)
+        fig = plot_report_figure(vals, m, plan.swept, x=_x_key(vals, plan.swept),
+                                 describe=lambda k: describe(k, exp), best=best)  # fmt: skip
+        name = fig.get_label()
         files.append(save_figure_atomic(fig, out / f"{name.replace('/', '-')[:120]}.png"))
     return files

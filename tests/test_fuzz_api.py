@@ -636,7 +636,8 @@ def test_run_folder_file_families(tmp_path_factory, family, name, finished, forc
     )[1]  # fmt: skip
     register(mod, "fuzz_files_toy")
     r = tmp / "r"
-    patch = mock.patch.object(fx.runs, "git_sha", lambda: None)  # (git is slow on 2 cores)
+    # (git is slow on 2 cores) where write_meta reads it (fxspace.runs re-exports it)
+    patch = mock.patch("fxspace._run_folder.git_sha", lambda: None)
     patch.start()
     try:
         if finished:

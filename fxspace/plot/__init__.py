@@ -37,6 +37,7 @@ from fxspace.plot._navigation import plot_level as plot_level
 from fxspace.plot._navigation import plot_levels_grid as plot_levels_grid
 from fxspace.plot._navigation import plot_link_radius_sweep as plot_link_radius_sweep
 from fxspace.plot._navigation import write_navigation_animation as write_navigation_animation
+from fxspace.plot._report import plot_report_figure as plot_report_figure
 from fxspace.plot._report import plot_report_grid as plot_report_grid
 from fxspace.plot._report import plot_report_metric as plot_report_metric
 from fxspace.plot._synthesis import plot_arm_swing_coupling as plot_arm_swing_coupling
@@ -67,6 +68,7 @@ __all__ = [
     "write_navigation_animation",
     "plot_report_metric",
     "plot_report_grid",
+    "plot_report_figure",
     "plot_bench_record",
     "plot_arm_swing_coupling",
 ]

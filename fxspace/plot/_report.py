@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import json
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-__all__ = ["plot_report_metric", "plot_report_grid"]
+__all__ = ["plot_report_metric", "plot_report_grid", "plot_report_figure"]
 
 
 def _is_int(v) -> bool:
@@ -159,4 +161,65 @@ def plot_report_grid(
         axes.flat[0].legend(fontsize=8, loc="best", framealpha=0.85)
     if title:
         fig.suptitle(title, fontsize=10, family="monospace")
+    return fig
+
+
+def _axis_label(k: Any) -> str:
+    """An axis in words with its unit, from what `describe` says of the key or metric."""
+    return f"{k.words} [{k.unit}]" if k.unit else k.words
+
+
+def plot_report_figure(
+    runs: Sequence[Mapping[str, Any]],
+    metric: str,
+    swept: Sequence[str],
+    *,
+    x: str,
+    describe: Callable[[str], Any],
+    best: Sequence[int] = (),
+) -> Figure:
+    """The figure of one metric of ``fxspace report`` against a sweep's swept key(s):
+    lines against ``x``, one per combination of the other swept keys
+    (`plot_report_metric`), or one panel per swept key when the runs vary several keys
+    at once — more than 6 combinations of the other keys, or none repeated, as in a
+    search (`plot_report_grid`).
+
+    **Arguments:**
+    - `runs`: one mapping per run, holding ``metric`` (a finite number) and every swept key.
+    - `metric`: the metric's dotted name (the y axis, the title).
+    - `swept`: the swept keys; `x`: the one on the x axis of the lines.
+    - `describe`: ``describe(name)`` → an object with ``words``, ``unit`` and ``better``
+      (`fxspace.report.describe` for the experiment): the axes in words with units.
+    - `best`: the indices (into ``runs``) of the best runs, starred with the metric's
+      direction; empty for none.
+
+    **Returns:** the `Figure`; its label (``fig.get_label()``) is the file stem the report
+    saves it under: ``METRIC_vs_X`` (``_by_OTHERS``), or ``METRIC_vs_KEYS`` (panels).
+    """
+    vals, m, best = list(runs), metric, list(best)
+    others = [k for k in swept if k != x]
+    d = describe(m)
+    kw = dict(y_label=_axis_label(d), title=m, best=best or None,
+              better=d.better if best else None)  # fmt: skip
+    combos = [tuple(json.dumps(r[k]) for k in others) for r in vals]
+    sizes = [combos.count(c) for c in set(combos)]
+    if others and (len(sizes) > 6 or max(sizes) < 2):
+        # several keys vary at once (a search, a large grid): one panel per key
+        xs = {_axis_label(describe(k)): [r[k] for r in vals] for k in swept}
+        fig = plot_report_grid(xs, [r[m] for r in vals], **kw)
+        name = f"{m}_vs_{'_'.join(swept)}"
+    else:
+        if len(others) == 1:
+            u = describe(others[0]).unit
+            group = [f"{r[others[0]]}" + (f" {u}" if u else "") for r in vals]
+            glabel = describe(others[0]).words
+        else:
+            group = [", ".join(f"{k} = {r[k]}" for k in others) for r in vals]
+            glabel = ""
+        fig = plot_report_metric(
+            [r[x] for r in vals], [r[m] for r in vals], x_label=_axis_label(describe(x)),
+            group=group if others else None, group_label=glabel, **kw,
+        )  # fmt: skip
+        name = f"{m}_vs_{x}" + (f"_by_{'_'.join(others)}" if others else "")
+    fig.set_label(name)
     return fig

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import fxspace._atomic as atomic
 import fxspace.runs as runs
 from fxspace.cli import main
 from fxspace.config import ConfigError
@@ -610,14 +611,15 @@ def test_report_replaces_its_own_old_figures(tmp_path, toy):
 
 def test_cache_whose_writes_fail_falls_back_with_a_message(tmp_path, toy, monkeypatch, capsys):
     """A read-only cache as root sees it (root writes anyway): the writes fail."""
-    real = runs.write_bytes_atomic
+    real = atomic.write_bytes_atomic
 
     def failing(path, data, mode=None):
         if Path(path).parent.name == "cache":
             raise PermissionError(13, "Permission denied", str(path))
         return real(path, data, mode)
 
-    monkeypatch.setattr(runs, "write_bytes_atomic", failing)
+    # the home of the writes (fxspace.runs re-exports it): write_text_atomic reads it there
+    monkeypatch.setattr(atomic, "write_bytes_atomic", failing)
     (d,) = run_dict({"experiment": toy}, tmp_path / "r")
     assert _metrics(d)["sq"] == 4
     out = capsys.readouterr().out

@@ -70,7 +70,8 @@ def drawn(monkeypatch):
         got.append((kw, fig))
         return fig
 
-    monkeypatch.setattr(fxspace.plot, "plot_report_metric", spy)
+    # plot_report_figure draws it (fxspace.plot._report: where it looks the name up)
+    monkeypatch.setattr(fxspace.plot._report, "plot_report_metric", spy)
     return got
 
 
@@ -224,11 +225,11 @@ def test_runs_that_vary_every_key_at_once_get_one_panel_per_key(tmp_path, toy, m
     got = []
 
     def spy(*a, **kw):
-        fig = fxspace.plot._report.plot_report_grid(*a, **kw)
+        fig = fxspace.plot.plot_report_grid(*a, **kw)  # the real one (the front's)
         got.append((kw, fig))
         return fig
 
-    monkeypatch.setattr(fxspace.plot, "plot_report_grid", spy)
+    monkeypatch.setattr(fxspace.plot._report, "plot_report_grid", spy)
     for i, (n, k) in enumerate([(2, 1.0), (3, 3.5), (5, 2.0), (4, 1.5)]):
         run_dict({"experiment": toy, "n": n, "k": k}, tmp_path / "o" / f"trial_{i}")
     _, folder = runs.write_report(tmp_path / "o")
