@@ -61,8 +61,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_docs(args: argparse.Namespace) -> int:
-    from fxspace.pipelines import write_bench_page, write_docs
+    from fxspace.pipelines import write_architecture, write_bench_page, write_docs
 
+    if args.architecture:
+        print(f"fxspace docs: wrote {write_architecture(Path(args.architecture))}")
     for p in write_docs(args.runs, args.out, run=args.run, force=args.force):
         print(f"fxspace docs: wrote {p}")
     if (Path(args.runs) / "bench").is_dir():
@@ -224,6 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--out", default="docs/reproductions", help="where the pages go")
     dc.add_argument("--bench-out", default="docs/benchmarks",
                     help="where the benchmark page goes (from RUNS/bench/*.json)")  # fmt: skip
+    dc.add_argument("--architecture", default="docs/concepts/architecture.md",
+                    help="the architecture page, its generated blocks read off the code "
+                         "('' leaves it alone)")  # fmt: skip
     dc.add_argument("--run", action="store_true", help="run the missing configs first")
     dc.add_argument("--force", action="store_true",
                     help="replace files in --out that fxspace did not write, and pages whose "

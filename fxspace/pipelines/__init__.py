@@ -24,6 +24,7 @@ fix (``--force`` replaces it, another ``--out`` runs beside it), never silently 
 # a thin front: the registry (`_registry`), the planner (`_planner`), the runner
 # (`_runner`), the config-file commands (`_commands`), the sweep and the docs pages live in
 # their own private modules; every name below is re-exported from them
+from fxspace.pipelines._architecture import write_architecture
 from fxspace.pipelines._commands import prepare_config, run_config
 from fxspace.pipelines._docs import write_bench_page, write_docs
 from fxspace.pipelines._planner import _RUN_FILES as _RUN_FILES
@@ -74,6 +75,7 @@ __all__ = [
     "RunSpec",
     "write_docs",
     "write_bench_page",
+    "write_architecture",
     "load_pipeline",
     "available",
     "sweep_config",

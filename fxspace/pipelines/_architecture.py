@@ -24,6 +24,7 @@ from html import escape
 from pathlib import Path
 
 from fxspace.errors import FxspaceError
+from fxspace.pipelines._registry import Pipeline
 from fxspace.runs import write_text_atomic
 
 PACKAGE = Path(__file__).resolve().parents[1]
@@ -153,8 +154,6 @@ def _block_limits(root: Path, package: Path) -> str:
 
 
 def _block_pipeline(root: Path, package: Path) -> str:
-    from fxspace.pipelines import Pipeline  # the public front (a lazy import: no cycle)
-
     doc = inspect.getdoc(Pipeline) or ""
     head, _, items = doc.partition("\n\n")
     sig = inspect.signature(Pipeline.run).replace(parameters=list(

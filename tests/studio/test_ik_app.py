@@ -158,7 +158,12 @@ def test_studio_opens_a_mesh_ik_config_without_running_it(data_dir, tmp_path, mo
     def boom(*a, **k):
         raise AssertionError("the mesh_ik experiment must not run before the app opens")
 
-    monkeypatch.setattr(pipelines, "run_config", boom)
+    import fxspace.pipelines._commands as commands
+
+    # the front's names (what the command line calls) and the module that runs configs
+    for mod, name in ((pipelines, "run_config"), (pipelines, "prepare_config"),
+                      (commands, "run_config")):
+        monkeypatch.setattr(mod, name, boom)
     cfg = Path(__file__).resolve().parents[2] / "configs" / "mesh_ik.toml"
     assert opens_directly(cfg)
     assert studio_target(cfg, tmp_path / "run") == cfg
