@@ -38,6 +38,11 @@ from jax import lax
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from fxspace._validate import as_float_array, check_dtype, check_int, check_scalar
+from fxspace.controlpoints._jaxopt_adapter import (
+    flsa_proximal_gradient,
+    tv_dual_projected_gradient,
+    weighted_proximal_gradient,
+)
 from fxspace.errors import FxspaceError
 from fxspace.results import RESULTS, check_result, result_from_flags
 
@@ -225,7 +230,6 @@ def _tv_direct(y, lam, max_steps):
     """The default path: jaxopt's ``ProximalGradient`` whose prox is Condat's exact TV
     prox (one step solves the unweighted problem exactly); the prox's group starts,
     event count and completion flag ride along as auxiliary parameters."""
-    from fxspace.controlpoints._jaxopt_adapter import flsa_proximal_gradient
 
     dt = y.dtype
 
@@ -241,7 +245,6 @@ def _tv_direct(y, lam, max_steps):
 def _tv_solve(y, lam, method, max_steps):
     if method == "direct":
         return _tv_direct(y, lam, max_steps)
-    from fxspace.controlpoints._jaxopt_adapter import tv_dual_projected_gradient
 
     sol = tv_dual_projected_gradient(y, lam, maxiter=max_steps)
     x = sol.primal
@@ -354,7 +357,6 @@ def _prepare(Y, lam_l1, lam_tv, weights=None):
 
 def _weighted_core(y2, w2, l1, l2, max_steps, tol):
     """Weighted FLSA by jaxopt's proximal gradient with the exact FLSA prox (direct TV)."""
-    from fxspace.controlpoints._jaxopt_adapter import weighted_proximal_gradient
 
     y0 = jnp.where(w2 > 0, y2, 0.0)
     T = y2.shape[0]

@@ -31,6 +31,7 @@ from fxspace.expression._floyd_kernels import (
     _floyd_sharded,
     _pick_block,
 )
+from fxspace.expression._paths import geodesic_lengths, geodesic_steps, geodesic_toward
 from fxspace.expression._sparse import NeighbourGraph
 from fxspace.expression._sparse import sparse_shortest_path as _graph_shortest_path
 
@@ -76,21 +77,15 @@ class Geodesics(NamedTuple):
 
     def lengths(self, i, j) -> np.ndarray:
         """Geodesic lengths of the pairs ``(i[p], j[p])``."""
-        from fxspace.expression._paths import geodesic_lengths
-
         return geodesic_lengths(self, i, j)
 
     def toward(self, targets) -> tuple[np.ndarray, np.ndarray]:
         """``(dist, hop)`` ``(k, T)``: each frame's distance to ``targets[r]`` and its next
         frame on a shortest path there (the target itself at it, -1 when unreachable)."""
-        from fxspace.expression._paths import geodesic_toward
-
         return geodesic_toward(self, targets)
 
     def steps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(i, j, length)`` of the pairs i < j whose shortest path is the direct step."""
-        from fxspace.expression._paths import geodesic_steps
-
         return geodesic_steps(self)
 
 

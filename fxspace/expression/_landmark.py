@@ -36,7 +36,12 @@ from jaxtyping import Array, Float, Int
 from fxspace._validate import checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 from fxspace.expression._mds import MDSResult, _fix_signs, double_centre
-from fxspace.expression._sparse import NeighbourGraph, dijkstra_csr
+from fxspace.expression._sparse import (
+    NeighbourGraph,
+    check_sparse_connected,
+    dijkstra_csr,
+    neighbourhood_graph,
+)
 from fxspace.results import result_from_flags
 
 __all__ = [
@@ -325,7 +330,6 @@ def landmark_space(
 ) -> tuple[NeighbourGraph, LandmarkGeodesics, MDSResult, Array]:
     """The landmark route of `fxspace.expression_space`: sparse graph → max-min
     landmarks → landmark MDS → landmark score (memory O(T·(K + L)))."""
-    from fxspace.expression._sparse import check_sparse_connected, neighbourhood_graph
 
     n = int(np.asarray(features).shape[0])
     g = neighbourhood_graph(features, k=min(neighbours, n - 1), threshold=threshold)

@@ -33,6 +33,7 @@ from jaxtyping import Array, Float, Int
 
 from fxspace._validate import check_index, checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
+from fxspace.expression._paths import graph_lengths, graph_path, graph_steps, graph_toward
 
 __all__ = [
     "NeighbourGraph",
@@ -73,27 +74,19 @@ class NeighbourGraph(NamedTuple):
     def path(self, i: int, j: int, limit: float | None = None) -> np.ndarray:
         """Frames of a shortest path i → j (Dijkstra into j, stopped at ``limit`` when
         that bounds the path's length)."""
-        from fxspace.expression._paths import graph_path
-
         return graph_path(self, i, j, limit)
 
     def lengths(self, i, j) -> np.ndarray:
         """Geodesic lengths of the pairs ``(i[p], j[p])`` (one Dijkstra per distinct i)."""
-        from fxspace.expression._paths import graph_lengths
-
         return graph_lengths(self, i, j)
 
     def toward(self, targets) -> tuple[np.ndarray, np.ndarray]:
         """``(dist, hop)`` ``(k, T)``: each frame's distance to ``targets[r]`` and its next
         frame on a shortest path there (the target itself at it, -1 when unreachable)."""
-        from fxspace.expression._paths import graph_toward
-
         return graph_toward(self, targets)
 
     def steps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(i, j, length)`` of the edges i < j that are themselves shortest paths."""
-        from fxspace.expression._paths import graph_steps
-
         return graph_steps(self)
 
 

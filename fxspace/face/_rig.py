@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from fxspace._progress import progress
 from fxspace.errors import CorruptFileError, FxspaceError
 from fxspace.io import read_gltf_blendshapes, read_obj_mesh
 from fxspace.runs import save_npz_atomic
@@ -225,7 +226,6 @@ def _content_key(paths: list[Path], extra: str) -> str:
 
 
 def _read_folder(folder: Path, npath: Path, shapes, ident) -> dict:
-    from fxspace._progress import progress
 
     base = read_obj_mesh(npath)
     V = base.vertices

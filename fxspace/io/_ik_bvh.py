@@ -21,6 +21,7 @@ import numpy as np
 
 from fxspace._validate import checked
 from fxspace.errors import FxspaceError
+from fxspace.io._bvh import write_bvh
 from fxspace.motion import Motion
 from fxspace.rotations import euler_to_matrix, matrix_to_quat, quat_normalize, quat_to_matrix
 
@@ -96,7 +97,6 @@ def write_ik_bvh(
 
     **Returns:** the path written (atomically).
     """
-    from fxspace.io._bvh import write_bvh
 
     return write_bvh(path, ik_poses_to_motion(mesh, angles, translation, rate))
 

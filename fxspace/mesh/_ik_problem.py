@@ -6,7 +6,7 @@ equations with the constraint blocks, and `_iterate` (after optimistix's ``itera
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -17,9 +17,6 @@ from fxspace.mesh._ik_constraints import (
     constrained_value_and_gradient,
 )
 from fxspace.mesh._skinning import Pose
-
-if TYPE_CHECKING:
-    from fxspace.mesh._ik_methods import Solver
 
 
 def _flat(pose: Pose) -> Array:
@@ -93,7 +90,19 @@ class _Outcome(NamedTuple):
     objective: tuple[Array, Array] | None = None
 
 
-def _iterate(pb: _Problem, solver: Solver, skip) -> _Outcome:
+class _Iterative(Protocol):
+    """What `_iterate` needs of a solver (every one in ``_ik_methods`` has it; the
+    ``Solver`` union of them is owned there, so this module imports none of them)."""
+
+    max_steps: int
+
+    def init(self, pb: _Problem, skip: Array) -> Any: ...
+    def step(self, pb: _Problem, state: Any) -> Any: ...
+    def terminate(self, state: Any) -> Array: ...
+    def postprocess(self, pb: _Problem, state: Any, k: Array) -> _Outcome: ...
+
+
+def _iterate(pb: _Problem, solver: _Iterative, skip) -> _Outcome:
     """The one loop of every IK solver (after optimistix's ``iterate``): ``state =
     solver.init(pb, skip)``, then ``solver.step`` while fewer than ``max_steps`` steps
     were taken and ``solver.terminate(state)`` is false, then ``solver.postprocess``.
