@@ -25,7 +25,7 @@ from fxspace._atomic import (
 from fxspace._run_folder import versions
 from fxspace.errors import FxspaceError
 
-__all__ = ["machine", "BENCH_FIELDS", "write_bench", "bench_name_ok"]
+__all__ = ["machine", "BENCH_FIELDS", "write_bench", "bench_name_ok", "is_bench_record"]
 
 
 #: The fields of one benchmark comparison (a row of `write_bench`).
@@ -93,7 +93,7 @@ def write_bench(
     rec = {"name": name, "title": title, "command": command.strip(), "machine": machine(),
            "rows": out}  # fmt: skip
     folder = root / "bench"
-    with active_run(folder, force=force, recognise=_is_bench_record):
+    with active_run(folder, force=force, recognise=is_bench_record):
         try:
             return write_json_atomic(folder / f"{name}.json", to_jsonable(rec))
         except OverwriteRefusedError:
@@ -114,7 +114,7 @@ def bench_name_ok(name: Any) -> bool:
     )
 
 
-def _is_bench_record(p: Path) -> bool:
+def is_bench_record(p: Path) -> bool:
     """A benchmark record fxspace wrote before records were listed in a manifest: a JSON
     object with the record's keys whose ``name`` is the file's stem."""
     try:
@@ -126,3 +126,6 @@ def _is_bench_record(p: Path) -> bool:
         and {"name", "title", "command", "machine", "rows"} <= set(rec)
         and rec.get("name") == p.stem
     )
+
+
+_is_bench_record = is_bench_record  # the earlier private name

@@ -8,6 +8,9 @@ import os
 import sys
 from pathlib import Path
 
+# no imports of its own (it reads JAX's state lazily): importing it never starts JAX
+from fxspace._jax_private import backends_started
+
 __all__ = ["main", "studio_target"]
 
 _DEMO = {
@@ -141,11 +144,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if not script.is_file():
         print(f"no benchmark {args.name!r}; available: {names}", file=sys.stderr)
         return 2
-    from fxspace.runs import _is_bench_record, check_writable
+    from fxspace.runs import check_writable, is_bench_record
 
     bench = Path(os.environ.get("FXSPACE_RUNS", "runs")) / "bench"
     # refused before minutes of measuring, not after: a NAME.json fxspace did not write
-    check_writable(bench, [bench / f"{args.name}.json"], recognise=_is_bench_record)
+    check_writable(bench, [bench / f"{args.name}.json"], recognise=is_bench_record)
     sys.argv = [str(script), *args.rest]
     runpy.run_path(str(script), run_name="__main__")
     return 0
@@ -281,8 +284,6 @@ def use_all_cpu_cores() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:
         return
-    from fxspace._jax_private import backends_started
-
     if backends_started():
         return  # too late: JAX has already started its backends
     n = os.cpu_count() or 1

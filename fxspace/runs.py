@@ -69,6 +69,7 @@ from fxspace._atomic import write_text_atomic as write_text_atomic
 from fxspace._bench_record import BENCH_FIELDS as BENCH_FIELDS
 from fxspace._bench_record import _is_bench_record as _is_bench_record
 from fxspace._bench_record import bench_name_ok as bench_name_ok
+from fxspace._bench_record import is_bench_record as is_bench_record
 from fxspace._bench_record import machine as machine
 from fxspace._bench_record import write_bench as write_bench
 from fxspace._run_folder import _PACKAGES as _PACKAGES
@@ -100,6 +101,7 @@ from fxspace._stage_cache import cached_arrays as cached_arrays
 from fxspace._stage_cache import reset_cache as reset_cache
 
 __all__ = [
+    "is_bench_record",
     "write_bytes_atomic",
     "write_text_atomic",
     "write_json_atomic",
