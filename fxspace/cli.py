@@ -230,8 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--bench-out", default="docs/benchmarks",
                     help="where the benchmark page goes (from RUNS/bench/*.json)")  # fmt: skip
     dc.add_argument("--architecture", default="docs/concepts/architecture.md",
-                    help="the architecture page, its generated blocks read off the code "
-                         "('' leaves it alone)")  # fmt: skip
+                    help="the architecture page (its generated blocks); '' leaves it")
     dc.add_argument("--run", action="store_true", help="run the missing configs first")
     dc.add_argument("--force", action="store_true",
                     help="replace files in --out that fxspace did not write, and pages whose "
