@@ -210,10 +210,14 @@ def _prepare(model, targets, init, solver, constraints, normals, frames: bool):
         raise FxspaceError("model must be an IKModel from fxspace.ik_model(mesh, markers)")
     solver = _pick_solver(solver)
     cons = _pick_constraints(constraints)
-    if not isinstance(targets, jax.Array):  # (jnp.asarray costs ~15 µs even on an Array)
-        targets = jnp.asarray(targets)
     nk = model.marker_joints.shape[0]
     want = "(frames, markers, 3)" if frames else "(markers, 3)"
+    if not isinstance(targets, jax.Array):  # (jnp.asarray costs ~15 µs even on an Array)
+        try:
+            targets = jnp.asarray(targets)
+        except (TypeError, ValueError) as e:
+            raise FxspaceError(f"targets must be a numeric array {want} (the mesh's units, a "
+                               f"row per marker), got {type(targets).__name__}: {e}") from None
     if targets.ndim != (3 if frames else 2) or targets.shape[-2:] != (nk, 3):
         raise FxspaceError(
             f"targets must have shape {want} for this model's {nk} markers, got {targets.shape}"

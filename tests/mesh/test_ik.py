@@ -233,6 +233,12 @@ def test_boundary_errors(toy):
     targets = fx.ik_markers(model, fx.rest_pose(m))
     with pytest.raises(FxspaceError, match="targets must have shape"):
         fx.solve_ik(model, targets[:5])
+    # not numbers at all: one line naming the argument, not JAX's raw TypeError
+    for bad in ("abc", [["x", 1.0, 2.0]] * targets.shape[0]):
+        with pytest.raises(FxspaceError, match=r"targets must be a numeric array \(markers, 3\)"):
+            fx.solve_ik(model, bad)
+    with pytest.raises(FxspaceError, match=r"numeric array \(frames, markers, 3\)"):
+        fx.track_ik(model, "abc")
     with pytest.raises(FxspaceError, match="method must be one of"):
         fx.solve_ik(model, targets, solver=fx.mesh.solver_from_method("newton"))
     with pytest.raises(FxspaceError, match="gradient must be one of"):
