@@ -24,10 +24,10 @@ from fxspace.studio._ik_controller import IKController as IKController
 from fxspace.studio._ik_controller import load_ik_mesh as load_ik_mesh
 from fxspace.studio._motion import serve_motion as serve_motion
 from fxspace.studio._motion_controller import MotionController as MotionController
-from fxspace.studio._nav_controller import DENSITY_ABOVE as DENSITY_ABOVE
-from fxspace.studio._nav_controller import NavData as NavData
 from fxspace.studio._nav_controller import NavigatorController as NavigatorController
-from fxspace.studio._nav_controller import load_nav_data as load_nav_data
+from fxspace.studio._nav_data import DENSITY_ABOVE as DENSITY_ABOVE
+from fxspace.studio._nav_data import NavData as NavData
+from fxspace.studio._nav_data import load_nav_data as load_nav_data
 from fxspace.studio._navigator import serve_navigator as serve_navigator
 from fxspace.studio._server import ServeOptions as ServeOptions
 from fxspace.studio._server import density_rgba as density_rgba

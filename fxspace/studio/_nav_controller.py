@@ -22,122 +22,28 @@ histogram of the embedding, one texture) instead of one point per frame
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Literal
 
 import numpy as np
 
-from fxspace.navigation import (
-    GridIndex,
-    Hierarchy,
-    NavigationError,
-    Route,
-    bridge_keys,
-    is_sparse,
-    make_route,
-    path_candidates,
-    playback,
-    refine_route,
-    rigid_align,
+from fxspace.navigation import GridIndex, NavigationError, Route
+from fxspace.studio._nav_data import (
+    DENSITY_ABOVE,
+    NavData,
+    _bridge_count,
+    _Routes,
+    _short,
+    _State,
+    fcm_status,
+    load_nav_data,
 )
-from fxspace.results import result_message
+from fxspace.studio._nav_playback import _RoutePlayback
 from fxspace.studio._server import FrameDensity, frame_density
 
 __all__ = ["DENSITY_ABOVE", "NavData", "NavigatorController", "load_nav_data"]
 
-DENSITY_ABOVE = 20_000
-"""Above this many frames the pad draws their density, not one point per frame."""
 
-
-@dataclass(frozen=True)
-class NavData:
-    """What the navigator shows: the hierarchy, the frames' paths, the markers, and where
-    ε came from.
-
-    ``paths`` is the frames' `Geodesics` (an ε-graph run) or their `NeighbourGraph` (a
-    k-NN run, 10⁵ frames): routes are made, bridged and refined on either by the same
-    `fxspace.navigation.make_route` & co."""
-
-    hierarchy: Hierarchy
-    paths: object
-    positions: np.ndarray  # (T, M, 3)
-    marker_names: tuple[str, ...] = ()
-    rate: float = 60.0
-    threshold: float = float("nan")
-    threshold_source: str = ""
-
-    @property
-    def geodesics(self):
-        """The frames' paths (their old name)."""
-        return self.paths
-
-    @property
-    def sparse(self) -> bool:
-        """Whether the levels keep truncated memberships (a k-NN run)."""
-        return is_sparse(self.hierarchy)
-
-
-class _Routes:
-    """The route operations on the data's hierarchy and paths: `fxspace.navigation`'s."""
-
-    def __init__(self, data: NavData):
-        self.d = data
-        self.paths = data.paths
-
-    def make(self, level: int, centres, anchors=None) -> Route:
-        return make_route(self.d.hierarchy, self.paths, level, centres, anchors=anchors)
-
-    def bridge(self, level: int, keys) -> tuple[list[int], list[str]]:
-        return bridge_keys(self.d.hierarchy, self.paths, level, keys)
-
-    def refine(self, route: Route) -> Route:
-        return refine_route(self.d.hierarchy, self.paths, route)
-
-    def candidates(self, level: int, frames) -> np.ndarray:
-        return path_candidates(self.d.hierarchy, level, frames)
-
-
-def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData:
-    """`NavData` of a navigation run folder or config file (``experiment = "navigation"``
-    or ``"navigation_scale"``, either graph kind), opened through its pipeline's
-    ``load_space``.
-
-    A run folder's cached stages (``cache/sweep``, ``space``, ``hierarchy``; see
-    `fxspace.pipelines.navigation.load_space`) are read, not recomputed — what a finished
-    run holds opens in seconds; missing stages are computed and stored. A config file is
-    computed without a cache. `restarts` overrides ``[hierarchy] restarts``.
-    """
-    import dataclasses
-
-    from fxspace.datasets import load_face
-    from fxspace.pipelines import resolve_config
-
-    spec = resolve_config(target, experiment=("navigation", "navigation_scale"))[0]
-    cfg, seed = spec.config, spec.seed
-    if restarts is not None:
-        cfg = dataclasses.replace(
-            cfg, hierarchy=dataclasses.replace(cfg.hierarchy, restarts=int(restarts))
-        )
-    face = load_face(cfg.data, seed)
-    run_dir = Path(target) if Path(target).is_dir() else None
-    ns = spec.pipeline.load_space(cfg, face.positions, run_dir, seed)
-    return NavData(
-        ns.hierarchy, ns.paths, np.asarray(face.positions),
-        tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source,
-    )  # fmt: skip
-
-
-class _State(NamedTuple):
-    level: int
-    picks: tuple[int, ...]
-    route: Route | None
-    guide: Route | None
-    anchors: tuple[int, ...] | None
-    message: str
-
-
-class NavigatorController:
+class NavigatorController(_RoutePlayback):
     """The navigator's state and actions.
 
     ``level`` is the level shown; ``picks`` the key centres picked there; ``route`` the
@@ -519,71 +425,6 @@ class NavigatorController:
             return np.zeros(0, int)
         return self._candidates(self.level + 1, self.route.frames)
 
-    # -- playback and export -------------------------------------------------------------
-    def playback(self, fps: float = 30.0):
-        if self.route is None:
-            return None
-        if self._play is None:
-            d = self.data
-            self._play = playback(
-                self.route.frames, d.hierarchy.embedding, d.positions, fps=fps, rate=d.rate,
-                duration=max(2.0, len(self.route.frames) / d.rate),
-            )  # fmt: skip
-        return self._play
-
-    def step(self) -> int | None:
-        """Advance playback by one output frame (wrapping when ``loop``, else stopping at
-        the end); returns the frame shown."""
-        with self._lock:
-            pb = self.playback()
-            if pb is None:
-                return None
-            nxt = self.play_index + 1
-            if nxt >= len(pb.times):
-                if not self.loop:
-                    self.playing = False
-                    return self.selected_frame
-                nxt = 0
-            self.play_index = nxt
-            self.selected_frame = int(pb.frame[self.play_index])
-            return self.selected_frame
-
-    def export(self, out_dir: str | Path, animation: str = "gif") -> list[Path]:
-        """Write the route: ``route.trc`` (the markers of the path's frames, rigidly
-        aligned, at the capture rate), ``route.json`` and ``route.gif``/``.mp4``."""
-        from fxspace.io import MarkerSequence, write_trc
-        from fxspace.plot import write_navigation_animation
-        from fxspace.runs import write_json_atomic
-
-        with self._lock:
-            if self.route is None:
-                raise NavigationError("no route to export: pick key centres first")
-            route, pb = self.route, self.playback()
-        d = self.data
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        names = d.marker_names or tuple(f"M{i}" for i in range(d.positions.shape[1]))
-        P = rigid_align(d.positions[route.frames], d.positions[route.frames[0]])
-        paths = [write_trc(out / "route.trc", MarkerSequence(P, names, d.rate, "mm"))]
-        paths.append(write_json_atomic(out / "route.json", {
-            "level": route.level, "centres": list(route.centres),
-            "key_frames": route.key_frames, "frames": route.frames,
-            "threshold": d.threshold, "threshold_source": d.threshold_source,
-        }))  # fmt: skip
-        if animation != "none":
-            paths.append(
-                write_navigation_animation(
-                    out / f"route.{animation}",
-                    pb,
-                    d.hierarchy.embedding,
-                    names=d.marker_names or None,
-                    max_frames=120,
-                    title=f"level {route.level}: {len(route.frames)} frames",
-                )  # fmt: skip
-            )
-        self.message = "exported " + ", ".join(p.name for p in paths)
-        return [Path(p) for p in paths]
-
     def status(self) -> dict:
         """What the status panel shows, as data (`NavigatorView` renders it): the shown
         ``level`` of ``n_levels`` with ``n_clusters`` centres and ``bridges`` (links the
@@ -618,22 +459,3 @@ class NavigatorController:
             "playing": bool(self.playing),
             "message": self.message,
         }
-
-
-def _short(a, n: int = 30) -> str:
-    a = np.asarray(a)
-    return ", ".join(map(str, a[:n].tolist())) + (" …" if len(a) > n else "")
-
-
-def _bridge_count(lv) -> int:
-    """Bridges of a level (none when not computed)."""
-    return lv.n_bridges
-
-
-def fcm_status(lv) -> str:
-    """The level's FCM outcome for the status line: "" at its fixed point, else the
-    reason it stopped (e.g. the iteration cap) and after how many iterations."""
-    if lv.converged:
-        return ""
-    return (f"not at its fixed point — {repr(lv.result).removeprefix('RESULTS.')} after "
-            f"{lv.num_steps} iterations: {result_message(lv.result)}")  # fmt: skip
