@@ -94,12 +94,12 @@ from fxspace.motion._splice import heck_splice as heck_splice
 from fxspace.motion._splice import splice_pose as splice_pose
 from fxspace.motion._splice import torso_joints as torso_joints
 from fxspace.motion._splice import upper_body_mask as upper_body_mask
-from fxspace.motion._synthesis import Pose as Pose
-from fxspace.motion._synthesis import SynthesisSpaces as SynthesisSpaces
-from fxspace.motion._synthesis import SynthState as SynthState
+from fxspace.motion._synth_clocks import clock_bounds as clock_bounds
+from fxspace.motion._synth_clocks import clock_cycle_rate as clock_cycle_rate
+from fxspace.motion._synth_types import Pose as Pose
+from fxspace.motion._synth_types import SynthesisSpaces as SynthesisSpaces
+from fxspace.motion._synth_types import SynthState as SynthState
 from fxspace.motion._synthesis import build_spaces as build_spaces
-from fxspace.motion._synthesis import clock_bounds as clock_bounds
-from fxspace.motion._synthesis import clock_cycle_rate as clock_cycle_rate
 from fxspace.motion._synthesis import exact_upper_params as exact_upper_params
 from fxspace.motion._synthesis import init_state as init_state
 from fxspace.motion._synthesis import lower_param_of as lower_param_of

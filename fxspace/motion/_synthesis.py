@@ -13,34 +13,25 @@ stores ``ṗ_i`` ("translated and rotated so that the root frame coincides with 
 from __future__ import annotations
 
 import dataclasses
-import functools
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace._validate import check_scalar, checked
+from fxspace._validate import checked
 from fxspace.errors import FxspaceError
 from fxspace.motion._blend import ExampleSet, blend_pose, knn_blend_weights, sample_blend_weights
 from fxspace.motion._fk import fk_arrays
 from fxspace.motion._horn import absolute_orientation, absolute_rotation, apply_rigid
 from fxspace.motion._joint_guard import example_joint_steps
 from fxspace.motion._splice import heading_quat, heck_splice, splice_pose, torso_joints
-from fxspace.motion._timewarp import (
-    advance_clock,
-    align_clocks,
-    interp_curve,
-    invert_curve,
-    warp_slopes,
-)
+from fxspace.motion._synth_clocks import _advance, check_step_controls
+from fxspace.motion._synth_types import Pose, SynthesisSpaces, SynthState
+from fxspace.motion._timewarp import invert_curve
 from fxspace.rotations import quat_conj, quat_rotate
 
 __all__ = [
-    "SynthesisSpaces",
-    "SynthState",
-    "Pose",
     "build_spaces",
     "init_state",
     "synthesize_step",
@@ -49,100 +40,7 @@ __all__ = [
     "exact_upper_params",
     "upper_param_of",
     "lower_param_of",
-    "clock_bounds",
-    "clock_cycle_rate",
 ]
-
-
-@dataclasses.dataclass(frozen=True)
-class SynthesisSpaces:
-    """The two parametric spaces ``P_L`` and ``P_U`` (a JAX pytree; see `build_spaces`).
-
-    Arrays: ``lower``/``upper`` example sets (warps against their first example), ``lam``
-    ``(N_L,)`` the alignment curve, ``offsets`` the skeleton's rest offsets, the lower samples
-    ``lower_weights`` ``(S_L, E_L)`` / ``lower_params`` ``(S_L, d)``, the upper samples
-    ``upper_weights`` ``(S_U, E_U)`` / ``upper_params`` ``(S_U, 3)`` (``ṗ``: root frame, for
-    the initial lower blend ``lower_w0``), ``lower_time`` / ``upper_time`` (reference frames
-    where each parameter is measured), ``posture_transfer``, ``joint_steps`` ``(J,)`` (each
-    joint's largest step per example frame in any example, `example_joint_steps`: the
-    joint-speed half of the bound). Static: ``parents``, ``mask``
-    (upper-body joints), ``spine`` (splice joint), ``lower_joint``/``lower_dims``,
-    ``upper_joint`` (``-1``: the upper parameter *is* the weight vector, as for the mood
-    walk), ``k_replace`` (§3.2's ``k``), ``knn_k``, ``min_slope``, ``max_clock_rate`` (the
-    bound on eqs. 2–3: after the alignment neither clock advances more than this × the
-    eq.-(1) advance of the *fastest example of its own set at that phase*,
-    ``max_i Δt / C_i'(T)`` — so α moves a body's tempo anywhere between its own blend's
-    and the other's, but never past a captured clip's; ``inf``: eqs. 2–3 as printed,
-    see `clock_bounds`; the continuous session also holds a frame's clock advance back
-    where it would move a joint more than this × ``joint_steps``, `locomotion_step`),
-    ``aligned`` (``False``: eq. 1 only, each body half on its own
-    clock — Fig. 3(a), for measurement), ``splice`` (``"heck"``:
-    `heck_splice`, spatial alignment + posture transfer; ``"heading"``: `splice_pose`) and
-    ``torso`` (`torso_joints`, used by ``"heck"``), ``replace`` (§3.2's re-placement:
-    ``"rotation"``, one rotation about the root as printed; ``"rigid"``, rotation and
-    translation, Horn's full absolute orientation).
-    """
-
-    lower: ExampleSet
-    upper: ExampleSet
-    lam: Float[Array, " NL"]
-    offsets: Float[Array, "J 3"]
-    lower_weights: Float[Array, "SL EL"]
-    lower_params: Float[Array, "SL d"]
-    upper_weights: Float[Array, "SU EU"]
-    upper_params: Float[Array, "SU 3"]
-    lower_w0: Float[Array, " EL"]
-    lower_time: Float[Array, ""]
-    upper_time: Float[Array, ""]
-    posture_transfer: Float[Array, ""]
-    joint_steps: Float[Array, " J"]
-    parents: tuple[int, ...]
-    mask: tuple[bool, ...]
-    spine: int
-    lower_joint: int
-    lower_dims: tuple[int, ...]
-    upper_joint: int
-    k_replace: int
-    knn_k: int
-    min_slope: float
-    splice: str = "heck"
-    torso: tuple[int, ...] = ()
-    replace: str = "rotation"
-    max_clock_rate: float = 1.0
-    aligned: bool = True
-
-
-jax.tree_util.register_dataclass(
-    SynthesisSpaces,
-    data_fields=[
-        "lower", "upper", "lam", "offsets", "lower_weights", "lower_params", "upper_weights",
-        "upper_params", "lower_w0", "lower_time", "upper_time", "posture_transfer",
-        "joint_steps",
-    ],
-    meta_fields=[
-        "parents", "mask", "spine", "lower_joint", "lower_dims", "upper_joint", "k_replace",
-        "knn_k", "min_slope", "splice", "torso", "replace", "max_clock_rate", "aligned",
-    ],
-)  # fmt: skip
-
-
-class SynthState(NamedTuple):
-    """``t_lower``/``t_upper``: the reference clocks ``T_L``, ``T_U``; ``lower_param``: the
-    lower parameter the upper samples were last re-placed for; ``upper_params`` ``(S_U, 3)``:
-    those re-placed sample parameters; ``lower_weights``: the current lower blend."""
-
-    t_lower: Float[Array, ""]
-    t_upper: Float[Array, ""]
-    lower_param: Float[Array, " d"]
-    upper_params: Float[Array, "SU 3"]
-    lower_weights: Float[Array, " EL"]
-
-
-class Pose(NamedTuple):
-    """One output frame: local joint quaternions ``(J, 4)`` and the root translation ``(3,)``."""
-
-    rotations: Float[Array, "J 4"]
-    root: Float[Array, " 3"]
 
 
 @checked
@@ -257,145 +155,6 @@ def _spliced(sp: SynthesisSpaces, wL, wU, t_lower, t_upper):
     qL, rL = blend_pose(sp.lower, wL, t_lower)
     qU, _ = blend_pose(sp.upper, wU, t_upper)
     return splice_frame(sp, qL, qU), rL
-
-
-@checked
-def clock_bounds(sp: SynthesisSpaces, t_lower, t_upper, dt=1.0):
-    """The bound on eqs. 2–3 (``sp.max_clock_rate``, ``r``): the largest advance each clock
-    may make in one frame, ``r · max_i Δt / max(C_i'(T), min_slope)`` over the examples
-    ``i`` of its own set at its own phase ``T`` — the eq.-(1) advance of the fastest
-    captured example there. Eq. (1)'s own advance (a weighted mean over the same
-    examples) never exceeds it, so the bound only holds back what the alignment adds:
-    α keeps its effect (a body half may take the other half's tempo) as long as some
-    captured clip of that half moved that fast. ``inf`` (eqs. 2–3 as printed): no bound.
-
-    **Returns:** ``(bound_lower, bound_upper)`` in reference frames per output frame."""
-    ms = sp.min_slope
-
-    def fastest(warps, t):
-        return jnp.max(1.0 / jnp.maximum(warp_slopes(warps, t), ms)) * dt
-
-    r = sp.max_clock_rate
-    return r * fastest(sp.lower.warps, t_lower), r * fastest(sp.upper.warps, t_upper)
-
-
-def _advance(sp: SynthesisSpaces, state: SynthState, wL, wU, alpha, dt, wrap: bool):
-    """Step 5: eq. (1) for each set, then eqs. (2)–(3) bounded by `clock_bounds`
-    (``sp.aligned = False``: eq. 1 only). ``wrap=False`` stops ``T_L`` at the lower
-    reference clip's end; ``wrap=True`` wraps it (and ``T_U`` by the span of ``λ``) so the
-    cycle repeats. Returns ``(t_lower, t_upper, wrapped)``."""
-    ms = sp.min_slope
-    end = sp.lam.shape[0] - 1.0
-    dl = advance_clock(state.t_lower, sp.lower.warps, wL, dt, ms)  # eq. 1
-    du = advance_clock(state.t_upper, sp.upper.warps, wU, dt, ms)
-    tl, tu = state.t_lower + dl, state.t_upper + du
-    # the bound: after eqs. 2–3 neither clock runs faster than the fastest example of
-    # its own set at its phase (rushing a body past every capture is the pop it cures)
-    cap = None
-    if sp.max_clock_rate != float("inf"):
-        bl, bu = clock_bounds(sp, state.t_lower, state.t_upper, dt)
-        cap = (state.t_lower + jnp.maximum(bl, dl), state.t_upper + jnp.maximum(bu, du))
-    if wrap:
-        if not sp.aligned:
-            return _wrap_apart(sp.lam, tl, tu)
-        return _align_periodic(sp.lam, tl, tu, alpha, cap)
-    wrapped = jnp.zeros((), bool)
-    tl = jnp.minimum(tl, end)
-    if not sp.aligned:
-        return tl, jnp.minimum(tu, sp.lam[-1]), wrapped
-    tl, tu = align_clocks(tl, tu, sp.lam, alpha)  # eqs. 2–3
-    if cap is not None:
-        tl, tu = _capped(tl, tu, cap, lambda t: interp_curve(sp.lam, t),
-                         lambda y: invert_curve(sp.lam, y))  # fmt: skip
-    return tl, tu, wrapped
-
-
-def _wrap_apart(lam, tl, tu):
-    """Fig. 3(a): each clock wraps at the end of its own reference cycle (``N − 1`` and
-    ``λ(N−1)``), never aligned; ``wrapped`` follows the lower clock."""
-    P = lam.shape[0] - 1.0
-    S = jnp.maximum(lam[-1] - lam[0], 1e-9)
-    k = jnp.maximum(jnp.floor(tl / P), 0.0)
-    ku = jnp.maximum(jnp.floor((tu - lam[0]) / S), 0.0)
-    return tl - k * P, tu - ku * S, k > 0
-
-
-def _capped(tl, tu, cap, lam, inv):
-    """The aligned clocks ``(tl, tu)`` (``tl = λ⁻¹(tu)``) held to their caps: ``tu`` at
-    most ``cap[1]`` (``tl`` follows by eq. 3), then ``tl`` at most ``cap[0]`` (``tu``
-    follows by ``λ``), so the pair stays aligned."""
-    over_u = tu > cap[1]
-    tu = jnp.where(over_u, cap[1], tu)
-    tl = jnp.where(over_u, inv(tu), tl)
-    over_l = tl > cap[0]
-    return jnp.where(over_l, cap[0], tl), jnp.where(over_l, lam(cap[0]), tu)
-
-
-def _align_periodic(lam, tl, tu, alpha, cap=None):
-    """Eqs. (2)–(3) on the periodic extension of ``λ`` (``λ(T + P) = λ(T) + S`` with
-    ``P = N − 1`` and ``S = λ(N−1) − λ(0)``), then both clocks wrapped by the same number of
-    cycles: a clock past its cycle's end keeps its phase relation to the other."""
-    P = lam.shape[0] - 1.0
-    S = jnp.maximum(lam[-1] - lam[0], 1e-9)
-
-    def lam_ext(t):
-        k = jnp.floor(t / P)
-        return interp_curve(lam, t - k * P) + k * S
-
-    def inv_ext(y):
-        k = jnp.floor((y - lam[0]) / S)
-        return invert_curve(lam, y - k * S) + k * P
-
-    tu = alpha * lam_ext(tl) + (1.0 - alpha) * tu  # eq. (2)
-    tl = inv_ext(tu)  # eq. (3)
-    if cap is not None:  # the rate cap (see `_advance`)
-        tl, tu = _capped(tl, tu, cap, lam_ext, inv_ext)
-    k = jnp.maximum(jnp.floor(tl / P), 0.0)
-    return tl - k * P, tu - k * S, k > 0
-
-
-@checked
-def clock_cycle_rate(
-    sp: SynthesisSpaces,
-    lower_weights: Float[Array, " EL"],
-    upper_weights: Float[Array, " EU"],
-    alpha: float | Float[Array, ""] = 0.5,
-    n_frames: int = 600,
-    dt: float = 1.0,
-) -> Float[Array, ""]:
-    """What eqs. (1)–(3) predict for the lower body's tempo, from the clocks alone (no
-    pose): lower reference cycles per output frame over ``n_frames`` frames of the
-    periodic clocks (`locomotion`'s), both blends held fixed, with the spaces' bound
-    (`clock_bounds`; ``max_clock_rate = inf`` for eqs. 2–3 as printed). ``α = 1`` gives
-    the lower blend's own eq.-(1) tempo, ``α = 0`` the upper blend's mapped through
-    ``λ`` (where the bound allows it). Jittable; O(n_frames)."""
-    check_step_controls(alpha, dt)
-    return _clock_cycle_rate(sp, lower_weights, upper_weights, alpha, n_frames, dt)
-
-
-@functools.partial(jax.jit, static_argnums=(4,))
-def _clock_cycle_rate(sp, wL, wU, alpha, n_frames, dt):
-    dtype = sp.lam.dtype
-    wL, wU = jnp.asarray(wL, dtype), jnp.asarray(wU, dtype)
-    alpha = jnp.asarray(alpha, dtype)
-    z = jnp.zeros((), dtype)
-    st0 = SynthState(z, sp.lam[0] + z, jnp.zeros(len(sp.lower_dims), dtype),
-                     sp.upper_params, wL)  # fmt: skip
-
-    def body(c, _):
-        st, cycles = c
-        tl, tu, wrapped = _advance(sp, st, wL, wU, alpha, dt, wrap=True)
-        return (st._replace(t_lower=tl, t_upper=tu), cycles + wrapped), None
-
-    (st, cycles), _ = jax.lax.scan(body, (st0, z), None, length=n_frames)
-    return (cycles + st.t_lower / (sp.lam.shape[0] - 1.0)) / n_frames
-
-
-def check_step_controls(alpha, dt) -> None:
-    """Refuse an ``alpha`` outside ``[0, 1]`` or a negative / non-finite ``dt`` (concrete
-    values only; traced ones are checked by the NaN pose)."""
-    check_scalar(alpha, "alpha", low=0.0, high=1.0)
-    check_scalar(dt, "dt", low=0.0)
 
 
 @jax.jit
