@@ -14,7 +14,7 @@ from helpers import toy_clips as _clips
 import fxspace as fx
 from fxspace import motion as M
 from fxspace.studio import MotionController
-from fxspace.studio._motion import body_mesh
+from fxspace.studio._motion_scene import body_mesh
 
 
 def _setup(upper_joint):
@@ -177,7 +177,7 @@ def test_bone_instances_place_a_unit_cylinder_on_every_bone():
     each bone, its rim at the limb radius, whatever the bone's direction (−z included)."""
     from scipy.spatial.transform import Rotation
 
-    from fxspace.studio._motion import _bones, bone_instances
+    from fxspace.studio._motion_scene import _bones, bone_instances
 
     rng = np.random.default_rng(0)
     X = rng.normal(size=(8, 3))
