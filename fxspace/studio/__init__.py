@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from fxspace._validate import check_int
 from fxspace.errors import FxspaceError
 from fxspace.studio._edit_controller import EditorController as EditorController
 from fxspace.studio._edit_controller import EditorData as EditorData
@@ -32,7 +33,7 @@ from fxspace.studio._navigator import serve_navigator as serve_navigator
 from fxspace.studio._server import ServeOptions as ServeOptions
 from fxspace.studio._server import density_rgba as density_rgba
 from fxspace.studio._server import frame_density as frame_density
-from fxspace.studio._server import read_run_config
+from fxspace.studio._server import read_run_config, waiting_page
 
 __all__ = [
     "APPS",
@@ -130,8 +131,6 @@ def app_for(experiment: str) -> Callable[..., Any]:
 
 def check_port(port: Any) -> int:
     """``port`` as an int in 0–65535 (0: any free port), else a `FxspaceError`."""
-    from fxspace._validate import check_int
-
     return check_int(port, "port (0 picks a free one)", low=0, high=65535)
 
 
@@ -149,7 +148,6 @@ def serve_config(config: str | Path, port: int = 8080, out: str | Path | None = 
     same port (the page reconnects). An experiment in `OPENS_CONFIG` opens the config
     directly."""
     from fxspace.pipelines import prepare_config
-    from fxspace.studio._server import waiting_page
 
     check_port(port)
     exp = experiment_of(config)

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from fxspace._progress import listening
 from fxspace.errors import FxspaceError
 
 __all__ = [
@@ -112,8 +113,6 @@ class waiting_page:  # noqa: N801 - used as a context manager, like a function
         self.note.content = self._text()
 
     def __enter__(self) -> int:
-        from fxspace._progress import listening
-
         self._listen = listening(self.tell)
         self._listen.__enter__()
         return int(self.server.get_port())
