@@ -5,8 +5,10 @@ data, written down here, never typed into a page) and how the pages print a numb
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
+
+from fxspace.pipelines._registry import experiments_of
 
 
 @dataclass(frozen=True)
@@ -25,14 +27,23 @@ class Row:
 
 @dataclass(frozen=True)
 class Paper:
+    """A reproduction page. Its experiments are not listed here: they are the pipelines
+    that declare ``REPRODUCTION = <this page's key>`` (`configs`, read off the registry)."""
+
     title: str
     source: str
-    configs: tuple[str, ...]
     rows: tuple[Row, ...]
     figures: tuple[tuple[str, str, str], ...]  # (config, file in its run folder, caption)
     differs: str
     intro: str = ""
     extra: tuple[str, ...] = field(default=())
+    key: str = ""
+
+    @property
+    def configs(self) -> tuple[str, ...]:
+        """The shipped configs this page reads: every experiment whose pipeline declares
+        ``REPRODUCTION`` = this page's key (`fxspace.pipelines._registry.experiments_of`)."""
+        return experiments_of(self.key)
 
 
 _FIG3_ROWS = (  # Ha & Han Fig. 3 read off the joints (metric suffix, label, note)
@@ -58,7 +69,6 @@ PAPERS: dict[str, Paper] = {
     "kim-jung": Paper(
         title="Kim & Jung: the expression space and its navigation",
         source="../shared/papers/000_5ac3516e1e4af788.txt",
-        configs=("navigation",),
         intro="AnimFace's 2 400 frames × 41 markers, the state the whole marker-distance "
         "matrix (mm), ε chosen by the paper's rule (the highest Pearson r over a sweep).",
         rows=(
@@ -125,7 +135,6 @@ PAPERS: dict[str, Paper] = {
     "hirose-higuchi": Paper(
         title="Hirose & Higuchi: control points of a dense face",
         source="../shared/papers/004_96e90575cb94c762.txt",
-        configs=("reconstruction",),
         intro="AnimFace cheeks, frames 300–599 thinned to 150 as in the paper; the dense "
         "face is the markers' RBF surface (≈ 6 000 vertices, as the paper's 6 331) and, "
         "beside it, the solved ICT head's 9 409 face vertices.",
@@ -195,7 +204,6 @@ PAPERS: dict[str, Paper] = {
     "ha-han": Paper(
         title="Ha & Han: decoupled parametric motion",
         source="../shared/papers/002_fec3f42589414a0d.txt",
-        configs=("parametric_synthesis",),
         intro="The three set-ups of Table 1 on Bandai Namco and CMU clips.",
         rows=tuple(
             r
@@ -269,7 +277,6 @@ PAPERS: dict[str, Paper] = {
     "park-kang-kwon": Paper(
         title="Park, Kang & Kwon: mesh IK with the factored gradient",
         source="../shared/papers/003_8b82dd8ad91a5214.txt",
-        configs=("mesh_ik",),
         intro="The shipped skinned glTF models, markers on visible triangles.",
         rows=(
             Row(
@@ -298,6 +305,7 @@ PAPERS: dict[str, Paper] = {
         "RiggedSimple…) stand in, with fewer joints.",
     ),
 }
+PAPERS = {k: replace(p, key=k) for k, p in PAPERS.items()}  # each page knows its key
 
 
 def fmt(v: Any) -> str:

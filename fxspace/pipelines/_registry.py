@@ -44,6 +44,8 @@ class Pipeline(Protocol):
     - ``APP`` (optional): ``"module:function"`` of its browser app (``fxspace studio``
       reads it here: the one registry of experiments); ``APP_OPENS_CONFIG = True`` when
       the app builds what it shows from the config itself, with no run first.
+    - ``REPRODUCTION`` (optional): the key of the reproduction page it feeds (``fxspace docs``
+      reads it here, `experiments_of`).
     """
 
     Config: type[PipelineConfig]
@@ -113,6 +115,12 @@ def available() -> list[str]:
     here = Path(__file__).parent
     builtin = {p.stem for p in here.glob("*.py") if not p.stem.startswith("_")}
     return sorted(builtin | set(_REGISTERED))
+
+
+def experiments_of(paper: str) -> tuple[str, ...]:
+    """The experiments whose pipeline module declares ``REPRODUCTION = paper``: the configs a
+    reproduction page reads (``fxspace docs``), from the one registry."""
+    return tuple(n for n in available() if getattr(load_pipeline(n), "REPRODUCTION", None) == paper)
 
 
 def load_pipeline(name: str) -> Any:

@@ -70,6 +70,7 @@ __all__ = ["Config", "STAGES", "run", "median_time", "random_view"]
 
 STAGES: tuple[str, ...] = ("per_mesh", "regularizers")
 APP = "fxspace.studio._ik:serve_ik"  # `fxspace studio`: the IK studio ...
+REPRODUCTION = "park-kang-kwon"  # its reproduction page (`fxspace docs`)
 APP_OPENS_CONFIG = True  # ... built from the config (one mesh), no run first
 """The costly stages, in order: ``per_mesh`` (every solver and start along the frames, per
 mesh and marker count; cached per mesh as ``cache/per_mesh_<mesh>.json``) and

@@ -99,6 +99,7 @@ __all__ = [
 
 STAGES = ("sweep", "space", "hierarchy", "cold_levels")
 APP = "fxspace.studio._navigator:serve"  # `fxspace studio` of a run: the navigator
+REPRODUCTION = "kim-jung"  # its reproduction page (`fxspace docs`)
 
 
 def _stage(run_dir: Path | None, name: str, compute: Callable[[], dict]) -> dict:

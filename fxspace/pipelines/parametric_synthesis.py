@@ -66,6 +66,7 @@ from fxspace.runs import cached, run_key, save_figure_atomic, write_json_atomic
 
 STAGES: tuple[str, ...] = ("setup", "targets", "timewarp", "session")
 APP = "fxspace.studio._motion:serve"  # `fxspace studio` of a run: the motion app
+REPRODUCTION = "ha-han"  # its reproduction page (`fxspace docs`)
 
 __all__ = [
     "Config",

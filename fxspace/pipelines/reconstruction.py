@@ -89,6 +89,7 @@ STAGES: tuple[str, ...] = (
     "other_source", "app_scene",
 )  # fmt: skip
 APP = "fxspace.studio._editor:serve"  # `fxspace studio` of a run: the control-point editor
+REPRODUCTION = "hirose-higuchi"  # its reproduction page (`fxspace docs`)
 
 
 def _dense(cfg: Config, M: np.ndarray) -> dict:
