@@ -68,3 +68,28 @@ def test_each_exact_pass_alone_matches_brute_force(which):
         got = S._brute_blocks(tree, xy, i, j, rho, 0.3)
     want = _brute(xy, i, j, rho)
     assert np.array_equal(got, want) and 0 < want.sum() < len(want)
+
+
+@pytest.mark.parametrize("x64", [False, True])
+def test_the_float32_brute_pass_settles_near_ties_exactly(x64):
+    """The brute pass runs in float32 whatever x64 says; a segment whose nearest frame is
+    within float32 rounding of ρ is settled again in float64 (coordinates ~400, ρ = 0.1:
+    float32 cannot tell 0.1 · (1 ± 1e-9) apart)."""
+    import jax
+    from scipy.spatial import cKDTree
+
+    from fxspace.navigation import _segments as S
+
+    rho = 0.1
+    xs = np.linspace(-300.0, 300.0, 7)
+    xy = np.concatenate([
+        [[-400.0, 0.0], [400.0, 0.0], [-400.0, 50.0], [400.0, 50.0]],
+        np.c_[xs, np.full(7, rho * (1 + 1e-9))],  # just outside ρ of segment 0 → 1
+        [[0.0, 50.0 + rho * (1 - 1e-9)]],  # just inside ρ of segment 2 → 3
+    ])
+    i, j = np.array([0, 2, 0]), np.array([1, 3, 3])
+    with jax.enable_x64(x64):
+        got = S._brute_blocks(cKDTree(xy), xy, i, j, rho, 2 * rho)
+    want = _brute(xy, i, j, rho)
+    assert want.tolist()[:2] == [False, True]
+    assert np.array_equal(got, want)
