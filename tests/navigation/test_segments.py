@@ -49,7 +49,7 @@ def test_known_answers():
     assert segments_near_points(xy, i, j, 0.4).tolist() == [False, False, False]
 
 
-@pytest.mark.parametrize("which", ["points", "brute"])
+@pytest.mark.parametrize("which", ["points", "brute", "fan"])
 def test_each_exact_pass_alone_matches_brute_force(which):
     from scipy.spatial import cKDTree
 
@@ -64,8 +64,10 @@ def test_each_exact_pass_alone_matches_brute_force(which):
     tree = cKDTree(xy)
     if which == "points":
         got = S._exact_blocks(tree, xy, i, j, rho, 0.3)
-    else:
+    elif which == "brute":
         got = S._brute_blocks(tree, xy, i, j, rho, 0.3)
+    else:
+        got = S._fan_blocks(xy, i, j, rho)
     want = _brute(xy, i, j, rho)
     assert np.array_equal(got, want) and 0 < want.sum() < len(want)
 
@@ -93,3 +95,47 @@ def test_the_float32_brute_pass_settles_near_ties_exactly(x64):
     want = _brute(xy, i, j, rho)
     assert want.tolist()[:2] == [False, True]
     assert np.array_equal(got, want)
+
+
+def _brute_chunked(xy, i, j, rho, chunk=4000):
+    return np.concatenate([_brute(xy, i[s:s + chunk], j[s:s + chunk], rho)
+                           for s in range(0, len(i), chunk)])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_fan_pass_on_clusters_duplicates_and_every_rho(seed):
+    """Origin by origin (`_fan_blocks`) against every pair: clustered frames, frames that
+    coincide (distance 0: a frame on an end), segments all around each origin (directions
+    across ±π), ρ from a twentieth of the spacing to twenty spacings."""
+    from fxspace.navigation import _segments as S
+
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-10, 10, (8, 2))
+    xy = centres[rng.integers(0, 8, 600)] + rng.normal(0, 0.6, (600, 2))
+    xy[:20] = xy[20:40]  # 20 frames on top of 20 others
+    i = rng.integers(0, len(xy), 6000)
+    j = rng.integers(0, len(xy), 6000)
+    keep = i != j
+    i, j = i[keep], j[keep]
+    spacing = np.median(np.sort(np.linalg.norm(xy[:, None] - xy[None], axis=2), axis=1)[:, 2])
+    for rho in (0.05 * spacing, 0.5 * spacing, 2.0 * spacing, 20.0 * spacing):
+        got = S._fan_blocks(xy, i, j, rho)
+        want = _brute_chunked(xy, i, j, rho)
+        assert np.array_equal(got, want), (rho, int((got != want).sum()))
+        assert 0 < want.sum() < len(want) or rho > 10 * spacing
+
+
+@pytest.mark.slow
+def test_an_epsilon_graphs_steps_go_by_origin_and_match_every_pair():
+    """Every pair of 900 frames (404 550 segments, the regime of an ε-graph's steps) takes
+    the fan pass in `segments_near_points`, and matches every segment against every frame."""
+    from fxspace.navigation import _segments as S
+
+    rng = np.random.default_rng(3)
+    xy = np.cumsum(rng.normal(0, 1, (900, 2)), axis=0)  # a wandering 2-D trajectory
+    i, j = np.triu_indices(len(xy), 1)
+    rho = 0.3
+    assert len(i) >= S._FAN_FROM * len(np.unique(i))  # the fan is chosen
+    got = segments_near_points(xy, i, j, rho)
+    want = _brute_chunked(xy, i, j, rho)
+    assert np.array_equal(got, want) and 0 < want.sum() < len(want)
