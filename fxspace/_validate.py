@@ -38,6 +38,7 @@ files, gaps, distance matrices, scale and memory are here.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -177,8 +178,12 @@ def check_distance_matrix(
     """A concrete ``(n, n)`` distance matrix must be symmetric and non-negative (NaN is
     left to the caller's finite policy; ``allow_inf`` lets ``inf`` mark "no edge").
     Traced matrices pass. Raises a `FxspaceError` naming ``name``, the worst entry and
-    the fix."""
+    the fix. A JAX array (immutable) that passed is remembered while it lives, so a
+    sweep that checks the same matrix once per ε pays once."""
     if _is_tracer(D):
+        return
+    key = (id(D), bool(allow_inf), float(rtol))
+    if isinstance(D, jax.Array) and _DISTANCE_MATRICES.get(key) is D:
         return
     a = np.asarray(D)
     if a.ndim != 2 or a.shape[0] != a.shape[1]:
@@ -192,7 +197,8 @@ def check_distance_matrix(
         )
     fin = np.isfinite(a) & np.isfinite(a.T)
     both_inf = np.isinf(a) & np.isinf(a.T)
-    diff = np.where(fin, np.abs(a - a.T), 0.0)
+    with np.errstate(invalid="ignore"):  # inf - inf where "no edge": masked out by fin
+        diff = np.where(fin, np.abs(a - a.T), 0.0)
     scale = np.where(fin, np.maximum(np.abs(a), np.abs(a.T)), 0.0)
     bad = (diff > rtol * scale + 1e-6 * (np.max(scale) if scale.size else 0.0)) | (
         np.isinf(a) != np.isinf(a.T)
@@ -206,6 +212,13 @@ def check_distance_matrix(
     if not allow_inf and np.isinf(a).any():
         i, j = np.argwhere(np.isinf(a))[0]
         raise FxspaceError(f"{name} must be finite; {name}[{i}, {j}] = {a[i, j]:g}")
+    if isinstance(D, jax.Array):
+        _DISTANCE_MATRICES[key] = D
+
+
+# JAX arrays already found to be distance matrices, by (id, allow_inf, rtol); an entry goes
+# with its array, so an id reused by another array is never taken for it
+_DISTANCE_MATRICES: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
 
 
 def check_scale(x: Any, name: str, power: int = 2) -> None:

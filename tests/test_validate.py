@@ -240,3 +240,28 @@ def test_checked_types_paths_and_directories(tmp_path):
     assert isinstance(e.value, IsADirectoryError)
     with pytest.raises(FileNotFoundError, match="not found"):
         fx.io.read_bvh(tmp_path / "absent.bvh")
+
+
+def test_a_checked_distance_matrix_is_remembered_only_for_that_array():
+    """A sweep checks one JAX matrix per ε; it is checked once, and the memory never
+    vouches for another array or for a stricter check."""
+    import gc
+
+    import jax.numpy as jnp
+    import numpy as np
+
+    from fxspace._validate import _DISTANCE_MATRICES, check_distance_matrix
+
+    x = np.random.default_rng(0).normal(size=(50, 3))
+    P = jnp.asarray(np.linalg.norm(x[:, None] - x[None], axis=2)).at[0, 1].set(jnp.inf)
+    P = P.at[1, 0].set(jnp.inf)
+    check_distance_matrix(P, "P", allow_inf=True)
+    check_distance_matrix(P, "P", allow_inf=True)  # remembered
+    with pytest.raises(FxspaceError, match="must be finite"):
+        check_distance_matrix(P, "P")  # another check: not vouched for
+    with pytest.raises(FxspaceError, match="non-negative"):
+        check_distance_matrix(P.at[2, 3].set(-1.0), "P", allow_inf=True)
+    n = len(_DISTANCE_MATRICES)
+    del P
+    gc.collect()
+    assert len(_DISTANCE_MATRICES) == n - 1

@@ -231,10 +231,11 @@ def bridge_parts(
 
     **Returns:** ``(S,)`` int32, 0 where no edge is a bridge.
     """
+    if np.ndim(pairwise) != 2 or np.shape(pairwise)[0] != np.shape(pairwise)[1]:
+        raise FxspaceError(
+            f"pairwise must be a square (n, n) matrix, got shape {np.shape(pairwise)}")
+    check_distance_matrix(pairwise, "pairwise", allow_inf=True)  # once per JAX array
     P = np.asarray(pairwise, np.float64)
-    if P.ndim != 2 or P.shape[0] != P.shape[1]:
-        raise FxspaceError(f"pairwise must be a square (n, n) matrix, got shape {P.shape}")
-    check_distance_matrix(P, "pairwise", allow_inf=True)
     th = np.asarray(thresholds, np.float64).reshape(-1)
     if np.isnan(th).any():
         raise FxspaceError("thresholds must be numbers (ε), got NaN")
