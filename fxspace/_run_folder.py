@@ -43,6 +43,7 @@ from fxspace._atomic import (
 from fxspace.errors import CorruptFileError, FxspaceError
 
 __all__ = [
+    "sweep_threshold",
     "versions",
     "git_sha",
     "write_meta",
@@ -364,3 +365,19 @@ def read_status(run_dir: str | Path) -> dict[str, Any]:
         raise
     except OSError:
         return {}
+
+
+def sweep_threshold(run_dir: str | Path) -> tuple[float, str]:
+    """``(ε, criterion)`` chosen by a finished threshold-sweep run (its ``metrics.json``:
+    ``best_threshold`` and ``criterion``). Raises ``FxspaceError`` naming what is missing."""
+    p = Path(run_dir)
+    m = p / "metrics.json"
+    if not m.is_file():
+        raise FxspaceError(
+            f"threshold = 'from:{run_dir}': {m} not found; run the sweep first "
+            "(fxspace run configs/threshold_sweep.toml)"
+        )
+    metrics = json.loads(m.read_text())
+    if "best_threshold" not in metrics:
+        raise FxspaceError(f"{m} has no best_threshold: not a threshold_sweep run")
+    return float(metrics["best_threshold"]), str(metrics.get("criterion", "?"))

@@ -86,6 +86,7 @@ from fxspace._run_folder import git_sha as git_sha
 from fxspace._run_folder import pid_alive as pid_alive
 from fxspace._run_folder import read_status as read_status
 from fxspace._run_folder import run_lock as run_lock
+from fxspace._run_folder import sweep_threshold as sweep_threshold
 from fxspace._run_folder import update_meta as update_meta
 from fxspace._run_folder import versions as versions
 from fxspace._run_folder import write_meta as write_meta
@@ -101,6 +102,7 @@ from fxspace._stage_cache import cached_arrays as cached_arrays
 from fxspace._stage_cache import reset_cache as reset_cache
 
 __all__ = [
+    "sweep_threshold",
     "is_bench_record",
     "write_bytes_atomic",
     "write_text_atomic",

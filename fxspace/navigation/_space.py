@@ -9,7 +9,6 @@ folder: a finished threshold-sweep run's ε is read in the pipeline layer
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -34,6 +33,7 @@ from fxspace.expression import (
     threshold_sweep,
 )
 from fxspace.navigation._hierarchy import Hierarchy, build_hierarchy
+from fxspace.runs import sweep_threshold
 
 __all__ = [
     "NavigationSpace",
@@ -75,17 +75,7 @@ def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
         DeprecationWarning,
         stacklevel=2,
     )
-    p = Path(run_dir)
-    m = p / "metrics.json"
-    if not m.is_file():
-        raise FxspaceError(
-            f"threshold = 'from:{run_dir}': {m} not found; run the sweep first "
-            "(fxspace run configs/threshold_sweep.toml)"
-        )
-    metrics = json.loads(m.read_text())
-    if "best_threshold" not in metrics:
-        raise FxspaceError(f"{m} has no best_threshold: not a threshold_sweep run")
-    return float(metrics["best_threshold"]), str(metrics.get("criterion", "?"))
+    return sweep_threshold(run_dir)
 
 
 def _threshold_value(

@@ -6,7 +6,6 @@ folder's ε is read); a criterion or 0 goes to the library's own rule
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from fxspace.expression import SweepResult, choose_threshold
 from fxspace.navigation import resolve_threshold
 from fxspace.pipelines._navigation_config import GraphConfig
 from fxspace.pipelines.threshold_sweep import sweep_stage
+from fxspace.runs import sweep_threshold
 
 
 @checked
@@ -32,17 +32,7 @@ def threshold_from_run(run_dir: str | Path) -> tuple[float, str]:
       configs/threshold_sweep.toml``).
 
     **Returns:** ``(ε, criterion)``. Raises ``FxspaceError`` naming what is missing."""
-    p = Path(run_dir)
-    m = p / "metrics.json"
-    if not m.is_file():
-        raise FxspaceError(
-            f"threshold = 'from:{run_dir}': {m} not found; run the sweep first "
-            "(fxspace run configs/threshold_sweep.toml)"
-        )
-    metrics = json.loads(m.read_text())
-    if "best_threshold" not in metrics:
-        raise FxspaceError(f"{m} has no best_threshold: not a threshold_sweep run")
-    return float(metrics["best_threshold"]), str(metrics.get("criterion", "?"))
+    return sweep_threshold(run_dir)
 
 
 def _threshold(cfg: GraphConfig, P: Callable, run_dir: Path | None):
