@@ -199,8 +199,14 @@ def test_sweep_interrupted_mid_way_keeps_what_finished(tmp_path, monkeypatch):
         return real(*a, **k)
 
     monkeypatch.setattr(ts, "threshold_sweep", slow)
-    with pytest.raises(KeyboardInterrupt):
-        ts.sweep_stage(tmp_path, P, th)
+    # Ctrl-C raises KeyboardInterrupt even where this process was started with SIGINT
+    # ignored (a shell's background job)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ts.sweep_stage(tmp_path, P, th)
+    finally:
+        signal.signal(signal.SIGINT, old)
     for t in threading.enumerate():  # the signal may wake the main thread late
         if t.name.startswith("fxspace-sweep"):
             t.join(10)
