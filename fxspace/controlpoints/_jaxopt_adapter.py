@@ -22,10 +22,15 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-with warnings.catch_warnings():
-    warnings.simplefilter("ignore", DeprecationWarning)
-    import jaxopt
-    from jaxopt.projection import projection_box
+
+def _jaxopt() -> tuple[Any, Callable]:
+    """jaxopt and its box projection, imported on first use: jaxopt loads scipy.sparse,
+    and ``import fxspace`` stays free of it (tests/test_dependencies.py)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import jaxopt
+        from jaxopt.projection import projection_box
+    return jaxopt, projection_box
 
 __all__ = [
     "tv_dual_projected_gradient",
@@ -72,6 +77,7 @@ def tv_dual_projected_gradient(
         r = y - _dt(u)
         return 0.5 * jnp.sum(r * r)
 
+    jaxopt, projection_box = _jaxopt()
     pg = jaxopt.ProjectedGradient(
         fun=fun,
         projection=projection_box,
@@ -109,6 +115,7 @@ def weighted_proximal_gradient(
         return 0.5 * jnp.sum(w * r * r)
 
     lip = jnp.maximum(jnp.max(w), 1e-12)
+    jaxopt, _ = _jaxopt()
     pg = jaxopt.ProximalGradient(
         fun=fun,
         prox=lambda v, hyper, scaling: prox(v, scaling),
@@ -143,6 +150,7 @@ def flsa_proximal_gradient(
         b, aux = prox(params[0], scaling)
         return (b, aux)
 
+    jaxopt, _ = _jaxopt()
     pg = jaxopt.ProximalGradient(
         fun=fun,
         prox=prox_params,
