@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import sys
+import tempfile
 import threading
 import time
 import traceback
@@ -132,6 +134,47 @@ def _landmark_medians(g, L: int, csr, lm: np.ndarray, repeats: int, out: dict) -
     )
 
 
+def _navigation(a, g, mds, out: dict) -> None:
+    """The navigation pipeline's hierarchy on the graph (its solver objects: truncated FCM
+    levels, links by the paper's rule with ρ by its experiment, no bridges; the finest
+    level where every frame is a centre) and a route of 4 key centres of the coarsest
+    level refined level by level."""
+    import jax
+
+    from fxspace.expression import to_scipy
+    from fxspace.navigation import (
+        LinkRule,
+        TruncatedFuzzyCMeans,
+        bridge_keys,
+        build_hierarchy,
+        navigate,
+    )
+
+    Y = np.asarray(mds.embedding, np.float64)
+    name = "hierarchy: FCM levels + links" + ("" if a.no_finest else " + finest level")
+    with Stage(name):
+        h = build_hierarchy(Y, g, levels=a.levels, key=jax.random.key(a.seed),
+                            fcm=TruncatedFuzzyCMeans(nearest=8), links=LinkRule(),
+                            finest=not a.no_finest)  # fmt: skip
+    lvs = h.levels
+    out["levels"] = [int(lv.n_clusters) for lv in lvs]
+    out["links"] = [int(lv.n_links) for lv in lvs]
+    out["links_bridged"] = int(sum(lv.n_bridges for lv in lvs))
+    out["levels_converged"] = f"{sum(bool(lv.converged) for lv in lvs)}/{len(lvs)}"
+    out["level_steps"] = [int(lv.stats.get("total_steps", -1)) for lv in lvs]
+    with Stage("route: 4 keys, coarsest → " + ("centres" if a.no_finest else "frames")):
+        picks = np.linspace(0, lvs[0].n_clusters - 1, 4).astype(int).tolist()
+        keys, _ = bridge_keys(h, g, 0, picks)
+        routes = navigate(h, g, keys)
+        fr = np.asarray(routes[-1].frames)
+        csr = to_scipy(g)
+        out["route_levels_centres"] = [len(r.centres) for r in routes]
+        out["route_finest_frames"] = int(len(fr))
+        out["route_is_graph_walk"] = bool(
+            np.all(fr[1:] != fr[:-1]) and np.all(csr[fr[:-1], fr[1:]] > 0)
+        )
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=2400)
@@ -153,8 +196,14 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--repeats", type=int, default=3, help="runs of ours vs scipy on the same landmarks"
     )
+    ap.add_argument("--tmp", default=None, help="folder for the streamed features (default: the "
+                    "system's temporary folder; 7 GB at 10⁶ frames of 60 markers)")
     a = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory(dir=a.tmp) as tmp:
+        return _run(a, tmp)
 
+
+def _run(a, tmp: str) -> int:
     import jax
     import jax.numpy as jnp
 
@@ -171,15 +220,14 @@ def main(argv=None) -> int:
         flush=True,
     )
     out: dict = {"T": T, "source": source, "k": a.k, "L": L}
-    pos = jnp.asarray(X, jnp.float32)
     F = g = geo = mds = None
+    store = os.path.join(tmp, "features.npy")
 
-    with Stage("features"):
-        F = jax.block_until_ready(jax.jit(fx.distance_features)(pos))
-    with Stage("graph"):
-        g = fx.neighbourhood_graph(F, k=a.k)
-        jax.block_until_ready(g.weights)
+    with Stage("features + k-NN graph (streamed)"):
+        # the (T, P) features live in a memory-mapped .npy, never whole in RAM
+        g = fx.expression.neighbourhood_graph_blocks(X, k=a.k, store=store)
         out["max_degree"] = int(g.indices.shape[1])
+    F = np.load(store, mmap_mode="r")
     with Stage("k-NN recall (1000 frames, exact)", "check"):
         out["knn_recall"] = fx.expression.knn_recall(F, g, k=a.k, sample=1000, seed=a.seed)
         out["mean_degree"] = float(np.mean(g.degree))
@@ -194,59 +242,14 @@ def main(argv=None) -> int:
     chain = [
         r
         for r in Stage.rows
-        if r["stage"] in ("graph", "landmark geodesics", "landmark MDS", "score")
+        if r["stage"]
+        in ("features + k-NN graph (streamed)", "landmark geodesics", "landmark MDS", "score")
     ]
     out["chain_s"] = sum(r["s"] for r in chain)
     out["chain_peak_mb"] = max(r["peak_mb"] for r in chain)
 
     if not a.no_navigation and mds is not None:
-        from fxspace.navigation import (
-            Hierarchy,
-            bridge_keys,
-            build_hierarchy,
-            finest_level,
-            frame_path,
-            navigate,
-        )
-
-        h = None
-        with Stage("hierarchy + links"):
-            h = build_hierarchy(mds.embedding, g, levels=a.levels, key=jax.random.key(a.seed),
-                                nearest=8, finest=False)  # fmt: skip
-            h = list(h.levels)
-            out["levels"] = [int(lv.n_clusters) for lv in h]
-            out["links"] = [lv.n_links for lv in h]
-            out["links_bridged"] = sum(lv.n_bridges for lv in h)
-            out["levels_converged"] = f"{sum(lv.converged for lv in h)}/{len(h)}"
-        with Stage("route"):
-            lv = h[-1]
-            keys = lv.center_frames[np.linspace(0, lv.n_clusters - 1, 4).astype(int)]
-            out["route_frames"] = int(len(frame_path(g, keys)))
-        if not a.no_finest and h is not None:
-            fine = None
-            with Stage("finest level (all frames) + links"):
-                from fxspace.navigation import default_link_radius
-
-                Y = np.asarray(mds.embedding, np.float64)
-                scale = h[-1].radius / default_link_radius(Y[h[-1].center_frames], 1.0)
-                fine = finest_level(Y, g, rho=default_link_radius(Y, scale))  # ρ's scale
-                out["links_bridged"] += fine.n_bridges
-                done, total = (int(v) for v in out["levels_converged"].split("/"))
-                out["levels_converged"] = f"{done + bool(fine.converged)}/{total + 1}"
-                out["links_finest"] = fine.n_links
-                out["links_finest_bridges"] = fine.n_bridges
-            with Stage("route: 4 keys, coarsest → frames"):
-                hl = Hierarchy((*h, fine), np.asarray(mds.embedding, np.float64))
-                picks = np.linspace(0, h[0].n_clusters - 1, 4).astype(int).tolist()
-                keys, _ = bridge_keys(hl, g, 0, picks)
-                routes = navigate(hl, g, keys)
-                fr = routes[-1].frames
-                csr = to_scipy(g)
-                out["route_levels_centres"] = [len(r.centres) for r in routes]
-                out["route_finest_frames"] = int(len(fr))
-                out["route_is_graph_walk"] = bool(
-                    np.all(fr[1:] != fr[:-1]) and np.all(csr[fr[:-1], fr[1:]] > 0)
-                )
+        _navigation(a, g, mds, out)
 
     if not a.no_peers and g is not None and geo is not None:
         from scipy.sparse.csgraph import dijkstra
@@ -313,7 +316,8 @@ def main(argv=None) -> int:
     ours = [r for r in Stage.rows if r["group"] == "ours"]
     out["frames"] = T
     out["seconds"] = round(sum(r["s"] for r in ours), 1)
-    out["peak_rss_gb"] = round(max((r["peak_mb"] for r in ours), default=base) / 1024, 2)
+    # the process's own peak (ru_maxrss: every stage and the frames' making included)
+    out["peak_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 2)
     print("\nsummary (ours, features to the route down to frames):")
     for key in ("frames", "seconds", "peak_rss_gb", "links_bridged", "levels_converged",
                 "knn_recall"):  # fmt: skip
