@@ -43,21 +43,31 @@ from fxspace.expression._sparse import NeighbourGraph, _pack, _principal_axes
 __all__ = ["neighbourhood_graph_blocks"]
 
 _AXES_SAMPLE = 20000
-_ROWS = 256  # frames whose candidates are compared at once
+_ROWS = 256  # frames whose candidates are read at once
+_SUB = 32  # frames whose candidate differences are formed at once
 _TREES: dict[tuple, Any] = {}  # one k-d tree per projection, per process (worker)
 
 
 def _block_features(positions: np.ndarray, rows: np.ndarray, block: int) -> np.ndarray:
-    """`fxspace.distance_features` of ``positions[rows]`` in numpy (float64 arithmetic,
-    stored in the positions' float type), ``block`` rows at a time: the same numbers in
-    every process, whatever its JAX settings."""
+    """`fxspace.distance_features` of ``positions[rows]`` in numpy, in the positions'
+    float type (float64 for integer positions), ``block`` rows at a time, coordinate by
+    coordinate (``√(dx² + dy² + dz²)``, summed in that order): the same numbers in every
+    process, whatever its JAX settings and the block sizes."""
     M = positions.shape[1]
     iu, ju = np.triu_indices(M, 1)
-    dtype = positions.dtype if positions.dtype.kind == "f" else np.float64
+    dtype = positions.dtype if positions.dtype.kind == "f" else np.dtype(np.float64)
     out = np.empty((len(rows), len(iu)), dtype)
     for s in range(0, len(rows), block):
-        x = np.asarray(positions[rows[s : s + block]], np.float64)
-        out[s : s + len(x)] = PAIR_WEIGHT * np.linalg.norm(x[:, iu] - x[:, ju], axis=-1)
+        x = np.asarray(positions[rows[s : s + block]], dtype)
+        acc = np.zeros((len(x), len(iu)), dtype)
+        for c in range(3):
+            xc = np.ascontiguousarray(x[:, :, c])
+            d = xc[:, iu] - xc[:, ju]
+            d *= d
+            acc += d
+        np.sqrt(acc, out=acc)
+        acc *= dtype.type(PAIR_WEIGHT)
+        out[s : s + len(x)] = acc
     return out
 
 
@@ -89,7 +99,8 @@ def _tree(Z: np.ndarray):
 def _neighbours(path: str, Z, start: int, stop: int, num: int, k: int):
     """``(cand, dist)`` ``(stop − start, k)``: each frame's k nearest (exact features,
     read from the ``.npy`` at ``path``, among its ``num`` nearest in the projection Z;
-    itself excluded)."""
+    itself excluded). Distances in the features' float type, each ``(frame, candidate)``
+    pair summed alone (the same numbers whatever the blocks)."""
     n = len(Z)
     _, ii = _tree(Z).query(Z[start:stop], k=min(num + 1, n))
     own = ii == np.arange(start, stop)[:, None]
@@ -98,12 +109,17 @@ def _neighbours(path: str, Z, start: int, stop: int, num: int, k: int):
     feats = np.load(path, mmap_mode="r")
     out_c = np.empty((stop - start, k), np.int64)
     out_d = np.empty((stop - start, k), feats.dtype)
-    for s in range(0, stop - start, _ROWS):  # ≤ _ROWS × num candidate rows at once
+    for s in range(0, stop - start, _ROWS):  # the candidates' rows read once per _ROWS
         c = cand[s : s + _ROWS]
-        F = np.asarray(feats[start + s : start + s + len(c)], np.float64)
+        F = np.asarray(feats[start + s : start + s + len(c)])
         uniq, inv = np.unique(c, return_inverse=True)
-        G = np.asarray(feats[uniq], np.float64)[inv.reshape(c.shape)]
-        d = np.sqrt(np.sum((G - F[:, None, :]) ** 2, axis=2))
+        G, inv = np.asarray(feats[uniq]), inv.reshape(c.shape)
+        d = np.empty(c.shape, feats.dtype)
+        for r in range(0, len(c), _SUB):  # (_SUB, num, P) differences at once: in cache
+            D = G[inv[r : r + _SUB]]
+            D -= F[r : r + _SUB, None, :]
+            D *= D
+            d[r : r + _SUB] = np.sqrt(D.sum(axis=2))
         order = np.argsort(d, axis=1, kind="stable")[:, :k]
         out_c[s : s + len(c)] = np.take_along_axis(c, order, axis=1)
         out_d[s : s + len(c)] = np.take_along_axis(d, order, axis=1)
