@@ -11,7 +11,7 @@ from typing import Literal
 
 from jaxtyping import Array, Float
 
-from fxspace.cluster import _fcm, _fcm_sparse
+from fxspace.cluster import _fcm, _fcm_blocks, _fcm_sparse
 from fxspace.errors import FxspaceError
 
 __all__ = ["fuzzy_cmeans"]
@@ -33,6 +33,8 @@ def fuzzy_cmeans(
     throw: bool = False,
     nearest: int | None = None,
     chunk: int | None = None,
+    rows_per_task: int | None = None,
+    client=None,
 ):
     """Fuzzy c-means clustering (Bezdek's alternating updates) as one jitted while-loop.
 
@@ -62,6 +64,14 @@ def fuzzy_cmeans(
       ``(n, p)`` with their ``indices``). ``n_init``, ``init_memberships``, ``criterion``
       and ``check_every`` belong to the full memberships; ``chunk`` (points per block of
       the distance pass) to the truncated ones.
+    - `rows_per_task`, `client` (with `nearest`): run the steps a block of
+      ``rows_per_task`` points at a time (default 65 536 when a client is given), in this
+      process or as Dask tasks on a ``dask.distributed.Client`` (each block sent to a
+      worker once and kept there; per step the centres go out and each block's partial
+      sums ``c × (1 + d)`` come back, added here in block order). The result is the same
+      bit for bit with and without the client for the same ``rows_per_task``; it differs
+      from the one-loop default (neither given) only in the last bits of the sums
+      (`fxspace.cluster._fcm_blocks`).
     - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] when the result is not
       `RESULTS.successful` (NaN/inf in `x` is named by position before any work; under
       `jit` the check runs through `equinox.error_if`). With `False` (the default) the
@@ -86,8 +96,10 @@ def fuzzy_cmeans(
     ```
     """
     if nearest is None:
-        if chunk is not None:
-            raise FxspaceError("chunk applies to truncated memberships: pass nearest=p too")
+        for name, val in (("chunk", chunk), ("rows_per_task", rows_per_task),
+                          ("client", client)):  # fmt: skip
+            if val is not None:
+                raise FxspaceError(f"{name} applies to truncated memberships: pass nearest=p too")
         return _fcm.fuzzy_cmeans(
             x, n_clusters, m, key=key, tol=tol, max_steps=max_steps, n_init=n_init,
             init_centers=init_centers, init_memberships=init_memberships,
@@ -99,8 +111,15 @@ def fuzzy_cmeans(
     if given:
         raise FxspaceError(
             f"{', '.join(given)}: options of full memberships; with nearest = {nearest!r} "
-            "the options are key or init_centers, tol, max_steps, chunk, throw"
+            "the options are key or init_centers, tol, max_steps, chunk, rows_per_task, "
+            "client, throw"
         )
+    if rows_per_task is not None or client is not None:
+        return _fcm_blocks.blocked_fuzzy_cmeans(
+            x, n_clusters, m, nearest=nearest, key=key, init_centers=init_centers, tol=tol,
+            max_steps=max_steps, chunk=8192 if chunk is None else chunk,
+            rows_per_task=rows_per_task, client=client, throw=throw,
+        )  # fmt: skip
     return _fcm_sparse.sparse_fuzzy_cmeans(
         x, n_clusters, m, nearest=nearest, key=key, init_centers=init_centers, tol=tol,
         max_steps=max_steps, chunk=8192 if chunk is None else chunk, throw=throw,

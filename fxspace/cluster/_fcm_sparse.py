@@ -216,6 +216,15 @@ def sparse_fuzzy_cmeans(
     res = fx.cluster.fuzzy_cmeans(Y, 640, nearest=8, key=jax.random.key(0))
     ```
     """
+    x, c, p, v0 = _prepare(x, n_clusters, m, nearest, key, init_centers, throw)
+    res = _loop(
+        x, v0, float(m), p, jnp.asarray(tol, x.dtype), int(max_steps), min(int(chunk), x.shape[0])
+    )
+    return check_result(res.result, throw, "fuzzy_cmeans", res)
+
+
+def _prepare(x, n_clusters, m, nearest, key, init_centers, throw):
+    """``(x, c, p, v0)`` checked (errors name the argument), with the k-means++ seeds."""
     x = jnp.asarray(x)
     if x.ndim != 2 or x.shape[0] < 1:
         raise FxspaceError(f"x must be (n_samples, n_features), got shape {x.shape}")
@@ -238,5 +247,4 @@ def sparse_fuzzy_cmeans(
         raise FxspaceError("pass key (k-means++ seeding) or init_centers")
     else:
         v0 = kmeanspp_init(x, c, key)
-    res = _loop(x, v0, float(m), p, jnp.asarray(tol, x.dtype), int(max_steps), min(int(chunk), n))
-    return check_result(res.result, throw, "fuzzy_cmeans", res)
+    return x, c, p, v0

@@ -20,7 +20,9 @@ Instead of all T × T geodesics, only the ``L ≪ T`` rows from landmark frames 
 Shortest paths run either on the host (``scipy.sparse.csgraph.dijkstra``, O(L·E log T))
 or as a jit-compiled Bellman–Ford relaxation of all landmark rows at once (O(L·T·K) per
 sweep, as many sweeps as the longest shortest path has edges; accelerator friendly).
-Under ``jax.distributed`` the landmarks are split over the processes and gathered.
+Under ``jax.distributed`` the landmarks are split over the processes and gathered. With
+``batch`` the max-min landmarks are picked a round at a time and each round's rows run in
+parallel, here or as Dask tasks (`._landmark_rounds`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from jaxtyping import Array, Float, Int
 
 from fxspace._validate import checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
+from fxspace.expression._landmark_rounds import Rows, check_batch, rounds
 from fxspace.expression._mds import MDSResult, _fix_signs, double_centre
 from fxspace.expression._sparse import (
     NeighbourGraph,
@@ -180,15 +183,38 @@ def landmark_geodesics(
     return LandmarkGeodesics(jnp.asarray(D), jnp.asarray(lm, jnp.int32))
 
 
+def _row_runner(graph: NeighbourGraph, method: str, csr, client):
+    """``run(sources) -> rows`` for the rounds: scipy's Dijkstra a task a row (here or on
+    the client), or the relaxation of a round's rows at once."""
+    if csr is None:
+        return lambda src: list(_rows(graph, np.asarray(src), "relax"))
+    if method == "auto" and jax.default_backend() != "cpu":
+        return lambda src: list(_rows(graph, np.asarray(src), "relax"))
+    return Rows(csr[0], csr[1], np.asarray(graph.weights).dtype, client)
+
+
 def farthest_point_landmarks(
-    graph: NeighbourGraph, num: int, start: int | None = None, method: PathMethod = "auto"
-) -> LandmarkGeodesics:
+    graph: NeighbourGraph, num: int, start: int | None = None, method: PathMethod = "auto",
+    *, batch: int | None = None, client=None,
+) -> LandmarkGeodesics:  # fmt: skip
     """Choose ``num`` landmarks by max-min (farthest point) geodesic distance on the graph.
 
     The first landmark is the frame farthest from `start` (default frame 0), each next
     one the frame farthest from all landmarks so far (de Silva & Tenenbaum §4: max-min
     landmarks spread over the whole data and give stable triangulation). Costs ``num``
     single-source shortest paths, whose rows are returned, so no second pass is needed.
+
+    **Arguments:**
+
+    - `graph`: a `NeighbourGraph`; `num`: landmarks L; `start`: the frame the first
+      landmark is farthest from; `method`: as in `landmark_geodesics`.
+    - `batch`: pick this many landmarks a round and compute their rows in parallel
+      (`fxspace.expression._landmark_rounds`: exact max-min for the first `batch`, then
+      max-min on a triangle-inequality lower bound within a round; ``batch=1`` is the
+      sequential result). ``None`` (default): one landmark after another, exact max-min.
+    - `client`: a ``dask.distributed.Client``: each round's rows run as Dask tasks (one
+      Dijkstra each, the graph sent to every worker once); needs `batch`. The landmarks
+      and rows are those of ``client=None``, bit for bit.
 
     **Raises:** `fxspace.errors.DisconnectedGraphError` if the graph is disconnected.
 
@@ -201,6 +227,9 @@ def farthest_point_landmarks(
     s = 0 if start is None else int(start)
     if not 0 <= s < n:
         raise FxspaceError(f"start must be a frame in [0, {n}), got {start}")
+    batch = check_batch(batch, client, method, n)
+    if client is not None:
+        method = "dijkstra"  # the workers run scipy's Dijkstra; so does this process
     csr = dijkstra_csr(graph) if method != "relax" else None
     d0 = _rows(graph, np.array([s]), method, csr)[0]
     if not np.all(np.isfinite(d0)):
@@ -209,6 +238,10 @@ def farthest_point_landmarks(
             f"the neighbourhood graph is disconnected: {n_unreached} of {n} frames are not "
             f"reachable from frame {s}; raise k or the threshold, or drop the isolated frames"
         )
+    if batch is not None:
+        run = _row_runner(graph, method, csr, client)
+        lm, rows = rounds(int(np.argmax(d0)), num, batch, n, run)
+        return LandmarkGeodesics(jnp.asarray(np.stack(rows)), jnp.asarray(lm, jnp.int32))
     lm = [int(np.argmax(d0))]
     rows = [_rows(graph, np.array(lm[-1:]), method, csr)[0]]
     mind = rows[0].copy()

@@ -1,0 +1,243 @@
+"""Truncated fuzzy c-means a block of points at a time, in this process or on Dask.
+
+The steps of `._fcm_sparse` (Bezdek's updates over each point's ``p`` nearest centres,
+the nearest kept cheap by a candidate list checked against the centres' drift), with the
+points cut into blocks of ``rows_per_task``. Each step, every block
+
+1. finds its points' nearest ``p`` centres (its candidate list, or a full pass over
+   every centre when the list may be stale: decided per block),
+2. computes their truncated memberships ``u`` and
+3. returns its partial sums ``[Σ_i u_ikᵐ, Σ_i u_ikᵐ x_i]`` ``(c, 1 + d)``;
+
+this process adds the partials in block order (``((s₀ + s₁) + s₂) + …``, elementwise),
+sets ``v_k = Σ uᵐx / Σ uᵐ`` (a centre with no mass stays), and sends the new centres and
+their largest move to the next step. A block's points and candidate list stay where the
+block runs (on Dask: sent once to one worker, which keeps them between steps and runs
+all of that block's tasks), so a step sends only the centres out (``c × d``) and each
+block's partials back (``c × (1 + d)``: 160 centres in 2-D, 3.8 kB in float64).
+
+Every block runs the same jit-compiled kernel, on the same block, here or on a worker,
+and the reduction and the update are this process's numpy, so ``client=None`` and a
+Dask client give the same centres, memberships and step count, bit for bit. The
+numbers depend on ``rows_per_task`` (the blocks, the order of the sums) and differ from
+`._fcm_sparse`'s single jit loop in the last bits (its sums run over all points at once,
+its full passes are for all points at once); the clustering is the same fixed point.
+"""
+
+from __future__ import annotations
+
+import uuid
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from fxspace._validate import _is_tracer
+from fxspace.cluster._fcm import _tiny
+from fxspace.cluster._fcm_sparse import (
+    _CAND,
+    SparseFCMResult,
+    _assign,
+    _full_pass,
+    _prepare,
+    _rank_mask,
+)
+from fxspace.errors import FxspaceError
+from fxspace.results import check_result, result_from_flags
+
+__all__: list[str] = []
+
+_ROWS = 65536  # points a block by default
+
+
+def _sums(x, idx, u, m, c):
+    """``[Σ_i u_ikᵐ, Σ_i u_ikᵐ x_i]`` ``(c, 1 + d)`` over the kept entries (one scatter)."""
+    um = u * u if m == 2.0 else jnp.power(u, m)
+    vals = jnp.concatenate([um[..., None], um[..., None] * x[:, None, :]], axis=-1)
+    return jax.ops.segment_sum(vals.reshape(-1, 1 + x.shape[1]), idx.reshape(-1), num_segments=c)
+
+
+@partial(jax.jit, static_argnames=("m", "p", "chunk"))
+def _block_step(x, v, cand, reach, drift, m, p, chunk):
+    """One step on one block: ``(cand, reach, drift, partial sums)`` (module docstring).
+    The candidate list is exact while each point's p-th distance ≤ ``reach − drift``."""
+    c, k = v.shape[0], cand.shape[1]
+    top = jnp.broadcast_to(jnp.arange(k) < p, cand.shape)
+
+    def full():
+        idx, d2 = _full_pass(x, v, k, chunk)
+        r = jnp.sqrt(d2[:, -1]) if k < c else jnp.full(reach.shape, jnp.inf, x.dtype)
+        return idx, d2, top, r, jnp.zeros((), x.dtype)
+
+    d2 = jnp.sum(jnp.square(v[cand] - x[:, None, :]), axis=-1)
+    keep = _rank_mask(d2, p)
+    pth = jnp.sqrt(jnp.max(jnp.where(keep, d2, -jnp.inf), axis=1))
+    exact = jnp.all(pth <= reach - drift)
+    cand, d2, keep, reach, drift = jax.lax.cond(exact, lambda: (cand, d2, keep, reach, drift), full)
+    d2 = jnp.maximum(d2, _tiny(x.dtype))
+    w = jnp.where(keep, 1.0 / d2 if m == 2.0 else jnp.power(d2, -1.0 / (m - 1.0)), 0.0)
+    return cand, reach, drift, _sums(x, cand, w / jnp.sum(w, axis=1, keepdims=True), m, c)
+
+
+_block_assign = jax.jit(_assign, static_argnames=("m", "p", "chunk"))
+
+
+_STATES: dict[tuple[str, int], tuple] = {}  # (run, block) -> state, in each process
+
+
+def _init(run: str, b: int, x: np.ndarray, c: int) -> None:
+    """Keep block ``b``'s state ``(x, cand, reach, drift)`` in this process (worker);
+    ``reach = −inf``: its first step runs a full pass."""
+    with jax.enable_x64(x.dtype == np.float64):
+        k = min(_CAND, c)
+        n = x.shape[0]
+        _STATES[run, b] = (jnp.asarray(x), jnp.zeros((n, k), jnp.int32),
+                           jnp.full((n,), -jnp.inf, x.dtype), jnp.zeros((), x.dtype))  # fmt: skip
+
+
+def _state(run: str, b: int) -> tuple:
+    try:
+        return _STATES[run, b]
+    except KeyError:
+        raise FxspaceError(
+            f"block {b} of the FCM is gone from its worker (the worker restarted or left): "
+            "run the clustering again"
+        ) from None
+
+
+def _step(run: str, b: int, v: np.ndarray, moved, m: float, p: int, chunk: int) -> np.ndarray:
+    """One step of block ``b``: its state advanced, its partial sums returned."""
+    x, cand, reach, drift = _state(run, b)
+    with jax.enable_x64(v.dtype == np.float64):
+        out = _block_step(x, jnp.asarray(v), cand, reach, drift + moved, m, p, chunk)
+        _STATES[run, b] = (x, *out[:3])
+        return np.asarray(out[3])
+
+
+def _final(run: str, b: int, v: np.ndarray, m: float, p: int, chunk: int):
+    """``(indices, memberships, objective)`` of block ``b``'s points at the centres ``v``."""
+    x = _state(run, b)[0]
+    with jax.enable_x64(v.dtype == np.float64):
+        idx, u, obj = _block_assign(x, jnp.asarray(v), m, p, min(chunk, x.shape[0]))
+        return np.asarray(idx), np.asarray(u), np.asarray(obj)
+
+
+def _drop(run: str) -> None:
+    for key in [k for k in _STATES if k[0] == run]:
+        del _STATES[key]
+
+
+class _Blocks:
+    """The blocks, each kept where it runs (this process, or one Dask worker that keeps
+    its points and state between steps); a call on every block, results in block order."""
+
+    def __init__(self, x: np.ndarray, rows: int, c: int, client):
+        self.client, self.run = client, uuid.uuid4().hex
+        parts = [x[s : s + rows] for s in range(0, len(x), rows)]
+        self.blocks = range(len(parts))
+        if client is None:
+            for b, part in enumerate(parts):
+                _init(self.run, b, part, c)
+            return
+        workers = sorted(client.scheduler_info()["workers"])
+        if not workers:
+            raise FxspaceError("client has no workers: start some, or pass client=None")
+        self.where = [[workers[b % len(workers)]] for b in self.blocks]
+        sent = [
+            client.scatter(part, workers=w, hash=False)
+            for part, w in zip(parts, self.where, strict=True)
+        ]
+        self._call(_init, [(b, s, c) for b, s in zip(self.blocks, sent, strict=True)])
+
+    def _call(self, fn, items) -> list:
+        if self.client is None:
+            return [fn(self.run, *it) for it in items]
+        futures = [self.client.submit(fn, self.run, *it, pure=False, workers=w,
+                                      allow_other_workers=False)
+                   for it, w in zip(items, self.where, strict=True)]  # fmt: skip
+        return self.client.gather(futures)
+
+    def step(self, *args) -> list[np.ndarray]:
+        return self._call(_step, [(b, *args) for b in self.blocks])
+
+    def final(self, *args) -> list:
+        return self._call(_final, [(b, *args) for b in self.blocks])
+
+    def close(self) -> None:
+        if self.client is None:
+            _drop(self.run)
+        else:
+            self.client.run(_drop, self.run)
+
+
+def _reduce(parts: list[np.ndarray], v: np.ndarray) -> np.ndarray:
+    """New centres from the blocks' partial sums, added in block order."""
+    tot = parts[0]
+    for q in parts[1:]:
+        tot = tot + q
+    mass, num = tot[:, 0], tot[:, 1:]
+    ok = mass > 0
+    return np.where(ok[:, None], num / np.where(ok, mass, 1.0)[:, None], v)
+
+
+def blocked_fcm(x, v0, m: float, p: int, tol: float, max_steps: int, chunk: int,
+                rows: int, client=None) -> SparseFCMResult:  # fmt: skip
+    """Truncated FCM in blocks of ``rows`` points (module docstring): the same result
+    with ``client=None`` and on a Dask client."""
+    x, v = np.asarray(x), np.asarray(v0, np.asarray(x).dtype)
+    dt = x.dtype.type
+    scale = dt(np.sqrt(np.mean(np.sum(np.square(x - np.mean(x, axis=0, keepdims=True)), axis=1))))
+    tol_abs = dt(tol) * scale
+    blocks = _Blocks(x, rows, v.shape[0], client)
+    try:
+        steps, moved = 0, dt(np.inf)
+        while steps < max_steps and moved >= tol_abs:
+            new = _reduce(blocks.step(v, moved if steps else dt(0), m, p, chunk), v)
+            moved = dt(np.max(np.sqrt(np.sum(np.square(new - v), axis=1))))
+            v, steps = new, steps + 1
+        got = blocks.final(v, m, p, chunk)
+    finally:
+        blocks.close()
+    idx = np.concatenate([g[0] for g in got])
+    u = np.concatenate([g[1] for g in got])
+    obj = got[0][2]
+    for g in got[1:]:
+        obj = obj + g[2]
+    ok = bool(np.isfinite(obj) and np.all(np.isfinite(v)))
+    bad_in = not (np.all(np.isfinite(x)) and np.all(np.isfinite(v0)))
+    result = result_from_flags(converged=bool(moved < tol_abs) and ok,
+                               nonfinite_input=bad_in, nonfinite_output=not ok)  # fmt: skip
+    stats = {"max_steps": jnp.asarray(max_steps, jnp.int32), "moved": jnp.asarray(moved),
+             "tol_abs": jnp.asarray(tol_abs)}  # fmt: skip
+    if bad_in:
+        v, u, obj = (np.full_like(a, np.nan) for a in (v, u, obj))
+    return SparseFCMResult(jnp.asarray(v), jnp.asarray(idx), jnp.asarray(u), jnp.asarray(obj),
+                           jnp.asarray(steps, jnp.int32), result, stats)  # fmt: skip
+
+
+def check_rows(rows_per_task, n: int) -> int:
+    """``rows_per_task`` as an int in ``[1, n]``, or an `FxspaceError` naming the fix."""
+    if isinstance(rows_per_task, bool) or not isinstance(rows_per_task, (int, np.integer)):
+        raise FxspaceError(f"rows_per_task must be an int >= 1 (points a block), got "
+                           f"{rows_per_task!r}")  # fmt: skip
+    if rows_per_task < 1:
+        raise FxspaceError(f"rows_per_task must be >= 1 (points a block), got {rows_per_task}")
+    return min(int(rows_per_task), n)
+
+
+def blocked_fuzzy_cmeans(x, n_clusters, m=2.0, *, nearest=8, key=None, init_centers=None,
+                         tol=1e-4, max_steps=300, chunk=8192, rows_per_task=None,
+                         client=None, throw=False) -> SparseFCMResult:  # fmt: skip
+    """`fxspace.cluster.fuzzy_cmeans` with ``nearest`` in blocks of ``rows_per_task``
+    points (default 65 536), here or as Dask tasks on ``client`` (module docstring)."""
+    if _is_tracer(x) or _is_tracer(init_centers):
+        raise FxspaceError(
+            "rows_per_task and client run the FCM's steps from Python, not under jit/vmap: "
+            "call fuzzy_cmeans outside jit, or leave rows_per_task and client unset"
+        )
+    x, c, p, v0 = _prepare(x, n_clusters, m, nearest, key, init_centers, throw)
+    rows = check_rows(_ROWS if rows_per_task is None else rows_per_task, x.shape[0])
+    res = blocked_fcm(x, v0, float(m), p, float(tol), int(max_steps),
+                      min(int(chunk), rows), rows, client)  # fmt: skip
+    return check_result(res.result, throw, "fuzzy_cmeans", res)
