@@ -71,7 +71,7 @@ def fuzzy_cmeans(
       sums ``c × (1 + d)`` come back, added here in block order). The result is the same
       bit for bit with and without the client for the same ``rows_per_task``; it differs
       from the one-loop default (neither given) only in the last bits of the sums
-      (`fxspace.cluster._fcm_blocks`).
+      (`fxspace.cluster._fcm_blocks`). Driven from Python: not under `jit`/`vmap`.
     - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] when the result is not
       `RESULTS.successful` (NaN/inf in `x` is named by position before any work; under
       `jit` the check runs through `equinox.error_if`). With `False` (the default) the
