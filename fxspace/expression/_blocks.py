@@ -106,10 +106,13 @@ def _neighbours(path: str, Z, start: int, stop: int, num: int, k: int):
     own = ii == np.arange(start, stop)[:, None]
     own[:, -1] |= ~own.any(axis=1)
     cand = ii[~own].reshape(stop - start, -1).astype(np.int64)
-    feats = np.load(path, mmap_mode="r")
+    dtype = np.load(path, mmap_mode="r").dtype
     out_c = np.empty((stop - start, k), np.int64)
-    out_d = np.empty((stop - start, k), feats.dtype)
+    out_d = np.empty((stop - start, k), dtype)
     for s in range(0, stop - start, _ROWS):  # the candidates' rows read once per _ROWS
+        # mapped afresh per chunk: the pages read leave this process's resident set with
+        # the chunk (they stay in the page cache), so memory is a few chunks, not the file
+        feats = np.load(path, mmap_mode="r")
         c = cand[s : s + _ROWS]
         F = np.asarray(feats[start + s : start + s + len(c)])
         uniq, inv = np.unique(c, return_inverse=True)

@@ -22,6 +22,7 @@ refinement plus the candidate search (O(T²·d) brute force, ~O(T log T) for the
 
 from __future__ import annotations
 
+import mmap
 import weakref
 from functools import partial
 from typing import Literal, NamedTuple
@@ -301,6 +302,16 @@ def neighbourhood_graph(
     return _pack(rows, cand.reshape(-1), dist.reshape(-1), n, F.dtype)
 
 
+def _release_pages(a) -> None:
+    """Drop the pages of a memory-mapped array (``np.memmap`` or a view of one) from
+    this process's resident set; they stay in the page cache and are read back on use."""
+    while a is not None and not hasattr(a, "_mmap"):
+        a = getattr(a, "base", None)
+    mm = getattr(a, "_mmap", None)
+    if mm is not None and hasattr(mm, "madvise") and hasattr(mmap, "MADV_DONTNEED"):
+        mm.madvise(mmap.MADV_DONTNEED)
+
+
 @checked
 def knn_recall(
     features: Float[Array, "n p"], graph: NeighbourGraph, k: int = 10, *,
@@ -327,6 +338,7 @@ def knn_recall(
     step = max(1, 2**22 // max(len(rows), 1))
     for s in range(0, n, step):
         B = F[s : s + step].astype(np.float64)
+        _release_pages(F)  # a memory-mapped F: its pages leave the resident set
         d = qq - 2.0 * (Q @ B.T) + np.sum(B * B, axis=1)[None]
         d[rows[:, None] == np.arange(s, s + len(B))[None]] = np.inf
         both = np.concatenate([best, d], axis=1)
