@@ -35,8 +35,11 @@ class GraphConfig:
     ``scheduler`` (``knn``): where the graph's per-block stages run
     (`fxspace.expression.neighbourhood_graph_blocks`) — "" in this process, ``"local"`` a
     local Dask cluster of ``workers`` processes, or a running Dask scheduler's address
-    (``tcp://HOST:PORT``; its workers must reach the run folder). The graph, and so
-    the whole run, is the same wherever it runs."""
+    (``tcp://HOST:PORT``; its workers must reach the run folder). The landmarks' rows
+    run there too, ``landmark_batch`` of them a round (max-min in rounds,
+    `fxspace.expression.farthest_point_landmarks`; 0: one after another, exact max-min,
+    in this process). The graph, the landmarks, and so the whole run, are the same
+    wherever they run."""
 
     kind: str = ""
     threshold: float | str = "max_r"
@@ -45,6 +48,7 @@ class GraphConfig:
     dtype: Literal["float32", "float64"] = "float32"
     k: int = 10
     landmarks: int = 256
+    landmark_batch: int = 8
     epsilon_max_frames: int = 5000
     scheduler: str = ""
     workers: int = 2
@@ -59,6 +63,8 @@ class GraphConfig:
             raise ConfigError("graph.k must be >= 2 (neighbours per frame)")
         if self.landmarks < 3:
             raise ConfigError("graph.landmarks must be >= 3 (MDS in 2-D needs 3)")
+        if self.landmark_batch < 0:
+            raise ConfigError("graph.landmark_batch must be >= 0 (0: one landmark at a time)")
         if isinstance(self.threshold, str):
             if not (self.threshold.startswith("from:") or self.threshold in THRESHOLD_CRITERIA):
                 raise ConfigError(

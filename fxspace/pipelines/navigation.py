@@ -160,15 +160,18 @@ def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None = None) -> dict
              if run_dir is not None and cfg.scheduler not in ("", "local") else None)  # fmt: skip
     if store is not None and store.is_file() and not store.is_symlink():
         store.unlink()  # our own, left by an interrupted run (anything else is refused)
+    batch = cfg.landmark_batch or None
     with dask_client(cfg.scheduler, cfg.workers) as client:
         g = neighbourhood_graph_blocks(X, k=cfg.k, store=store, client=client)
-    if store is not None:
-        store.unlink(missing_ok=True)
-    try:
-        check_sparse_connected(g)
-    except FxspaceError as e:  # the user's fix is the config's k
-        raise ConfigError(f"graph.k = {cfg.k}: {e}; raise graph.k") from e
-    geo = farthest_point_landmarks(g, min(cfg.landmarks, T))
+        if store is not None:
+            store.unlink(missing_ok=True)
+        try:
+            check_sparse_connected(g)
+        except FxspaceError as e:  # the user's fix is the config's k
+            raise ConfigError(f"graph.k = {cfg.k}: {e}; raise graph.k") from e
+        # max-min in rounds: each round's rows as tasks where the graph's blocks ran
+        geo = farthest_point_landmarks(g, min(cfg.landmarks, T), batch=batch,
+                                       client=client if batch else None)  # fmt: skip
     mds = landmark_mds(geo, dim=2)
     return {
         "indices": np.asarray(g.indices), "weights": np.asarray(g.weights),

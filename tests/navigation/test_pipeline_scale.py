@@ -89,6 +89,7 @@ def test_config_validate_names_the_key():
     for bad, key in [
         (nsc.GraphConfig(k=1), "graph.k"),
         (nsc.GraphConfig(landmarks=2), "graph.landmarks"),
+        (nsc.GraphConfig(landmark_batch=-1), "graph.landmark_batch"),
         (nsc.HierarchyConfig(c0=0), "c0"),
         (nsc.GraphConfig(kind="dense"), "graph.kind"),
         (nsc.NavConfig(fps=0.0), "fps"),
@@ -127,8 +128,9 @@ def test_shipped_config_is_valid():
 
 @pytest.mark.slow
 def test_a_two_worker_local_cluster_runs_the_same_hierarchy(tmp_path):
-    """Issue 45: the scale pipeline with its graph stages on a 2-worker Dask
-    ``LocalCluster`` (``[graph] scheduler = "local"``) gives the hierarchy of one process."""
+    """Issue 45: the scale pipeline with its graph's blocks and its landmarks' rounds on a
+    2-worker Dask ``LocalCluster`` (``[graph] scheduler = "local"``) gives the hierarchy
+    of one process."""
     pytest.importorskip("dask.distributed")
     (one,) = run_dict(SMALL, tmp_path / "one")
     raw = {**SMALL, "graph": {**SMALL["graph"], "scheduler": "local", "workers": 2}}
