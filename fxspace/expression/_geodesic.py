@@ -396,7 +396,16 @@ def connecting_threshold(pairwise: Float[Array, "n n"]) -> Array:
 
 
 def check_connected(graph: Array, pairwise: Array | None = None) -> None:
-    """Raise `DisconnectedGraphError` naming the components and the fix."""
+    """Raise `DisconnectedGraphError` naming the components and the fix.
+
+    A connected graph is recognised in O(n²) (its minimum spanning tree by Prim,
+    `connecting_threshold`, has no infinite edge); only a disconnected one is labelled
+    (`connected_components`) for the message."""
+    G = _check_square(graph, "graph")
+    if not isinstance(G, jax.core.Tracer) and bool(
+        jnp.isfinite(connecting_threshold(jnp.minimum(G, G.T)))
+    ):
+        return
     n_comp, labels = connected_components(graph)
     n_comp = int(n_comp)
     if n_comp == 1:

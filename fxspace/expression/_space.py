@@ -18,6 +18,7 @@ from fxspace.errors import FxspaceError
 from fxspace.expression._features import distance_features, pairwise_distances
 from fxspace.expression._geodesic import (
     Geodesics,
+    _equals_transpose,
     check_connected,
     epsilon_graph,
     floyd_warshall,
@@ -47,6 +48,7 @@ def embed_graph(
     dim: int = 2,
     method: Literal["auto", "scan", "blocked", "sharded"] = "auto",
     mds_method: Literal["auto", "eigh", "lobpcg"] = "auto",
+    symmetric: bool | None = None,
 ) -> GraphEmbedding:
     """Geodesics (min-plus Floyd) → classical MDS → Pearson r of one ε-graph, branch-free.
 
@@ -54,14 +56,19 @@ def embed_graph(
     `fxspace.threshold_sweep`. A disconnected graph is reported by ``connected =
     False`` and ``score = nan`` (the MDS then runs on the finite part only, so no ``inf``
     reaches the eigensolver). jit/vmap compatible; differentiable through the distances.
+    ``symmetric``: as in `floyd_warshall` (``True`` under ``jit`` for an undirected graph
+    runs the folded Floyd, half the work).
     """
-    D = floyd_warshall(graph, method=method)
+    D = floyd_warshall(graph, method=method, symmetric=symmetric)
     connected = jnp.all(jnp.isfinite(D))
     Dc = jnp.where(jnp.isfinite(D), D, 0.0)
     mds = classical_mds(Dc, dim=dim, method=mds_method)
     r = pearson_score(Dc, mds.embedding)
     nan = jnp.asarray(jnp.nan, r.dtype)
     return GraphEmbedding(D, mds, jnp.where(connected, r, nan), connected)
+
+
+_embed_jit = jax.jit(embed_graph, static_argnums=(1, 2, 3, 4))
 
 
 class ExpressionSpace(NamedTuple):
@@ -148,7 +155,8 @@ def expression_space(
         P = jnp.asarray(pairwise)
     W = epsilon_graph(P, threshold)
     check_connected(W, P)
-    emb = embed_graph(W, dim, method=method, mds_method=mds_method)
+    # one compiled chain (Floyd, MDS, r), not an op-by-op MDS: an ε-graph holds no NaN
+    emb = _embed_jit(W, dim, method, mds_method, bool(_equals_transpose(W)))
     nxt = None
     if paths:
         D = jax.lax.stop_gradient(emb.distances)

@@ -39,8 +39,10 @@ from fxspace._validate import (
     checked,
 )
 from fxspace.errors import FxspaceError
+from fxspace.expression._bridges import bridge_parts
 from fxspace.expression._geodesic import (
     _BLOCKED_FROM,
+    _equals_transpose,
     connected_components,
     connecting_threshold,
     epsilon_graph,
@@ -87,11 +89,16 @@ class SweepResult(NamedTuple):
     bridge_part: Int[Array, " S"] | None = None
 
 
-def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str):
+def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str, symmetric: bool):
     n = P.shape[0]
     W = epsilon_graph(P, eps)
-    emb = embed_graph(W, dim, method=method, mds_method=mds_method)
-    n_comp, _ = connected_components(W)
+    emb = embed_graph(W, dim, method=method, mds_method=mds_method, symmetric=symmetric)
+    if symmetric:  # the geodesics say it: a component's first frame reaches none before it
+        fin = jnp.isfinite(emb.distances)
+        before = jnp.arange(n)[None, :] < jnp.arange(n)[:, None]
+        n_comp = jnp.sum(~jnp.any(fin & before, axis=1))
+    else:
+        n_comp, _ = connected_components(W)
     deg = (jnp.sum(jnp.isfinite(W)) - n) / n
     nan = jnp.asarray(jnp.nan, P.dtype)
     return (
@@ -103,11 +110,14 @@ def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str):
     )
 
 
-@partial(jax.jit, static_argnames=("dim", "batch_size", "method", "mds_method", "shard"))
-def _sweep(P, thresholds, dim, batch_size, method, mds_method, shard):
+@partial(
+    jax.jit,
+    static_argnames=("dim", "batch_size", "method", "mds_method", "shard", "symmetric"),
+)
+def _sweep(P, thresholds, dim, batch_size, method, mds_method, shard, symmetric=False):
     if method == "auto" and P.shape[0] >= _BLOCKED_FROM:
         method = "blocked"  # one Floyd per threshold; devices share the thresholds instead
-    f = partial(_one, P, dim=dim, method=method, mds_method=mds_method)
+    f = partial(_one, P, dim=dim, method=method, mds_method=mds_method, symmetric=symmetric)
     nd = jax.local_device_count()
     if not shard or nd == 1 or thresholds.shape[0] == 1:
         return jax.lax.map(f, thresholds, batch_size=batch_size)
@@ -176,10 +186,14 @@ def threshold_sweep(
     check_choice(mds_method, "mds_method", ("auto", "eigh", "lobpcg"))
     traced = isinstance(P, jax.core.Tracer) or isinstance(th, jax.core.Tracer)
     shard = (jax.local_device_count() > 1 and not traced) if shard is None else bool(shard)
+    # an undirected graph (P equal to its transpose, checked once here) runs the folded
+    # Floyd, half the work; a traced P counts as directed, as in floyd_warshall
+    sym = not traced and bool(_equals_transpose(P))
     if jax.process_count() > 1 and not traced:
-        out = _across_processes(P, np.asarray(th), dim, batch_size, method, mds_method, shard)
+        out = _across_processes(P, np.asarray(th), dim, batch_size, method, mds_method, shard,
+                                sym)  # fmt: skip
     else:
-        out = _sweep(P, th, dim, batch_size, method, mds_method, shard)
+        out = _sweep(P, th, dim, batch_size, method, mds_method, shard, sym)
         S = th.shape[0]  # gathered on the host unless traced
         out = tuple(a[:S] if traced else np.asarray(a)[:S] for a in out)
     r, conn, ncomp, deg, eig = (jnp.asarray(a) for a in out)
@@ -188,108 +202,6 @@ def threshold_sweep(
     else:
         bridge = jnp.asarray(bridge_parts(np.asarray(P), np.asarray(th), np.asarray(conn)))
     return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]), bridge)
-
-
-def _spanning_tree(P: np.ndarray) -> np.ndarray | None:
-    """Parents of a minimum spanning tree of ``P`` rooted at 0 (Prim, O(n²)); ``None``
-    when ``P`` is disconnected (inf entries)."""
-    n = len(P)
-    in_tree = np.zeros(n, bool)
-    dist = np.full(n, np.inf)
-    parent = np.full(n, -1)
-    dist[0] = 0.0
-    for _ in range(n):
-        d = np.where(in_tree, np.inf, dist)
-        u = int(np.argmin(d))
-        if not np.isfinite(d[u]):
-            return None
-        in_tree[u] = True
-        better = ~in_tree & (P[u] < dist)
-        dist[better] = P[u][better]
-        parent[better] = u
-    return parent
-
-
-@checked
-def bridge_parts(
-    pairwise: Float[Array, "n n"],
-    thresholds: Float[Array, " S"],
-    connected: Bool[Array, " S"] | None = None,
-) -> np.ndarray:
-    """Per ε, the frames in the smaller part cut off by the ε-graph's largest bridge.
-
-    Bridges of a connected graph are edges of every spanning tree, so only the ``n − 1``
-    edges of one minimum spanning tree are candidates: the tree edge above node ``v`` is
-    a bridge of the ε-graph iff exactly one graph edge leaves ``v``'s subtree. With the
-    nodes in the tree's depth-first order every subtree is a contiguous block, so the
-    edges leaving each of them are two rectangle sums of the 2-D prefix sum of the
-    adjacency matrix: O(n²) per ε, on the host. Bridges only disappear as ε grows, so
-    the scan stops at the first ε without one.
-
-    **Arguments:** ``pairwise`` ``(n, n)`` state distances; ``thresholds`` ``(S,)``;
-    ``connected`` ``(S,)`` (computed when ``None``): disconnected ε get 0.
-
-    **Returns:** ``(S,)`` int32, 0 where no edge is a bridge.
-    """
-    if np.ndim(pairwise) != 2 or np.shape(pairwise)[0] != np.shape(pairwise)[1]:
-        raise FxspaceError(
-            f"pairwise must be a square (n, n) matrix, got shape {np.shape(pairwise)}")
-    check_distance_matrix(pairwise, "pairwise", allow_inf=True)  # once per JAX array
-    P = np.asarray(pairwise, np.float64)
-    th = np.asarray(thresholds, np.float64).reshape(-1)
-    if np.isnan(th).any():
-        raise FxspaceError("thresholds must be numbers (ε), got NaN")
-    if connected is not None and np.asarray(connected).reshape(-1).shape != th.shape:
-        raise FxspaceError(
-            f"connected must hold one flag per threshold ({th.shape[0]}), got shape "
-            f"{np.shape(connected)}"
-        )
-    n = len(P)
-    out = np.zeros(th.shape, np.int32)
-    if n < 3:
-        return out
-    parent = _spanning_tree(np.where(np.isfinite(P), P, np.inf))
-    if parent is None:
-        return out
-    t_conn = max(float(P[v, parent[v]]) for v in range(1, n))
-    conn = th >= t_conn if connected is None else np.asarray(connected, bool).reshape(-1)
-    kids: list[list[int]] = [[] for _ in range(n)]
-    for v in range(1, n):
-        kids[parent[v]].append(v)
-    order, stack = [], [0]
-    while stack:
-        v = stack.pop()
-        order.append(v)
-        stack.extend(reversed(kids[v]))
-    order_a = np.asarray(order)
-    size = np.ones(n, np.int64)
-    for v in order[::-1]:
-        if parent[v] >= 0:
-            size[parent[v]] += size[v]
-    tin = np.empty(n, np.int64)
-    tin[order_a] = np.arange(n)
-    Pp = P[np.ix_(order_a, order_a)]
-    lo = tin[order_a[1:]]
-    sz = size[order_a[1:]]
-    hi = lo + sz
-    part = np.minimum(sz, n - sz)
-    for k in np.argsort(th):
-        if not conn[k]:
-            continue
-        A = (Pp <= th[k]).astype(np.int32)
-        np.fill_diagonal(A, 0)
-        C = np.zeros((n + 1, n + 1), np.int64)
-        C[1:, 1:] = A.cumsum(0).cumsum(1)
-
-        # edges from the block [lo, hi) to the columns before it and after it
-        leaving = (C[hi, lo] - C[lo, lo] - C[hi, 0] + C[lo, 0]) + (
-            C[hi, n] - C[lo, n] - C[hi, hi] + C[lo, hi]
-        )
-        bridged = part[leaving == 1]
-        if not bridged.size:
-            break  # no bridge here, none at any larger ε
-        out[k] = int(bridged.max())
-    return out
 
 
 def _as_thresholds(thresholds, dtype) -> Array:
@@ -315,7 +227,7 @@ def _numeric(x):
         raise FxspaceError(f"thresholds must be a numeric array ({e})") from None
 
 
-def _across_processes(P, th, dim, batch_size, method, mds_method, shard):
+def _across_processes(P, th, dim, batch_size, method, mds_method, shard, sym=False):
     """Thresholds split round-robin over the ``jax.distributed`` processes, then gathered."""
     from jax.experimental import multihost_utils
 
@@ -323,7 +235,8 @@ def _across_processes(P, th, dim, batch_size, method, mds_method, shard):
     S = th.shape[0]
     per = -(-S // nproc)
     padded = np.concatenate([th, np.repeat(th[-1:], per * nproc - S)])
-    mine = _sweep(P, jnp.asarray(padded[me::nproc]), dim, batch_size, method, mds_method, shard)
+    mine = _sweep(P, jnp.asarray(padded[me::nproc]), dim, batch_size, method, mds_method, shard,
+                  sym)  # fmt: skip
     mine = tuple(np.asarray(a)[:per] for a in mine)
     every = [np.asarray(multihost_utils.process_allgather(a)) for a in mine]  # (nproc, per…)
     out = []

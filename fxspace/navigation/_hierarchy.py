@@ -91,38 +91,72 @@ class TruncatedFuzzyCMeans(FuzzyCMeans):
     """Each level's fuzzy c-means keeping each frame's `nearest` centres (memory O(T·p):
     10⁵ frames and hundreds of centres), run to its fixed point (no centre moving more
     than `tol` × the data's spread); `max_steps` is only the cap, reported when hit.
-    Other fields as `FuzzyCMeans` (`criterion` is not used: the stop is the centres')."""
+    `rows_per_task` / `client`: each step a block of frames a task, here or as Dask tasks
+    (the same numbers for the same `rows_per_task`). Other fields as `FuzzyCMeans`
+    (`criterion` is not used: the stop is the centres')."""
 
     nearest: int = 8
     max_steps: int = 2000
     restarts: int = 0
     first_level_seeds: int = 4
     chunk: int = 8192
+    rows_per_task: int | None = None
+    client: Any = dataclasses.field(default=None, compare=False, repr=False)
 
     def run(self, x, c: int, init_centers):
+        """One FCM run; with `rows_per_task` or `client`, a block of points a task, here
+        or on the Dask client (`fxspace.cluster.fuzzy_cmeans`: the same numbers either
+        way for the same `rows_per_task`)."""
+        blocks = {}
+        if self.rows_per_task is not None or self.client is not None:
+            blocks = {"rows_per_task": self.rows_per_task, "client": self.client}
         return fuzzy_cmeans(x, c, self.m, nearest=self.nearest, init_centers=init_centers,
-                            tol=self.tol, max_steps=self.max_steps, chunk=self.chunk)  # fmt: skip
+                            tol=self.tol, max_steps=self.max_steps, chunk=self.chunk,
+                            **blocks)  # fmt: skip
 
 
 def _hard(fit, m: float):
     """Each frame's hard cluster and its membership^m (full or truncated memberships)."""
-    u = jnp.asarray(fit.memberships)
+    return _hard_arrays(jnp.asarray(fit.memberships), getattr(fit, "indices", None), m)
+
+
+@partial(jax.jit, static_argnames=("m",))
+def _hard_arrays(u, idx, m: float):
     k = jnp.argmax(u, axis=1)
     w = jnp.power(jnp.take_along_axis(u, k[:, None], axis=1)[:, 0], m)
-    idx = getattr(fit, "indices", None)
     lab = k if idx is None else jnp.take_along_axis(jnp.asarray(idx), k[:, None], axis=1)[:, 0]
     return lab.astype(jnp.int32), w
 
 
-@partial(jax.jit, static_argnames=("n_new", "power_steps"))
 def _split(x, centers, lab, w, n_new: int, alpha=0.8, power_steps: int = 8):
+    """The split of `split_centers`: the ``n_new`` centres with the largest share of the
+    objective, each replaced by two children (`_split_dirs`, with the centres padded to
+    ``max(n, c)`` rows, so that one compile serves every level)."""
+    c = centers.shape[0]
+    size = max(x.shape[0], c)
+    traced = any(isinstance(a, jax.core.Tracer) for a in (x, centers, lab, w))
+    xp = jnp if traced else np
+    cp = xp.concatenate([xp.asarray(centers), xp.zeros((size - c, centers.shape[1]),
+                                                        centers.dtype)])  # fmt: skip
+    parent, children = _split_dirs(x, cp, lab, w, jnp.asarray(n_new), alpha, power_steps)
+    parent, children = xp.asarray(parent)[:c], xp.asarray(children)[:n_new]
+    return jnp.asarray(xp.concatenate([parent, children], axis=0))
+
+
+@partial(jax.jit, static_argnames=("power_steps",))
+def _split_dirs(x, centers, lab, w, n_new, alpha, power_steps: int):
+    """``(parents, children)`` ``(c, d)``: the ``n_new`` centres with the largest share of
+    the objective moved by ``−α σ r`` (``r`` the principal axis of the frames each wins,
+    by power iteration; σ² the variance along it), and their children at ``+α σ r`` first
+    in that order (the rest: padding). Rows of ``centers`` that no frame wins have a zero
+    share and stay."""
     # FCM's memberships have heavy tails (u ~ d^-2), which inflate a fuzzy covariance;
     # the split uses the frames each centre wins, weighted by u^m
     c = centers.shape[0]
     mass = jnp.maximum(jax.ops.segment_sum(w, lab, c), jnp.finfo(x.dtype).tiny)
     dx = x - centers[lab]
     contribution = jax.ops.segment_sum(w * jnp.sum(dx * dx, axis=1), lab, c)
-    order = jnp.argsort(-contribution)[:n_new]
+    order = jnp.argsort(-contribution)
     r0 = jnp.ones_like(centers) / jnp.sqrt(centers.shape[1])
     r0 = r0.at[:, 0].add(0.1)
 
@@ -138,8 +172,8 @@ def _split(x, centers, lab, w, n_new: int, alpha=0.8, power_steps: int = 8):
     r, _ = jax.lax.scan(step, r0 / jnp.linalg.norm(r0, axis=1, keepdims=True), None, power_steps)
     lam = jnp.maximum(jnp.sum(r * cov_times(r), axis=1), 0.0)
     d = alpha * jnp.sqrt(lam)[:, None] * r
-    parent = centers.at[order].add(-d[order])
-    return jnp.concatenate([parent, (centers + d)[order]], axis=0)
+    split = jnp.zeros(c, bool).at[order].set(jnp.arange(c) < n_new)
+    return jnp.where(split[:, None], centers - d, centers), (centers + d)[order]
 
 
 def split_centers(
