@@ -86,7 +86,9 @@ class HierarchyConfig:
     """FCM levels c0·2^l (see `fxspace.build_hierarchy`): ``levels`` of them (0: every
     one below the number of frames) and, with ``finest``, the level where every frame is
     a centre. On a ``knn`` graph the memberships keep each frame's ``nearest`` centres
-    (`fxspace.navigation.TruncatedFuzzyCMeans`). ``max_steps`` / ``restarts``
+    (`fxspace.navigation.TruncatedFuzzyCMeans`), ``rows_per_task`` frames a block (each
+    step's blocks run where the graph's blocks run, ``[graph] scheduler``; 0: one
+    compiled loop in this process). ``max_steps`` / ``restarts``
     left at -1 take the solver's default (300 / 1 for the full FCM, 2000 / 0 for the
     truncated one); ``max_steps`` is a cap only: a level stopped by it says so
     in the metrics (``levels[i].result``) and on the navigator's status line."""
@@ -99,6 +101,7 @@ class HierarchyConfig:
     levels: int = 0
     finest: bool = True
     nearest: int = 8
+    rows_per_task: int = 65536
     rho_scale: float | str = "experiment"  # or a number: ρ = rho_scale × centre spacing
     bridges: bool = False  # true: join the pieces a level is left in (links outside the ρ rule)
     link_sweep_max_centres: int = 320  # levels the ρ experiment looks at
@@ -112,6 +115,8 @@ class HierarchyConfig:
             raise ConfigError("hierarchy.max_steps must be >= 1 (or -1: the solver's default)")
         if self.levels < 0 or self.nearest < 1:
             raise ConfigError("hierarchy: need levels >= 0 (0: all) and nearest >= 1")
+        if self.rows_per_task < 0:
+            raise ConfigError("hierarchy.rows_per_task must be >= 0 (0: one compiled loop)")
         if isinstance(self.rho_scale, str):
             if self.rho_scale != "experiment":
                 raise ConfigError("hierarchy.rho_scale must be a number > 0 or 'experiment'")

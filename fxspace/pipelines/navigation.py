@@ -26,6 +26,7 @@ MDS) and ``hierarchy`` (every level).
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -123,36 +124,43 @@ def _space(P: Callable, eps: float) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _fcm(hc: HierarchyConfig, kind: str, restarts: int | None = None) -> FuzzyCMeans:
+def _fcm(hc: HierarchyConfig, kind: str, restarts: int | None = None,
+         client=None) -> FuzzyCMeans:  # fmt: skip
     """The FCM solver of the ``[hierarchy]`` table: full memberships on the ε-graph,
-    each frame's ``nearest`` centres on the k-NN graph."""
+    each frame's ``nearest`` centres on the k-NN graph (a block of ``rows_per_task``
+    frames a task, on ``client`` when given)."""
     kw = {"m": hc.m, "tol": hc.tol}
     r = hc.restarts if restarts is None else restarts
     if hc.max_steps > 0:
         kw["max_steps"] = hc.max_steps
     if r >= 0:
         kw["restarts"] = r
-    return TruncatedFuzzyCMeans(nearest=hc.nearest, **kw) if kind == "knn" else FuzzyCMeans(**kw)
+    if kind != "knn":
+        return FuzzyCMeans(**kw)
+    if hc.rows_per_task:
+        kw.update(rows_per_task=hc.rows_per_task, client=client)
+    return TruncatedFuzzyCMeans(nearest=hc.nearest, **kw)
 
 
 def build_levels(cfg: Config, Y, paths, seed: int, restarts: int | None = None,
-                 kind: str | None = None) -> Hierarchy:  # fmt: skip
-    """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer)."""
+                 kind: str | None = None, client=None) -> Hierarchy:  # fmt: skip
+    """The FCM hierarchy of the config's ``[hierarchy]`` table (shared with the viewer);
+    ``client``: the Dask client the k-NN graph's FCM blocks run on (None: here)."""
     hc = cfg.hierarchy
     rule = LinkRule(rho=hc.rho_scale, bridges=hc.bridges,
                     sweep_max_centres=hc.link_sweep_max_centres,
                     max_centres=hc.max_link_centres or None)  # fmt: skip
     return build_hierarchy(
         Y, paths, c0=hc.c0, key=jax.random.PRNGKey(seed),
-        fcm=_fcm(hc, kind or graph_kind(cfg, len(Y)), restarts), links=rule,
+        fcm=_fcm(hc, kind or graph_kind(cfg, len(Y)), restarts, client), links=rule,
         levels=hc.levels or None, finest=hc.finest,
     )  # fmt: skip
 
 
-def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None = None) -> dict[str, Any]:
+def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None, client) -> dict[str, Any]:
     """The k-NN graph of the frames' marker-distance features (a block at a time, here or
-    on the config's Dask scheduler), landmark geodesics and the landmark MDS (memory
-    O(T·k) besides the positions)."""
+    on the Dask ``client``), landmark geodesics and the landmark MDS (memory O(T·k)
+    besides the positions)."""
     X = np.asarray(positions, np.float64 if cfg.dtype == "float64" else np.float32)
     T = int(X.shape[0])
     # a remote cluster's workers write the features where they all reach: the run folder
@@ -160,18 +168,17 @@ def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None = None) -> dict
              if run_dir is not None and cfg.scheduler not in ("", "local") else None)  # fmt: skip
     if store is not None and store.is_file() and not store.is_symlink():
         store.unlink()  # our own, left by an interrupted run (anything else is refused)
+    g = neighbourhood_graph_blocks(X, k=cfg.k, store=store, client=client)
+    if store is not None:
+        store.unlink(missing_ok=True)
+    try:
+        check_sparse_connected(g)
+    except FxspaceError as e:  # the user's fix is the config's k
+        raise ConfigError(f"graph.k = {cfg.k}: {e}; raise graph.k") from e
+    # max-min in rounds: each round's rows as tasks where the graph's blocks ran
     batch = cfg.landmark_batch or None
-    with dask_client(cfg.scheduler, cfg.workers) as client:
-        g = neighbourhood_graph_blocks(X, k=cfg.k, store=store, client=client)
-        if store is not None:
-            store.unlink(missing_ok=True)
-        try:
-            check_sparse_connected(g)
-        except FxspaceError as e:  # the user's fix is the config's k
-            raise ConfigError(f"graph.k = {cfg.k}: {e}; raise graph.k") from e
-        # max-min in rounds: each round's rows as tasks where the graph's blocks ran
-        geo = farthest_point_landmarks(g, min(cfg.landmarks, T), batch=batch,
-                                       client=client if batch else None)  # fmt: skip
+    geo = farthest_point_landmarks(g, min(cfg.landmarks, T), batch=batch,
+                                   client=client if batch else None)  # fmt: skip
     mds = landmark_mds(geo, dim=2)
     return {
         "indices": np.asarray(g.indices), "weights": np.asarray(g.weights),
@@ -185,13 +192,21 @@ def _load_knn(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpa
 
     T = int(np.shape(positions)[0])
     gc = cfg.graph
-    stage(f"{T} frames: k-NN graph (k = {gc.k}), landmark geodesics, landmark MDS")
-    sp = _stage(run_dir, "space", lambda: _knn_space(gc, positions, run_dir))
-    g = NeighbourGraph(jnp.asarray(sp["indices"]), jnp.asarray(sp["weights"]))
-    Y = np.asarray(sp["embedding"], np.float64)
-    stage("fuzzy c-means levels and their links")
-    ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
-        build_levels(cfg, Y, g, seed, kind="knn")))  # fmt: skip
+    with contextlib.ExitStack() as stack:
+        held: list = []
+
+        def client():  # started only for a stage that is computed, once for both
+            if not held:
+                held.append(stack.enter_context(dask_client(gc.scheduler, gc.workers)))
+            return held[0]
+
+        stage(f"{T} frames: k-NN graph (k = {gc.k}), landmark geodesics, landmark MDS")
+        sp = _stage(run_dir, "space", lambda: _knn_space(gc, positions, run_dir, client()))
+        g = NeighbourGraph(jnp.asarray(sp["indices"]), jnp.asarray(sp["weights"]))
+        Y = np.asarray(sp["embedding"], np.float64)
+        stage("fuzzy c-means levels and their links")
+        ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
+            build_levels(cfg, Y, g, seed, kind="knn", client=client())))  # fmt: skip
     r = float(sp["score"])
     return NavSpace(Y, g, hierarchy_from_arrays(ha), float("nan"),
                     f"k-NN graph, k = {gc.k} (r = {r:.4f})", float("nan"), r, None, None,

@@ -18,7 +18,7 @@ SMALL = {
     "seed": 0,
     "data": {"source": "synthetic", "synthetic_frames": 1500, "synthetic_markers": 24},
     "graph": {"k": 8, "landmarks": 64},
-    "hierarchy": {"c0": 6, "levels": 3},
+    "hierarchy": {"c0": 6, "levels": 3, "rows_per_task": 500},  # 3 FCM blocks
     "navigation": {"figure": False},
 }
 
@@ -91,6 +91,7 @@ def test_config_validate_names_the_key():
         (nsc.GraphConfig(landmarks=2), "graph.landmarks"),
         (nsc.GraphConfig(landmark_batch=-1), "graph.landmark_batch"),
         (nsc.HierarchyConfig(c0=0), "c0"),
+        (nsc.HierarchyConfig(rows_per_task=-1), "hierarchy.rows_per_task"),
         (nsc.GraphConfig(kind="dense"), "graph.kind"),
         (nsc.NavConfig(fps=0.0), "fps"),
         (nsc.NavConfig(num_keys=1), "num_keys"),
@@ -128,9 +129,9 @@ def test_shipped_config_is_valid():
 
 @pytest.mark.slow
 def test_a_two_worker_local_cluster_runs_the_same_hierarchy(tmp_path):
-    """Issue 45: the scale pipeline with its graph's blocks and its landmarks' rounds on a
-    2-worker Dask ``LocalCluster`` (``[graph] scheduler = "local"``) gives the hierarchy
-    of one process."""
+    """Issue 45: the scale pipeline with its graph's blocks, its landmarks' rounds and its
+    FCM steps' blocks on a 2-worker Dask ``LocalCluster`` (``[graph] scheduler =
+    "local"``) gives the hierarchy of one process."""
     pytest.importorskip("dask.distributed")
     (one,) = run_dict(SMALL, tmp_path / "one")
     raw = {**SMALL, "graph": {**SMALL["graph"], "scheduler": "local", "workers": 2}}
