@@ -100,6 +100,7 @@ def _landmark_medians(g, L: int, csr, lm: np.ndarray, repeats: int, out: dict) -
     from scipy.sparse.csgraph import dijkstra
 
     import fxspace as fx
+    from fxspace.pipelines.navigation import GraphConfig
 
     ours = [r["s"] for r in Stage.rows if r["stage"] == "landmark geodesics" and r["ok"]]
     peer = [r["s"] for r in Stage.rows if r["stage"] == "scipy Dijkstra, same landmarks"]
@@ -108,7 +109,7 @@ def _landmark_medians(g, L: int, csr, lm: np.ndarray, repeats: int, out: dict) -
     sym.sort_indices()
     for _ in range(max(repeats - 1, 0)):
         t = time.perf_counter()
-        fx.farthest_point_landmarks(g, L)
+        fx.farthest_point_landmarks(g, L, batch=GraphConfig().landmark_batch or None)
         ours.append(time.perf_counter() - t)
         t = time.perf_counter()
         dijkstra(csr, directed=False, indices=lm)
@@ -135,27 +136,21 @@ def _landmark_medians(g, L: int, csr, lm: np.ndarray, repeats: int, out: dict) -
 
 
 def _navigation(a, g, mds, out: dict) -> None:
-    """The navigation pipeline's hierarchy on the graph (its solver objects: truncated FCM
-    levels, links by the paper's rule with ρ by its experiment, no bridges; the finest
-    level where every frame is a centre) and a route of 4 key centres of the coarsest
-    level refined level by level."""
-    import jax
-
+    """The navigation pipeline's hierarchy on the graph (`fxspace.pipelines.navigation.
+    build_levels` of its ``[hierarchy]`` defaults: truncated FCM levels in blocks, links
+    by the paper's rule with ρ by its experiment, no bridges; the finest level where every
+    frame is a centre) and a route of 4 key centres of the coarsest level refined level
+    by level."""
     from fxspace.expression import to_scipy
-    from fxspace.navigation import (
-        LinkRule,
-        TruncatedFuzzyCMeans,
-        bridge_keys,
-        build_hierarchy,
-        navigate,
-    )
+    from fxspace.navigation import bridge_keys, navigate
+    from fxspace.pipelines.navigation import Config, GraphConfig, HierarchyConfig, build_levels
 
     Y = np.asarray(mds.embedding, np.float64)
+    cfg = Config(graph=GraphConfig(kind="knn", k=a.k, landmarks=a.landmarks),
+                 hierarchy=HierarchyConfig(levels=a.levels, finest=not a.no_finest))  # fmt: skip
     name = "hierarchy: FCM levels + links" + ("" if a.no_finest else " + finest level")
     with Stage(name):
-        h = build_hierarchy(Y, g, levels=a.levels, key=jax.random.key(a.seed),
-                            fcm=TruncatedFuzzyCMeans(nearest=8), links=LinkRule(),
-                            finest=not a.no_finest)  # fmt: skip
+        h = build_levels(cfg, Y, g, a.seed, kind="knn")
     lvs = h.levels
     out["levels"] = [int(lv.n_clusters) for lv in lvs]
     out["links"] = [int(lv.n_links) for lv in lvs]
@@ -173,7 +168,6 @@ def _navigation(a, g, mds, out: dict) -> None:
         out["route_is_graph_walk"] = bool(
             np.all(fr[1:] != fr[:-1]) and np.all(csr[fr[:-1], fr[1:]] > 0)
         )
-
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -209,6 +203,7 @@ def _run(a, tmp: str) -> int:
 
     import fxspace as fx
     from fxspace.expression import to_scipy
+    from fxspace.pipelines.navigation import GraphConfig
 
     T, L = a.frames, min(a.landmarks, a.frames)
     X, source = _frames(T, a.source, a.seed)
@@ -233,7 +228,8 @@ def _run(a, tmp: str) -> int:
         out["mean_degree"] = float(np.mean(g.degree))
     with Stage("landmark geodesics"):
         fx.expression.check_sparse_connected(g)
-        geo = fx.farthest_point_landmarks(g, L)
+        # the navigation pipeline's landmarks: max-min in rounds of [graph] landmark_batch
+        geo = fx.farthest_point_landmarks(g, L, batch=GraphConfig().landmark_batch or None)
     with Stage("landmark MDS"):
         mds = fx.landmark_mds(geo, dim=2)
         jax.block_until_ready(mds.embedding)
