@@ -7,7 +7,10 @@ This module is the one home of the chain; the threshold sweep maps its kernel
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+import threading
+import weakref
+from functools import partial
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -18,7 +21,6 @@ from fxspace.errors import FxspaceError
 from fxspace.expression._features import distance_features, pairwise_distances
 from fxspace.expression._geodesic import (
     Geodesics,
-    _equals_transpose,
     check_connected,
     epsilon_graph,
     floyd_warshall,
@@ -57,18 +59,53 @@ def embed_graph(
     False`` and ``score = nan`` (the MDS then runs on the finite part only, so no ``inf``
     reaches the eigensolver). jit/vmap compatible; differentiable through the distances.
     ``symmetric``: as in `floyd_warshall` (``True`` under ``jit`` for an undirected graph
-    runs the folded Floyd, half the work).
+    runs the folded Floyd, half the work). Called outside ``jit`` it runs two compiled
+    kernels (the Floyd, then MDS and r), which a sweep and the space of its ε share.
     """
     D = floyd_warshall(graph, method=method, symmetric=symmetric)
+    mds, r, connected = _embed_distances(D, dim, mds_method)
+    return GraphEmbedding(D, mds, r, connected)
+
+
+@partial(jax.jit, static_argnames=("dim", "mds_method"))
+def _embed_distances(D: Array, dim: int, mds_method: str):
+    """``(mds, r, connected)`` of geodesic distances ``D`` (``inf``: disconnected)."""
     connected = jnp.all(jnp.isfinite(D))
     Dc = jnp.where(jnp.isfinite(D), D, 0.0)
     mds = classical_mds(Dc, dim=dim, method=mds_method)
     r = pearson_score(Dc, mds.embedding)
     nan = jnp.asarray(jnp.nan, r.dtype)
-    return GraphEmbedding(D, mds, jnp.where(connected, r, nan), connected)
+    return mds, jnp.where(connected, r, nan), connected
 
 
-_embed_jit = jax.jit(embed_graph, static_argnums=(1, 2, 3, 4))
+# The best-scoring connected embedding a threshold sweep computed, per pairwise matrix (a
+# JAX array: immutable; held by a weak reference, so an id reused by another array is never
+# taken for it): `expression_space` at that ε takes it instead of computing it again.
+_SWEPT: dict[int, tuple[weakref.ref, tuple, GraphEmbedding]] = {}
+_SWEPT_LOCK = threading.Lock()
+
+
+def _remember(pairwise: Any, key: tuple, emb: GraphEmbedding) -> None:
+    """Keep ``emb`` (``key``: ε, dim, method, mds_method) for ``pairwise`` if it scores
+    higher than the one kept (a sweep's threads call this as each ε finishes)."""
+    if not isinstance(pairwise, jax.Array) or isinstance(pairwise, jax.core.Tracer):
+        return
+    with _SWEPT_LOCK:
+        for k in [k for k, (ref, _, _) in _SWEPT.items() if ref() is None]:
+            del _SWEPT[k]
+        held = _SWEPT.get(id(pairwise))
+        if held is not None and held[0]() is pairwise and not emb.score > held[2].score:
+            return
+        _SWEPT[id(pairwise)] = (weakref.ref(pairwise), key, emb)
+
+
+def _recall(pairwise: Any, key: tuple) -> GraphEmbedding | None:
+    """The embedding `_remember`-ed for this very ``pairwise`` array and ``key``, else None."""
+    with _SWEPT_LOCK:
+        held = _SWEPT.get(id(pairwise))
+    if held is None or held[0]() is not pairwise or held[1] != key:
+        return None
+    return held[2]
 
 
 class ExpressionSpace(NamedTuple):
@@ -155,8 +192,10 @@ def expression_space(
         P = jnp.asarray(pairwise)
     W = epsilon_graph(P, threshold)
     check_connected(W, P)
-    # one compiled chain (Floyd, MDS, r), not an op-by-op MDS: an ε-graph holds no NaN
-    emb = _embed_jit(W, dim, method, mds_method, bool(_equals_transpose(W)))
+    # the sweep of these distances may hold this ε's embedding (`_remember`)
+    emb = _recall(pairwise, (float(threshold), dim, method, mds_method))
+    if emb is None:
+        emb = embed_graph(W, dim, method=method, mds_method=mds_method)
     nxt = None
     if paths:
         D = jax.lax.stop_gradient(emb.distances)

@@ -47,7 +47,7 @@ from fxspace.expression._geodesic import (
     connecting_threshold,
     epsilon_graph,
 )
-from fxspace.expression._space import embed_graph
+from fxspace.expression._space import _remember, embed_graph
 
 __all__ = [
     "CRITERIA",
@@ -90,22 +90,16 @@ class SweepResult(NamedTuple):
 
 
 def _one(P: Array, eps: Array, dim: int, method: str, mds_method: str, symmetric: bool):
-    n = P.shape[0]
     W = epsilon_graph(P, eps)
     emb = embed_graph(W, dim, method=method, mds_method=mds_method, symmetric=symmetric)
-    if symmetric:  # the geodesics say it: a component's first frame reaches none before it
-        fin = jnp.isfinite(emb.distances)
-        before = jnp.arange(n)[None, :] < jnp.arange(n)[:, None]
-        n_comp = jnp.sum(~jnp.any(fin & before, axis=1))
-    else:
-        n_comp, _ = connected_components(W)
-    deg = (jnp.sum(jnp.isfinite(W)) - n) / n
+    # undirected: the geodesics say it (a component's first frame reaches none before it)
+    n_comp = _components(emb.distances) if symmetric else connected_components(W)[0]
     nan = jnp.asarray(jnp.nan, P.dtype)
     return (
         emb.score,
         emb.connected,
         n_comp.astype(jnp.int32),
-        deg.astype(P.dtype),
+        _mean_degree(W),
         jnp.where(emb.connected, emb.mds.eigenvalues, nan),
     )
 
@@ -189,7 +183,9 @@ def threshold_sweep(
     # an undirected graph (P equal to its transpose, checked once here) runs the folded
     # Floyd, half the work; a traced P counts as directed, as in floyd_warshall
     sym = not traced and bool(_equals_transpose(P))
-    if jax.process_count() > 1 and not traced:
+    if not traced and not shard and batch_size is None and jax.process_count() == 1:
+        out = _sweep_eager(pairwise, P, th, dim, method, mds_method, sym)
+    elif jax.process_count() > 1 and not traced:
         out = _across_processes(P, np.asarray(th), dim, batch_size, method, mds_method, shard,
                                 sym)  # fmt: skip
     else:
@@ -202,6 +198,38 @@ def threshold_sweep(
     else:
         bridge = jnp.asarray(bridge_parts(np.asarray(P), np.asarray(th), np.asarray(conn)))
     return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]), bridge)
+
+
+def _sweep_eager(pairwise, P, th, dim, method, mds_method, sym):
+    """`_sweep` one ε at a time from the host (concrete, unbatched, one device): the same
+    chain through `embed_graph`'s compiled kernels, which `expression_space` at the chosen
+    ε then reuses (no second compile), and the best-scoring embedding kept for it."""
+    rows = []
+    for eps in th:
+        W = epsilon_graph(P, eps)
+        emb = embed_graph(W, dim, method=method, mds_method=mds_method, symmetric=sym)
+        ncomp = _components(emb.distances) if sym else connected_components(W)[0]
+        rows.append((emb.score, emb.connected, ncomp, _mean_degree(W), emb.mds.eigenvalues))
+        if bool(emb.connected):
+            _remember(pairwise, (float(eps), dim, method, mds_method), emb)
+    r, conn, ncomp, deg, eig = (np.stack([np.asarray(x[i]) for x in rows]) for i in range(5))
+    eig = np.where(conn[:, None], eig, np.asarray(np.nan, eig.dtype))
+    return r, conn, ncomp.astype(np.int32), deg.astype(r.dtype), eig
+
+
+@jax.jit
+def _components(D: Array) -> Array:
+    """Components of an undirected graph from its geodesics: the frames that reach no
+    frame before them (each component's first)."""
+    n = D.shape[0]
+    before = jnp.arange(n)[None, :] < jnp.arange(n)[:, None]
+    return jnp.sum(~jnp.any(jnp.isfinite(D) & before, axis=1)).astype(jnp.int32)
+
+
+@jax.jit
+def _mean_degree(W: Array) -> Array:
+    n = W.shape[0]
+    return ((jnp.sum(jnp.isfinite(W)) - n) / n).astype(W.dtype)
 
 
 def _as_thresholds(thresholds, dtype) -> Array:
