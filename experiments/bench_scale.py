@@ -224,7 +224,8 @@ def _run(a, tmp: str) -> int:
         out["max_degree"] = int(g.indices.shape[1])
     F = np.load(store, mmap_mode="r")
     with Stage("k-NN recall (1000 frames, exact)", "check"):
-        out["knn_recall"] = fx.expression.knn_recall(F, g, k=a.k, sample=1000, seed=a.seed)
+        q = fx.expression.knn_quality(F, g, k=a.k, sample=1000, seed=a.seed)
+        out["knn_recall"], out["knn_distance_ratio"] = q.recall, round(q.distance_ratio, 4)
         out["mean_degree"] = float(np.mean(g.degree))
     with Stage("landmark geodesics"):
         fx.expression.check_sparse_connected(g)
@@ -316,7 +317,7 @@ def _run(a, tmp: str) -> int:
     out["peak_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 2)
     print("\nsummary (ours, features to the route down to frames):")
     for key in ("frames", "seconds", "peak_rss_gb", "links_bridged", "levels_converged",
-                "knn_recall"):  # fmt: skip
+                "knn_recall", "knn_distance_ratio"):  # fmt: skip
         if key in out:
             print(f"{key}: {out[key]}")
     out["stages"] = Stage.rows

@@ -35,10 +35,12 @@ from fxspace.expression._paths import Paths as Paths
 from fxspace.expression._space import ExpressionSpace as ExpressionSpace
 from fxspace.expression._space import embed_graph as embed_graph
 from fxspace.expression._space import expression_space as expression_space
+from fxspace.expression._sparse import KnnQuality as KnnQuality
 from fxspace.expression._sparse import NeighbourGraph as NeighbourGraph
 from fxspace.expression._sparse import check_sparse_connected as check_sparse_connected
 from fxspace.expression._sparse import dijkstra_csr as dijkstra_csr
 from fxspace.expression._sparse import graph_from_dense as graph_from_dense
+from fxspace.expression._sparse import knn_quality as knn_quality
 from fxspace.expression._sparse import knn_recall as knn_recall
 from fxspace.expression._sparse import neighbourhood_graph as neighbourhood_graph
 from fxspace.expression._sparse import sparse_components as sparse_components
@@ -78,6 +80,8 @@ __all__ = [
     "NeighbourGraph",
     "Paths",
     "check_sparse_connected",
+    "KnnQuality",
+    "knn_quality",
     "knn_recall",
     "neighbourhood_graph_blocks",
     "graph_from_dense",

@@ -40,6 +40,8 @@ __all__ = [
     "NeighbourGraph",
     "neighbourhood_graph",
     "graph_from_dense",
+    "KnnQuality",
+    "knn_quality",
     "knn_recall",
     "to_scipy",
     "sparse_components",
@@ -312,32 +314,35 @@ def _release_pages(a) -> None:
         mm.madvise(mmap.MADV_DONTNEED)
 
 
-@checked
-def knn_recall(
-    features: Float[Array, "n p"], graph: NeighbourGraph, k: int = 10, *,
-    sample: int = 1000, seed: int = 0,
-) -> float:  # fmt: skip
-    """How many of each frame's exact ``k`` nearest neighbours (Euclidean, full feature
-    space) the graph holds, averaged over ``sample`` frames drawn at random: 1.0 when the
-    search is exact. The exact neighbours are found by brute force over every frame, a
-    block of frames at a time (never ``T × T``).
+class KnnQuality(NamedTuple):
+    """How close a k-NN graph is to the exact k nearest (`knn_quality`), on a sample.
 
-    **Example:** ``fx.expression.knn_recall(F, g, k=10)``"""
-    F = np.asarray(features)
+    - `recall`: the share of each sampled frame's exact k nearest the graph holds (1.0:
+      exact).
+    - `distance_ratio`: the mean length of the graph's k shortest edges at a sampled
+      frame over the mean distance to its exact k nearest (≥ 1; 1.0: exact). Where many
+      frames are equally near (a held expression, whose frames differ by measurement
+      noise alone) the recall can be low while the ratio stays near 1: the neighbours
+      found are as near as the exact ones, only not the same frames.
+    - `sample`: the frames measured.
+    """
+
+    recall: float
+    distance_ratio: float
+    sample: int
+
+
+def _exact_neighbours(F, rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(indices, distances)`` ``(len(rows), k)`` of each row's exact k nearest (float64
+    brute force, a block of frames at a time; ``F`` may be memory-mapped)."""
     n = F.shape[0]
-    if graph.num_frames != n:
-        raise FxspaceError(f"graph has {graph.num_frames} frames, features {n}: build the "
-                           "graph from these features")  # fmt: skip
-    if not 1 <= k < n:
-        raise FxspaceError(f"k must be in [1, n) = [1, {n}), got {k}")
-    rows = np.random.default_rng(seed).choice(n, size=min(int(sample), n), replace=False)
-    Q = F[rows].astype(np.float64)  # float64: near-ties among the nearest are common
+    Q = np.asarray(F[rows], np.float64)  # float64: near-ties among the nearest are common
     qq = np.sum(Q * Q, axis=1)[:, None]
     best = np.full((len(rows), k), np.inf)
     idx = np.zeros((len(rows), k), np.int64)
     step = max(1, 2**22 // max(len(rows), 1))
     for s in range(0, n, step):
-        B = F[s : s + step].astype(np.float64)
+        B = np.asarray(F[s : s + step], np.float64)
         _release_pages(F)  # a memory-mapped F: its pages leave the resident set
         d = qq - 2.0 * (Q @ B.T) + np.sum(B * B, axis=1)[None]
         d[rows[:, None] == np.arange(s, s + len(B))[None]] = np.inf
@@ -345,9 +350,49 @@ def knn_recall(
         ids = np.concatenate([idx, np.broadcast_to(np.arange(s, s + len(B)), d.shape)], axis=1)
         at = np.argpartition(both, k - 1, axis=1)[:, :k]
         best, idx = np.take_along_axis(both, at, axis=1), np.take_along_axis(ids, at, axis=1)
+    return idx, np.sqrt(np.maximum(best, 0.0))
+
+
+@checked
+def knn_quality(
+    features: Float[Array, "n p"], graph: NeighbourGraph, k: int = 10, *,
+    sample: int = 1000, seed: int = 0,
+) -> KnnQuality:  # fmt: skip
+    """`KnnQuality` (recall and distance ratio) of ``graph`` against each of ``sample``
+    frames' exact ``k`` nearest neighbours (Euclidean, full feature space), drawn at
+    random. The exact neighbours are found by brute force over every frame, a block of
+    frames at a time (never ``T × T``; memory-mapped features stay out of memory).
+
+    **Example:** ``q = fx.expression.knn_quality(F, g, k=10); q.recall, q.distance_ratio``"""
+    F = features if isinstance(features, np.ndarray) else np.asarray(features)
+    n = F.shape[0]
+    if graph.num_frames != n:
+        raise FxspaceError(f"graph has {graph.num_frames} frames, features {n}: build the "
+                           "graph from these features")  # fmt: skip
+    if not 1 <= k < n:
+        raise FxspaceError(f"k must be in [1, n) = [1, {n}), got {k}")
+    rows = np.random.default_rng(seed).choice(n, size=min(int(sample), n), replace=False)
+    idx, dist = _exact_neighbours(F, rows, k)
     have = np.asarray(graph.indices)[rows]
-    held = (np.asarray(idx)[:, :, None] == have[:, None, :]).any(axis=2)
-    return float(held.mean())
+    held = (idx[:, :, None] == have[:, None, :]).any(axis=2)
+    w = np.sort(np.asarray(graph.weights, np.float64)[rows], axis=1)[:, :k]
+    exact = dist.mean(axis=1)
+    ok = exact > 0
+    ratio = float(np.mean(w.mean(axis=1)[ok] / exact[ok])) if ok.any() else 1.0
+    return KnnQuality(float(held.mean()), ratio, len(rows))
+
+
+@checked
+def knn_recall(
+    features: Float[Array, "n p"], graph: NeighbourGraph, k: int = 10, *,
+    sample: int = 1000, seed: int = 0,
+) -> float:  # fmt: skip
+    """How many of each frame's exact ``k`` nearest neighbours (Euclidean, full feature
+    space) the graph holds, averaged over ``sample`` frames drawn at random: 1.0 when the
+    search is exact (`knn_quality`'s `recall`; it also gives the distance ratio).
+
+    **Example:** ``fx.expression.knn_recall(F, g, k=10)``"""
+    return knn_quality(features, graph, k, sample=sample, seed=seed).recall
 
 
 @checked

@@ -114,6 +114,14 @@ def test_knn_recall_against_sklearn():
     want = float(np.mean([[a in set(h) for a in r] for r, h in zip(nn, have, strict=True)]))
     assert got == pytest.approx(want, abs=1e-9)
     assert got < 0.9
+    # the distance ratio: the graph's k shortest edges against the exact k nearest
+    q = fx.expression.knn_quality(F, approx, k=6, sample=300, seed=1)
+    assert q.recall == got and q.sample == 300
+    dist = NearestNeighbors(n_neighbors=7).fit(F).kneighbors(F[rows])[0][:, 1:]
+    w = np.sort(np.asarray(approx.weights, np.float64)[rows], axis=1)[:, :6]
+    assert q.distance_ratio == pytest.approx(np.mean(w.mean(1) / dist.mean(1)), rel=1e-5)
+    assert q.distance_ratio > 1.0
+    assert fx.expression.knn_quality(F, exact, k=6, sample=300) == (1.0, pytest.approx(1.0), 300)
     with pytest.raises(fx.FxspaceError, match="features"):
         fx.expression.knn_recall(F[:100], exact, k=6)
 
