@@ -85,12 +85,15 @@ class Stage:
 def _frames(T: int, source: str, seed: int = 0) -> tuple[np.ndarray, str]:
     from fxspace.datasets import FaceData, load_face
 
+    # float32, as the navigation pipeline's default graph.dtype (the features on disk:
+    # 7 GB at 10⁶ frames of 60 markers, not 14)
     if source == "animface":
         face = load_face(FaceData(source="animface", target_frames=T), seed)
-        return face.positions, "AnimFace (resampled)"
+        return np.asarray(face.positions, np.float32), "AnimFace (resampled)"
     from fxspace.synthetic import synthetic_face
 
-    return synthetic_face(n_frames=T, seed=seed).sequence.positions, "synthetic face"
+    X = synthetic_face(n_frames=T, seed=seed).sequence.positions
+    return np.asarray(X, np.float32), "synthetic face"
 
 
 def _landmark_medians(g, L: int, csr, lm: np.ndarray, repeats: int, out: dict) -> None:
