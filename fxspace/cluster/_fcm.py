@@ -35,6 +35,9 @@ from fxspace._validate import (
     check_scalar,
     checked,
 )
+from fxspace.cluster._kmeanspp import kmeanspp_extend as kmeanspp_extend
+from fxspace.cluster._kmeanspp import kmeanspp_init as kmeanspp_init
+from fxspace.cluster._kmeanspp import squared_distances as squared_distances
 from fxspace.errors import FxspaceError
 from fxspace.results import RESULTS, check_result, result_from_flags
 
@@ -47,9 +50,6 @@ __all__ = [
     "kmeanspp_extend",
     "fcm_objective",
 ]
-
-_UNROLL_MAX_D = 8
-
 
 class FCMResult(NamedTuple):
     """Result of [`fuzzy_cmeans`][fxspace.fuzzy_cmeans].
@@ -79,22 +79,6 @@ class FCMResult(NamedTuple):
     def converged(self):
         """``result == RESULTS.successful`` (derived, not stored)."""
         return self.result == RESULTS.successful
-
-
-@checked
-def squared_distances(x: Float[Array, "n d"], v: Float[Array, "c d"]) -> Float[Array, "n c"]:
-    """Squared Euclidean distances ``‖x_i − v_k‖²`` between two point sets, (n, c),
-    without an (n, c, d) temporary (small d unrolled, large d by the Gram expansion)."""
-    d = x.shape[1]
-    if d <= _UNROLL_MAX_D:
-        out = jnp.square(x[:, 0:1] - v[None, :, 0])
-        for j in range(1, d):
-            out = out + jnp.square(x[:, j : j + 1] - v[None, :, j])
-        return out
-    xx = jnp.sum(x * x, axis=1, keepdims=True)
-    vv = jnp.sum(v * v, axis=1)[None, :]
-    xv = jnp.einsum("nd,cd->nc", x, v, precision=jax.lax.Precision.HIGHEST)
-    return jnp.maximum(xx - 2.0 * xv + vv, 0.0)
 
 
 def _tiny(dtype) -> float:
@@ -144,81 +128,6 @@ def fcm_objective(
     """J_m(U, V) = Σ_i Σ_k u_ik^m ‖x_i − v_k‖² for arbitrary U and V."""
     d2 = squared_distances(jnp.asarray(x), jnp.asarray(centers))
     return jnp.sum(jnp.power(memberships, m) * d2)
-
-
-@checked
-@partial(jax.jit, static_argnames=("n_clusters",))
-def kmeanspp_init(x: Float[Array, "n d"], n_clusters: int, key: Array) -> Float[Array, "c d"]:
-    """k-means++ seeding (Arthur & Vassilvitskii 2007): each new centre is a sample drawn
-    with probability ∝ its squared distance to the nearest chosen centre. O(n c d)."""
-    n = x.shape[0]
-    if not 1 <= n_clusters <= n:  # static under jit: checked at trace time
-        raise FxspaceError(f"n_clusters must lie in [1, {n}] (the points), got {n_clusters}")
-    k0, key = jax.random.split(key)
-    first = jax.random.randint(k0, (), 0, n)
-    centers = jnp.zeros((n_clusters, x.shape[1]), x.dtype).at[0].set(x[first])
-    closest = jnp.sum(jnp.square(x - x[first][None, :]), axis=1)
-
-    def body(k, carry):
-        centers, closest, key = carry
-        key, sub = jax.random.split(key)
-        total = jnp.sum(closest)
-        # all remaining samples coincide with chosen centres: draw uniformly
-        logits = jnp.where(total > 0, jnp.log(closest), jnp.zeros_like(closest))
-        idx = jax.random.categorical(sub, logits)
-        c = x[idx]
-        closest = jnp.minimum(closest, jnp.sum(jnp.square(x - c[None, :]), axis=1))
-        return centers.at[k].set(c), closest, key
-
-    centers, _, _ = jax.lax.fori_loop(1, n_clusters, body, (centers, closest, key))
-    return centers
-
-
-@checked
-def kmeanspp_extend(
-    x: Float[Array, "n d"], centers: Float[Array, "c d"], n_new: int, key: Array
-) -> Float[Array, "c2 d"]:
-    """Keep ``centers`` and draw ``n_new`` more by the k-means++ rule (probability ∝ squared
-    distance to the nearest centre so far): a warm start that adds centres where the
-    current ones cover the data worst. O(n (c + n_new) d). jit/vmap compatible; the draws
-    compile once for every ``c`` and ``n_new`` ≤ n (the hierarchy's levels share them)."""
-    x = as_float_array(x, "x", ndim=2, finite="allow")
-    centers = as_float_array(centers, "centers", shape=(None, x.shape[1]), finite="allow")
-    if n_new < 0:
-        raise FxspaceError(f"n_new must be >= 0, got {n_new}")
-    if n_new == 0:
-        return centers
-    c, n = centers.shape[0], x.shape[0]
-    size = max(n, c, n_new)
-    traced = any(isinstance(a, jax.core.Tracer) for a in (x, centers, key))
-    xp = jnp if traced else np
-    pad = xp.concatenate([xp.asarray(centers), xp.zeros((size - c, x.shape[1]), x.dtype)])
-    idx = _kpp_draws(x, pad, jnp.asarray(c, jnp.int32), key, jnp.asarray(n_new, jnp.int32))
-    out = xp.concatenate([xp.asarray(centers), xp.asarray(x)[xp.asarray(idx)[:n_new]]])
-    bad = ~(xp.all(xp.isfinite(xp.asarray(x))) & xp.all(xp.isfinite(xp.asarray(centers))))
-    return jnp.where(bad, jnp.nan, out) if traced else jnp.asarray(np.nan * out if bad else out)
-
-
-@jax.jit
-def _kpp_draws(x, centers, c, key, n_new):
-    """``(size,)`` indices of ``n_new`` k-means++ draws (the rest 0), each with probability
-    ∝ its squared distance to the nearest centre so far (the first ``c`` rows of
-    ``centers``, then the draws): the shapes do not depend on ``c`` or ``n_new``, so one
-    compile serves every level of a hierarchy."""
-    valid = jnp.arange(centers.shape[0]) < c
-    closest = jnp.min(jnp.where(valid[None, :], squared_distances(x, centers), jnp.inf), axis=1)
-
-    def body(k, carry):
-        closest, key, buf = carry
-        key, sub = jax.random.split(key)
-        total = jnp.sum(closest)
-        logits = jnp.where(total > 0, jnp.log(closest), jnp.zeros_like(closest))
-        i = jax.random.categorical(sub, logits)
-        closest = jnp.minimum(closest, jnp.sum(jnp.square(x - x[i][None, :]), axis=1))
-        return closest, key, buf.at[k].set(i.astype(jnp.int32))
-
-    buf = jnp.zeros((centers.shape[0],), jnp.int32)
-    return jax.lax.fori_loop(0, n_new, body, (closest, key, buf))[2]
 
 
 def _fcm_loop(x, v0, u0, m, tol, max_steps, criterion="max", check_every=1, u0_free=True):
@@ -284,7 +193,7 @@ def _fcm_result(x, v0, u0, u, v, obj, steps, delta, tol, max_steps) -> FCMResult
     return FCMResult(v, u, obj, steps, result, stats)
 
 
-def _weights_t(x, v, m):
+def _weights_t(x, v, m, valid=None):
     """``(c, n)`` weights ``d_ki^{-2/(m-1)}`` and their column sums ``s`` ``(1, n)``: the
     memberships are ``w / s``. Transposed (centres × points) so that XLA fuses the
     per-point sums over the centres and the per-centre sums over the points into passes
@@ -293,13 +202,15 @@ def _weights_t(x, v, m):
     for j in range(1, x.shape[1]):
         d2 = d2 + jnp.square(v[:, j : j + 1] - x[None, :, j])
     w = _weights(d2, m)
+    if valid is not None:  # padding rows (`_fcm_padded`): no weight
+        w = jnp.where(valid[:, None], w, 0.0)
     return w, jnp.sum(w, axis=0, keepdims=True)
 
 
-def _next_centers(x, v, m):
+def _next_centers(x, v, m, valid=None):
     """``V(U(V))``: one Bezdek step from centres to centres (eq. for v_k after u_ik), fused;
-    an empty cluster keeps its centre."""
-    w, s = _weights_t(x, v, m)
+    an empty cluster (and a padding row) keeps its centre."""
+    w, s = _weights_t(x, v, m, valid)
     um = jnp.square(w / s) if m == 2.0 else jnp.power(w / s, m)
     # one product gives Σ_i u_ik^m and Σ_i u_ik^m x_i (a broadcast x would be stored)
     ones = jnp.ones((x.shape[0], 1), x.dtype)
@@ -309,11 +220,11 @@ def _next_centers(x, v, m):
     return jnp.where(ok[:, None], num / jnp.where(ok, mass, 1.0)[:, None], v)
 
 
-def _change(x, va, vb, m, criterion):
+def _change(x, va, vb, m, criterion, valid=None):
     """The membership change between the memberships of centres ``va`` and ``vb``
     (``criterion``: the largest entry, or the Frobenius norm) and J at ``vb``, fused."""
-    wa, sa = _weights_t(x, va, m)
-    wb, sb = _weights_t(x, vb, m)
+    wa, sa = _weights_t(x, va, m, valid)
+    wb, sb = _weights_t(x, vb, m, valid)
     du = wb / sb - wa / sa
     if criterion == "max":
         delta = jnp.max(jnp.abs(du))
@@ -323,12 +234,14 @@ def _change(x, va, vb, m, criterion):
     return delta, obj
 
 
-def _fcm_loop_fused(x, v0, u0, m, tol, max_steps, criterion, check_every, u0_free):
+def _fcm_loop_fused(x, v0, u0, m, tol, max_steps, criterion, check_every, u0_free,
+                    valid=None):  # fmt: skip
     """`_fcm_loop` when every block is ``check_every`` ≥ 2 steps: the same iterates, carried
     as centres only. A block runs ``check_every − 1`` steps ``V ← V(U(V))`` to ``V1``, then
     ``V = V(U(V1))`` and the change ``max|U(V) − U(V1)|``. The first step is ``V(U0)``:
     from ``V0`` when ``U0 = U(V0)``; computed before the loop when ``u0_free`` (given
-    memberships), the first block then running one step less."""
+    memberships), the first block then running one step less. ``valid``: the real rows of
+    padded centres (`_fcm_padded`)."""
 
     def cond(state):
         return (state[1] < max_steps) & (state[3] >= tol)
@@ -337,9 +250,9 @@ def _fcm_loop_fused(x, v0, u0, m, tol, max_steps, criterion, check_every, u0_fre
         v, step, _, _ = state
         skip = (step == 0) & u0_free
         v1 = jax.lax.fori_loop(skip.astype(jnp.int32), check_every - 1,
-                               lambda _, vv: _next_centers(x, vv, m), v)  # fmt: skip
-        v = _next_centers(x, v1, m)
-        delta, obj = _change(x, v1, v, m, criterion)
+                               lambda _, vv: _next_centers(x, vv, m, valid), v)  # fmt: skip
+        v = _next_centers(x, v1, m, valid)
+        delta, obj = _change(x, v1, v, m, criterion, valid)
         return v, step + check_every, obj, delta
 
     inf = jnp.asarray(jnp.inf, x.dtype)
@@ -347,9 +260,53 @@ def _fcm_loop_fused(x, v0, u0, m, tol, max_steps, criterion, check_every, u0_fre
     state = (start, jnp.asarray(0, jnp.int32), inf, inf)
     v, steps, obj, delta = jax.lax.while_loop(cond, body, state)
     v = jnp.where(steps == 0, v0, v)
-    u, obj_fin = _memberships_and_objective(x, v, m)
+    if valid is None:
+        u, obj_fin = _memberships_and_objective(x, v, m)
+    else:
+        u, obj_fin = _memberships_padded(x, v, m, valid)
     obj = jnp.where(steps == 0, obj_fin, obj)
     return _fcm_result(x, v0, u0, u, v, obj, steps, delta, tol, max_steps)
+
+
+# Small problems share compiled kernels: centres padded up this ladder while the padded
+# (n, c) passes stay under the budget (well under a millisecond a step), so the FCM levels
+# of a hierarchy on ~10³ frames compile 4 kernels (c ≤ 80, ≤ 320, 640, 1280), not 8
+_PAD_LADDER = (80, 320, 1280, 5120)
+_PAD_BUDGET = 1 << 20
+
+
+def _padded_size(n: int, c: int) -> int:
+    """The padded centre count of ``c`` centres on ``n`` points (``c``: no padding)."""
+    for b in _PAD_LADDER:
+        if b >= c:
+            return b if n * b <= _PAD_BUDGET else c
+    return c
+
+
+def _memberships_padded(x, v, m, valid):
+    """`_memberships_and_objective` of padded centres: ``(n, c_pad)``, 0 on padding rows."""
+    w, s = _weights_t(x, v, m, valid)
+    obj = jnp.sum(1.0 / s) if m == 2.0 else jnp.sum(jnp.power(s, 1.0 - m))
+    return (w / s).T, obj
+
+
+def _fcm_padded(x, v0, size: int, m, tol, max_steps: int, criterion: str, check_every: int):
+    """The fused FCM from centres ``v0`` ``(c, d)`` padded to ``size`` rows (concrete
+    arrays): the same iterates as without padding, one compiled kernel for every ``c`` up
+    to ``size``; the result cut back to ``c`` centres."""
+    c, d = v0.shape
+    vp = jnp.asarray(np.concatenate([np.asarray(v0), np.zeros((size - c, d), v0.dtype)]))
+    res = _fcm_padded_jit(x, vp, jnp.asarray(c, jnp.int32), m, tol, max_steps, criterion,
+                          check_every)  # fmt: skip
+    return res._replace(centers=jnp.asarray(np.asarray(res.centers)[:c]),
+                        memberships=jnp.asarray(np.asarray(res.memberships)[:, :c]))  # fmt: skip
+
+
+@partial(jax.jit, static_argnames=("m", "max_steps", "criterion", "check_every"))
+def _fcm_padded_jit(x, vp, c, m, tol, max_steps, criterion, check_every):
+    valid = jnp.arange(vp.shape[0]) < c
+    u0 = _memberships_padded(x, vp, m, valid)[0]
+    return _fcm_loop_fused(x, vp, u0, m, tol, max_steps, criterion, check_every, False, valid)
 
 
 @partial(
@@ -463,6 +420,13 @@ def fuzzy_cmeans(
         x, n_clusters, m, key, tol, max_steps, n_init, init_centers, init_memberships,
         criterion, check_every,
     )  # fmt: skip
+    size = _padded_size(x.shape[0], n_clusters)
+    if (size > n_clusters and init_centers is not None and init_memberships is None
+            and check_every > 1 and max_steps % check_every == 0
+            and not _is_tracer(x) and not _is_tracer(init_centers)):  # fmt: skip
+        res = _fcm_padded(x, init_centers, size, m, jnp.asarray(tol, x.dtype), int(max_steps),
+                          criterion, int(check_every))  # fmt: skip
+        return check_result(res.result, throw, "fuzzy_cmeans", res)
     res = _fcm_jit(
         x,
         n_clusters,
