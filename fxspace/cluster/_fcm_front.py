@@ -35,6 +35,7 @@ def fuzzy_cmeans(
     chunk: int | None = None,
     rows_per_task: int | None = None,
     client=None,
+    accelerate: bool | None = None,
 ):
     """Fuzzy c-means clustering (Bezdek's alternating updates) as one jitted while-loop.
 
@@ -72,6 +73,11 @@ def fuzzy_cmeans(
       bit for bit with and without the client for the same ``rows_per_task``; it differs
       from the one-loop default (neither given) only in the last bits of the sums
       (`fxspace.cluster._fcm_blocks`). Driven from Python: not under `jit`/`vmap`.
+    - `accelerate` (with `rows_per_task`/`client`; default on): SQUAREM cycles
+      (Varadhan & Roland 2008, with a monotone safeguard on the objective) instead of
+      plain steps — the same kind of fixed point (the stop is still one plain step
+      moving no centre more than ``tol`` × the data's spread) in fewer block passes;
+      `num_steps` counts the passes. ``False``: Bezdek's plain steps.
     - `throw`: raise [`FxspaceError`][fxspace.FxspaceError] when the result is not
       `RESULTS.successful` (NaN/inf in `x` is named by position before any work; under
       `jit` the check runs through `equinox.error_if`). With `False` (the default) the
@@ -97,7 +103,7 @@ def fuzzy_cmeans(
     """
     if nearest is None:
         for name, val in (("chunk", chunk), ("rows_per_task", rows_per_task),
-                          ("client", client)):  # fmt: skip
+                          ("client", client), ("accelerate", accelerate)):  # fmt: skip
             if val is not None:
                 raise FxspaceError(f"{name} applies to truncated memberships: pass nearest=p too")
         return _fcm.fuzzy_cmeans(
@@ -112,14 +118,18 @@ def fuzzy_cmeans(
         raise FxspaceError(
             f"{', '.join(given)}: options of full memberships; with nearest = {nearest!r} "
             "the options are key or init_centers, tol, max_steps, chunk, rows_per_task, "
-            "client, throw"
+            "client, accelerate, throw"
         )
     if rows_per_task is not None or client is not None:
         return _fcm_blocks.blocked_fuzzy_cmeans(
             x, n_clusters, m, nearest=nearest, key=key, init_centers=init_centers, tol=tol,
             max_steps=max_steps, chunk=8192 if chunk is None else chunk,
             rows_per_task=rows_per_task, client=client, throw=throw,
+            accelerate=True if accelerate is None else accelerate,
         )  # fmt: skip
+    if accelerate is not None:
+        raise FxspaceError("accelerate applies to the block solver: pass rows_per_task or "
+                           "client too (the one-loop solver has plain steps only)")  # fmt: skip
     return _fcm_sparse.sparse_fuzzy_cmeans(
         x, n_clusters, m, nearest=nearest, key=key, init_centers=init_centers, tol=tol,
         max_steps=max_steps, chunk=8192 if chunk is None else chunk, throw=throw,

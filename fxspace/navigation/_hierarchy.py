@@ -92,8 +92,10 @@ class TruncatedFuzzyCMeans(FuzzyCMeans):
     10⁵ frames and hundreds of centres), run to its fixed point (no centre moving more
     than `tol` × the data's spread); `max_steps` is only the cap, reported when hit.
     `rows_per_task` / `client`: each step a block of frames a task, here or as Dask tasks
-    (the same numbers for the same `rows_per_task`). Other fields as `FuzzyCMeans`
-    (`criterion` is not used: the stop is the centres')."""
+    (the same numbers for the same `rows_per_task`); `accelerate` (only with them; None:
+    on): SQUAREM cycles on the blocks (`fxspace.cluster.fuzzy_cmeans`), False: plain
+    steps. Other fields as `FuzzyCMeans` (`criterion` is not used: the stop is the
+    centres')."""
 
     nearest: int = 8
     max_steps: int = 2000
@@ -102,6 +104,13 @@ class TruncatedFuzzyCMeans(FuzzyCMeans):
     chunk: int = 8192
     rows_per_task: int | None = None
     client: Any = dataclasses.field(default=None, compare=False, repr=False)
+    accelerate: bool | None = None
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.accelerate is not None and self.rows_per_task is None and self.client is None:
+            raise FxspaceError("accelerate applies to the block solver: set rows_per_task or "
+                               "client too")  # fmt: skip
 
     def run(self, x, c: int, init_centers):
         """One FCM run; with `rows_per_task` or `client`, a block of points a task, here
@@ -109,7 +118,8 @@ class TruncatedFuzzyCMeans(FuzzyCMeans):
         way for the same `rows_per_task`)."""
         blocks = {}
         if self.rows_per_task is not None or self.client is not None:
-            blocks = {"rows_per_task": self.rows_per_task, "client": self.client}
+            blocks = {"rows_per_task": self.rows_per_task, "client": self.client,
+                      "accelerate": self.accelerate}
         return fuzzy_cmeans(x, c, self.m, nearest=self.nearest, init_centers=init_centers,
                             tol=self.tol, max_steps=self.max_steps, chunk=self.chunk,
                             **blocks)  # fmt: skip
