@@ -113,6 +113,14 @@ def fuzzy_cmeans(
         )  # fmt: skip
     full = {"n_init": n_init != 1, "init_memberships": init_memberships is not None,
             "criterion": criterion != "max", "check_every": check_every != 4}  # fmt: skip
+    return _truncated(x, n_clusters, m, nearest, key, init_centers, tol, max_steps, chunk,
+                      rows_per_task, client, accelerate, throw, full)  # fmt: skip
+
+
+def _truncated(x, n_clusters, m, nearest, key, init_centers, tol, max_steps, chunk,
+               rows_per_task, client, accelerate, throw, full: dict):  # fmt: skip
+    """`fuzzy_cmeans` with ``nearest``: the one-loop solver, or the block solver with
+    ``rows_per_task``/``client``; ``full`` names the full-membership options given."""
     given = sorted(k for k, v in full.items() if v)
     if given:
         raise FxspaceError(
