@@ -17,6 +17,7 @@ from fxspace.cluster._kernel_kmeans import gaussian_kernel as gaussian_kernel
 from fxspace.cluster._kernel_kmeans import kernel_kmeans as kernel_kmeans
 from fxspace.cluster._kernel_kmeans import kernel_kmeans_gram as kernel_kmeans_gram
 from fxspace.cluster._kernel_kmeans import median_gamma as median_gamma
+from fxspace.cluster._kmeanspp import pad_rows as pad_rows
 
 __all__ = [
     "FCMResult",
@@ -24,6 +25,7 @@ __all__ = [
     "fcm_objective",
     "fuzzy_cmeans",
     "kmeanspp_extend",
+    "pad_rows",
     "kmeanspp_init",
     "squared_distances",
     "SparseFCMResult",

@@ -13,9 +13,19 @@ from jaxtyping import Array, Float
 from fxspace._validate import as_float_array, checked
 from fxspace.errors import FxspaceError
 
-__all__ = ["squared_distances", "kmeanspp_init", "kmeanspp_extend"]
+__all__ = ["squared_distances", "kmeanspp_init", "kmeanspp_extend", "pad_rows"]
 
 _UNROLL_MAX_D = 8
+
+
+def pad_rows(c: int) -> int:
+    """Rows that ``c`` centres are padded to so that the levels of a hierarchy share one
+    compiled kernel: the smallest of 80, 320, 1280, … (×4) that holds them. Independent
+    of the number of points, so a padded pass costs at most 4 × its unpadded one."""
+    size = 80
+    while size < c:
+        size *= 4
+    return size
 
 
 @checked
@@ -69,15 +79,16 @@ def kmeanspp_extend(
     """Keep ``centers`` and draw ``n_new`` more by the k-means++ rule (probability ∝ squared
     distance to the nearest centre so far): a warm start that adds centres where the
     current ones cover the data worst. O(n (c + n_new) d). jit/vmap compatible; the draws
-    compile once for every ``c`` and ``n_new`` ≤ n (the hierarchy's levels share them)."""
+    compile once per `pad_rows` size of ``max(c, n_new)`` (the hierarchy's levels share
+    them)."""
     x = as_float_array(x, "x", ndim=2, finite="allow")
     centers = as_float_array(centers, "centers", shape=(None, x.shape[1]), finite="allow")
     if n_new < 0:
         raise FxspaceError(f"n_new must be >= 0, got {n_new}")
     if n_new == 0:
         return centers
-    c, n = centers.shape[0], x.shape[0]
-    size = max(n, c, n_new)
+    c = centers.shape[0]
+    size = pad_rows(max(c, n_new))  # not the points: the first pass is (n, size)
     traced = any(isinstance(a, jax.core.Tracer) for a in (x, centers, key))
     xp = jnp if traced else np
     pad = xp.concatenate([xp.asarray(centers), xp.zeros((size - c, x.shape[1]), x.dtype)])
@@ -91,8 +102,8 @@ def kmeanspp_extend(
 def _kpp_draws(x, centers, c, key, n_new):
     """``(size,)`` indices of ``n_new`` k-means++ draws (the rest 0), each with probability
     ∝ its squared distance to the nearest centre so far (the first ``c`` rows of
-    ``centers``, then the draws): the shapes do not depend on ``c`` or ``n_new``, so one
-    compile serves every level of a hierarchy."""
+    ``centers``, then the draws): the shapes depend on ``c`` and ``n_new`` only through
+    `pad_rows`, so the levels of a hierarchy share a few compiles."""
     valid = jnp.arange(centers.shape[0]) < c
     closest = jnp.min(jnp.where(valid[None, :], squared_distances(x, centers), jnp.inf), axis=1)
 

@@ -26,7 +26,13 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from fxspace._validate import as_float_array, check_int, check_scalar, checked
-from fxspace.cluster import SparseFCMResult, fuzzy_cmeans, kmeanspp_extend, kmeanspp_init
+from fxspace.cluster import (
+    SparseFCMResult,
+    fuzzy_cmeans,
+    kmeanspp_extend,
+    kmeanspp_init,
+    pad_rows,
+)
 from fxspace.errors import FxspaceError
 from fxspace.navigation._level import Hierarchy, Level, level_sizes, pair_csr
 from fxspace.navigation._links import (
@@ -141,9 +147,9 @@ def _hard_arrays(u, idx, m: float):
 def _split(x, centers, lab, w, n_new: int, alpha=0.8, power_steps: int = 8):
     """The split of `split_centers`: the ``n_new`` centres with the largest share of the
     objective, each replaced by two children (`_split_dirs`, with the centres padded to
-    ``max(n, c)`` rows, so that one compile serves every level)."""
+    `pad_rows` rows, so that the levels share a few compiles)."""
     c = centers.shape[0]
-    size = max(x.shape[0], c)
+    size = pad_rows(c)
     traced = any(isinstance(a, jax.core.Tracer) for a in (x, centers, lab, w))
     xp = jnp if traced else np
     cp = xp.concatenate([xp.asarray(centers), xp.zeros((size - c, centers.shape[1]),

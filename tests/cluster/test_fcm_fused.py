@@ -8,7 +8,7 @@ import pytest
 
 import fxspace as fx
 from fxspace.cluster._kmeanspp import _kpp_draws, kmeanspp_extend, squared_distances
-from fxspace.navigation._hierarchy import _split_dirs, split_centers
+from fxspace.navigation._hierarchy import _split, _split_dirs, split_centers
 
 
 def _blobs(rng, n=240, k=5):
@@ -120,3 +120,18 @@ def test_padded_centres_give_the_same_iterates(rng):
         np.testing.assert_allclose(got.memberships.sum(1), 1.0, rtol=1e-12)
         assert int(got.num_steps) == 40 and float(got.objective) == pytest.approx(
             float(want.objective), rel=1e-12)
+
+
+def test_padding_depends_on_the_centres_not_the_points():
+    """The shared-compile padding is a ladder of centre counts (80, 320, 1280, …): never
+    the number of points, so 3 × 10⁵ points' k-means++-extend and split stay O(n·c)."""
+    assert [fx.cluster.pad_rows(c) for c in (1, 80, 81, 320, 321, 1280, 5000)] == [
+        80, 80, 320, 320, 1280, 1280, 5120]
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.normal(size=(300_000, 2)), jnp.float32)  # n × n would be 360 GB
+    got = kmeanspp_extend(x, x[:4], 4, jax.random.PRNGKey(0))
+    assert got.shape == (8, 2) and bool(jnp.all(jnp.isfinite(got)))
+    lab = jnp.zeros(300_000, jnp.int32).at[::2].set(1)
+    w = jnp.ones(300_000, jnp.float32)
+    v = jnp.asarray([[0.0, 0.0], [0.5, 0.5]], jnp.float32)
+    assert _split(x, v, lab, w, 1).shape == (3, 2)
