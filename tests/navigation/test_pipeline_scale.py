@@ -127,6 +127,23 @@ def test_shipped_config_is_valid():
     assert nsc.load_space is nav.load_space
 
 
+def test_shipped_archive_config_is_valid():
+    """``configs/navigation_archive.toml`` (10⁶ frames) parses, validates and asks for the
+    streamed chain: the k-NN graph, landmark rounds, FCM blocks, down to every frame."""
+    from pathlib import Path
+
+    from fxspace.config import config_from_dict, load_toml
+
+    raw = load_toml(Path(__file__).resolve().parents[2] / "configs" / "navigation_archive.toml")
+    assert raw["experiment"] == "navigation_scale"
+    cfg = config_from_dict(nsc.Config, {k: v for k, v in raw.items()
+                                        if k not in ("experiment", "seed")})  # fmt: skip
+    cfg.validate()
+    assert cfg.data.synthetic_frames == 1_000_000 and cfg.hierarchy.finest
+    assert cfg.graph.kind == "knn" and cfg.graph.landmark_batch > 0
+    assert cfg.hierarchy.rows_per_task > 0
+
+
 @pytest.mark.slow
 def test_a_two_worker_local_cluster_runs_the_same_hierarchy(tmp_path):
     """Issue 45: the scale pipeline with its graph's blocks, its landmarks' rounds and its
