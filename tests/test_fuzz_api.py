@@ -491,8 +491,8 @@ WRONG_TYPES = {"None": None, "int": 3, "str": "x", "object": object()}
 # every required argument of these takes a plain number: 3 is a right answer, not a wrong
 # type (a frame count, a joint count, a 0-d frame or control value, a window centre)
 INT_IS_VALID = {
-    "level_sizes", "linear_interpolation", "motion.smooth_controls", "rest_pose",
-    "temporal_window",
+    "cluster.pad_rows", "level_sizes", "linear_interpolation", "motion.smooth_controls",
+    "rest_pose", "temporal_window",
 }  # fmt: skip
 _KNOWN_FILE = os.path.join(os.path.dirname(__file__), "fuzz_wrong_type_known.txt")
 

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from fxspace._validate import as_float_array, checked
+from fxspace._validate import as_float_array, check_int, checked
 from fxspace.errors import FxspaceError
 
 __all__ = ["squared_distances", "kmeanspp_init", "kmeanspp_extend", "pad_rows"]
@@ -21,7 +21,10 @@ _UNROLL_MAX_D = 8
 def pad_rows(c: int) -> int:
     """Rows that ``c`` centres are padded to so that the levels of a hierarchy share one
     compiled kernel: the smallest of 80, 320, 1280, … (×4) that holds them. Independent
-    of the number of points, so a padded pass costs at most 4 × its unpadded one."""
+    of the number of points, so a padded pass costs at most 4 × its unpadded one.
+
+    **Example:** ``fx.cluster.pad_rows(100)`` is 320."""
+    c = check_int(c, "c", low=0)
     size = 80
     while size < c:
         size *= 4
