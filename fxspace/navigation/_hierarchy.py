@@ -132,8 +132,16 @@ class TruncatedFuzzyCMeans(FuzzyCMeans):
 
 
 def _hard(fit, m: float):
-    """Each frame's hard cluster and its membership^m (full or truncated memberships)."""
-    return _hard_arrays(jnp.asarray(fit.memberships), getattr(fit, "indices", None), m)
+    """Each frame's hard cluster and its membership^m (full or truncated memberships);
+    full ones padded with zero columns to `pad_rows` up to 2^23 entries (a shared compile;
+    a zero is never the largest of a row that sums to 1)."""
+    u, idx = fit.memberships, getattr(fit, "indices", None)
+    if idx is None and not isinstance(u, jax.core.Tracer):
+        u = np.asarray(u)
+        if u.shape[0] * pad_rows(u.shape[1]) <= 1 << 23:
+            u = np.concatenate([u, np.zeros((u.shape[0], pad_rows(u.shape[1]) - u.shape[1]),
+                                            u.dtype)], axis=1)  # fmt: skip
+    return _hard_arrays(jnp.asarray(u), idx, m)
 
 
 @partial(jax.jit, static_argnames=("m",))

@@ -33,6 +33,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from fxspace._validate import checked
+from fxspace.cluster import pad_rows
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
 from fxspace.navigation._level import LinkRadiusSweep, _components, pair_csr
@@ -119,85 +120,101 @@ def default_link_radius(points: Float[Array, "c 2"], scale: float = 0.5) -> floa
     return float(scale * np.median(nn)) if len(nn) else 0.0
 
 
-@partial(jax.jit, static_argnames=("max_len", "chunk", "near"))
-def _clearance_kernel(xy, hop, center_frames, iu, ju, jr, floor, max_len: int, chunk: int,
-                      near: int):  # fmt: skip
-    """Per pair (iu[p], ju[p]): ``(clear, unsure)``. The walk goes from iu's frame along
-    ``hop[jr[p]]`` (the shortest-path tree into ju's frame). ``clear``: the least 2-D
-    distance from the walked polyline to a listed centre other than the two (the
-    ``near`` centres nearest each segment's start; ``near >= c`` lists them all); the
-    walk stops once it is below ``floor``, so values ≥ ``floor`` are exact and smaller
-    ones only say so; −inf when unreachable. ``unsure``: a walked segment reached past
-    its list (an unlisted centre might be nearer)."""
+@partial(jax.jit, static_argnames=("near",))
+def _near_lists(xy, pos, valid, near: int):
+    """Each frame's ``near`` nearest centres among the valid (unpadded) ones and the
+    distance to the last of them: ``(near_idx, cover)``."""
+    d2 = jnp.where(valid[None, :], _sq_dists(xy, pos), jnp.inf)
+    neg, near_idx = jax.lax.top_k(-d2, near)
+    return near_idx, jnp.sqrt(jnp.maximum(-neg[:, -1], 0.0))
+
+
+@partial(jax.jit, static_argnames=("max_len", "exact"))
+def _clearance_kernel(xy, hop, center_frames, valid, near_idx, cover, pi, pj, pr, floor,
+                      max_len: int, exact: bool):  # fmt: skip
+    """Per pair (pi[p], pj[p]) of one chunk: ``(clear, unsure)``. The walk goes from pi's
+    frame along ``hop[pr[p]]`` (the shortest-path tree into pj's frame). ``clear``: the
+    least 2-D distance from the walked polyline to a listed centre other than the two
+    (``exact``: every valid centre; else the ``near_idx`` row of each segment's start,
+    `_near_lists`); the walk stops once it is below ``floor``, so values ≥ ``floor`` are
+    exact and smaller ones only say so; −inf when unreachable. ``unsure``: a walked
+    segment reached past its list (an unlisted centre might be nearer). The centres are
+    padded (``valid`` marks the real ones) and pairs with pi = pj are padding, so the
+    levels share a compile."""
     c = center_frames.shape[0]
     pos = xy[center_frames]
     inf = jnp.asarray(jnp.inf, xy.dtype)
-    if near >= c:  # exact: every centre on every list
-        near_idx = jnp.broadcast_to(jnp.arange(c, dtype=jnp.int32), (xy.shape[0], c))
-        cover = jnp.full(xy.shape[0], jnp.inf, xy.dtype)
-    else:
-        neg, near_idx = jax.lax.top_k(-_sq_dists(xy, pos), near)  # each frame's nearest
-        cover = jnp.sqrt(jnp.maximum(-neg[:, -1], 0.0))
 
-    def seg_clear(f, g, pi, pj, fi, fj):
+    def seg_clear(f, g, fi, fj):
         a, b = xy[f], xy[g]
         ab = b - a
         L2 = jnp.sum(ab * ab, axis=-1)
-        ids = near_idx[f]
+        ids = (jnp.broadcast_to(jnp.arange(c, dtype=jnp.int32), (f.shape[0], c)) if exact
+               else near_idx[f])  # fmt: skip
         q = pos[ids]
         t = jnp.sum((q - a[:, None, :]) * ab[:, None, :], axis=-1)
         t = jnp.clip(t / jnp.where(L2 > 0, L2, 1.0)[:, None], 0.0, 1.0)
         dist = jnp.sqrt(jnp.sum(jnp.square(q - (a[:, None, :] + t[..., None] * ab[:, None, :])),
                                 axis=-1))  # fmt: skip
         of = center_frames[ids]
-        other = (ids != pi[:, None]) & (ids != pj[:, None])
+        other = (ids != pi[:, None]) & (ids != pj[:, None]) & valid[ids]
         other &= (of != fi[:, None]) & (of != fj[:, None])
+        if exact:
+            return jnp.min(jnp.where(other, dist, inf), axis=1), jnp.zeros(f.shape, bool)
         # a centre within floor of the segment lies within floor + |ab| of its start
         return jnp.min(jnp.where(other, dist, inf), axis=1), cover[f] <= floor + jnp.sqrt(L2)
 
-    def one_chunk(args):
-        pi, pj, pr = args
-        fi, fj = center_frames[pi], center_frames[pj]
+    fi, fj = center_frames[pi], center_frames[pj]
 
-        def cond(s):
-            return jnp.any(s[1]) & (s[4] < max_len)
+    def cond(s):
+        return jnp.any(s[1]) & (s[4] < max_len)
 
-        def body(s):
-            cur, active, clear, unsure, step = s
-            nxt = hop[pr, cur]
-            unreachable = nxt < 0
-            nxt = jnp.where(unreachable, cur, nxt)
-            d, far = seg_clear(cur, nxt, pi, pj, fi, fj)
-            clear = jnp.where(active, jnp.minimum(clear, jnp.where(unreachable, -inf, d)), clear)
-            unsure = unsure | (active & far & ~unreachable)
-            active = active & (clear >= floor) & (nxt != fj)
-            return jnp.where(active, nxt, cur), active, clear, unsure, step + 1
+    def body(s):
+        cur, active, clear, unsure, step = s
+        nxt = hop[pr, cur]
+        unreachable = nxt < 0
+        nxt = jnp.where(unreachable, cur, nxt)
+        d, far = seg_clear(cur, nxt, fi, fj)
+        clear = jnp.where(active, jnp.minimum(clear, jnp.where(unreachable, -inf, d)), clear)
+        unsure = unsure | (active & far & ~unreachable)
+        active = active & (clear >= floor) & (nxt != fj)
+        return jnp.where(active, nxt, cur), active, clear, unsure, step + 1
 
-        same = fi == fj
-        init = (fi, ~same, jnp.where(same, -inf, inf), jnp.zeros_like(same), jnp.int32(0))
-        _, active, clear, unsure, _ = jax.lax.while_loop(cond, body, init)
-        return jnp.where(active, -inf, clear), unsure  # cut short by max_len: unreachable
+    same = fi == fj  # padding pairs: pi = pj
+    init = (fi, ~same, jnp.where(same, -inf, inf), jnp.zeros_like(same), jnp.int32(0))
+    _, active, clear, unsure, _ = jax.lax.while_loop(cond, body, init)
+    return jnp.where(active, -inf, clear), unsure  # cut short by max_len: unreachable
 
-    n = iu.shape[0]
-    pad = (-n) % chunk
-    parts = [jnp.pad(v, (0, pad)).reshape(-1, chunk) for v in (iu, ju, jr)]
-    clear, unsure = jax.lax.map(one_chunk, tuple(parts))
-    return clear.reshape(-1)[:n], unsure.reshape(-1)[:n]
+
+def _padded(v, size: int, fill=0) -> np.ndarray:
+    v = np.asarray(v)
+    return np.concatenate([v, np.full((size - len(v), *v.shape[1:]), fill, v.dtype)])
 
 
 def _pair_clearance(xy, paths, cf, iu, ju, floor: float, near: int, want_d: bool = False):
     """``(clear, unsure, length)`` of the pairs (iu, ju) (`_clearance_kernel`), walking
     the shortest-path trees into the ju centres' frames, a batch of targets at a time;
-    with ``want_d`` also the ``(c, c)`` geodesic distances between all centres."""
+    with ``want_d`` also the ``(c, c)`` geodesic distances between all centres. The
+    centres are padded to `pad_rows` rows, the target batches likewise and the pairs to
+    whole chunks, so the levels of a hierarchy share a few compiles."""
     c = len(cf)
     T = int(paths.num_frames)
-    kk = c if near >= c else near
+    size = pad_rows(c)
+    exact = near >= c
     clear = np.full(len(iu), -np.inf)
     unsure = np.zeros(len(iu), bool)
     length = np.full(len(iu), np.inf)
     D = np.full((c, c), np.inf) if want_d else None
     xyj = jnp.asarray(xy)
-    cfj = jnp.asarray(cf, jnp.int32)
+    cfp = _padded(np.asarray(cf, np.int32), size)
+    cfj, valid = jnp.asarray(cfp), jnp.asarray(np.arange(size) < c)
+    if exact:  # no near lists (placeholders)
+        near_idx = jnp.asarray(np.zeros((1, 1), np.int32))
+        cover = jnp.asarray(np.full(1, np.inf, xyj.dtype))
+        chunk = min(_PAIR_CHUNK, size * (size - 1) // 2, (1 << 22) // size)
+    else:
+        near_idx, cover = _near_lists(xyj, jnp.asarray(np.asarray(xyj)[cfp]), valid, int(near))
+        chunk = min(_PAIR_CHUNK, (1 << 22) // max(int(near), 1))
     targets = np.unique(ju) if not want_d else np.arange(c)
     per = max(1, _HOP_BUDGET // max(T, 1))
     for s in range(0, len(targets), per):
@@ -210,14 +227,18 @@ def _pair_clearance(xy, paths, cf, iu, ju, floor: float, near: int, want_d: bool
         sel = np.flatnonzero(row[ju] >= 0)
         if not len(sel):
             continue
-        chunk = int(max(1, min(_PAIR_CHUNK, len(sel), (1 << 22) // max(kk, 1))))
-        cl, un = _clearance_kernel(
-            xyj, jnp.asarray(hop), cfj, jnp.asarray(iu[sel], jnp.int32),
-            jnp.asarray(ju[sel], jnp.int32), jnp.asarray(row[ju[sel]], jnp.int32),
-            jnp.asarray(floor, xyj.dtype), T + 1, chunk, int(near),
-        )  # fmt: skip
-        clear[sel] = np.asarray(cl, np.float64)
-        unsure[sel] = np.asarray(un)
+        rows = max(len(batch), min(pad_rows(len(batch)), per))
+        hopj = jnp.asarray(_padded(hop, rows, -1))
+        for a in range(0, len(sel), chunk):
+            part = sel[a : a + chunk]
+            cl, un = _clearance_kernel(
+                xyj, hopj, cfj, valid, near_idx, cover,
+                *(jnp.asarray(_padded(v, chunk).astype(np.int32))
+                  for v in (iu[part], ju[part], row[ju[part]])),
+                jnp.asarray(floor, xyj.dtype), T + 1, bool(exact),
+            )  # fmt: skip
+            clear[part] = np.asarray(cl, np.float64)[: len(part)]
+            unsure[part] = np.asarray(un)[: len(part)]
         length[sel] = dist[row[ju[sel]], cf[iu[sel]]]
     return clear, unsure, length, D
 
