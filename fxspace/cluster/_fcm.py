@@ -306,7 +306,11 @@ def _fcm_padded(x, v0, size: int, m, tol, max_steps: int, criterion: str, check_
 def _fcm_padded_jit(x, vp, c, m, tol, max_steps, criterion, check_every):
     valid = jnp.arange(vp.shape[0]) < c
     u0 = _memberships_padded(x, vp, m, valid)[0]
-    return _fcm_loop_fused(x, vp, u0, m, tol, max_steps, criterion, check_every, False, valid)
+    res = _fcm_loop_fused(x, vp, u0, m, tol, max_steps, criterion, check_every, False, valid)
+    # a full rung (no padding rows): the memberships as the unpadded kernel forms them, so
+    # c = 80, 320, … share this compile and give `_fcm_jit`'s numbers bit for bit
+    u_full = _memberships_and_objective(x, res.centers, m)[0]
+    return res._replace(memberships=jnp.where(c == vp.shape[0], u_full, res.memberships))
 
 
 @partial(
@@ -421,7 +425,8 @@ def fuzzy_cmeans(
         criterion, check_every,
     )  # fmt: skip
     size = _padded_size(x.shape[0], n_clusters)
-    if (size > n_clusters and init_centers is not None and init_memberships is None
+    rung = size in _PAD_LADDER and x.shape[0] * size <= _PAD_BUDGET  # c = 80, 320, …: padded too
+    if ((size > n_clusters or rung) and init_centers is not None and init_memberships is None
             and check_every > 1 and max_steps % check_every == 0
             and not _is_tracer(x) and not _is_tracer(init_centers)):  # fmt: skip
         res = _fcm_padded(x, init_centers, size, m, jnp.asarray(tol, x.dtype), int(max_steps),
