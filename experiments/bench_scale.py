@@ -22,7 +22,10 @@ quality (where the exact method fits, ``--exact-max``): exact all-pairs geodesic
 Exits non-zero if any stage fails. Usage:
 ``python experiments/bench_scale.py --frames 2400 [--source animface] [--landmarks 256]
 [--k 10] [--levels 4] [--exact-max 5000] [--isomap-max 10000] [--no-finest]
-[--json out.json]``.
+[--scheduler local|tcp://HOST:PORT] [--workers 2] [--json out.json]``.
+``--scheduler local`` runs the per-block stages (features, neighbour search, landmark
+rounds, FCM sums) on a local Dask cluster of ``--workers`` processes, as the navigation
+pipeline's ``[graph] scheduler``; the memory figures then include the workers.
 """
 
 from __future__ import annotations
@@ -40,8 +43,22 @@ import numpy as np
 
 
 def _rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    """Resident memory of this process and its children (a local Dask cluster's workers)."""
+    try:
+        import psutil
+
+        me = psutil.Process()
+        procs = [me, *me.children(recursive=True)]
+    except ImportError:  # no psutil (it comes with Dask): this process alone
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    total = 0
+    for p in procs:
+        try:
+            total += p.memory_info().rss
+        except psutil.Error:  # a worker that just exited
+            pass
+    return total / 2**20
 
 
 class Stage:
@@ -138,7 +155,7 @@ def _landmark_medians(g, L: int, csr, lm: np.ndarray, repeats: int, out: dict) -
     )
 
 
-def _navigation(a, g, mds, out: dict) -> None:
+def _navigation(a, g, mds, out: dict, client=None) -> None:
     """The navigation pipeline's hierarchy on the graph (`fxspace.pipelines.navigation.
     build_levels` of its ``[hierarchy]`` defaults: truncated FCM levels in blocks, links
     by the paper's rule with ρ by its experiment, no bridges; the finest level where every
@@ -153,7 +170,7 @@ def _navigation(a, g, mds, out: dict) -> None:
                  hierarchy=HierarchyConfig(levels=a.levels, finest=not a.no_finest))  # fmt: skip
     name = "hierarchy: FCM levels + links" + ("" if a.no_finest else " + finest level")
     with Stage(name):
-        h = build_levels(cfg, Y, g, a.seed, kind="knn")
+        h = build_levels(cfg, Y, g, a.seed, kind="knn", client=client)
     lvs = h.levels
     out["levels"] = [int(lv.n_clusters) for lv in lvs]
     out["links"] = [int(lv.n_links) for lv in lvs]
@@ -193,14 +210,22 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--repeats", type=int, default=3, help="runs of ours vs scipy on the same landmarks"
     )
+    ap.add_argument("--scheduler", default="", help="'' here (default), 'local' (a local "
+                    "Dask cluster of --workers processes) or tcp://HOST:PORT (--tmp must "
+                    "then be a folder every worker reaches)")
+    ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--tmp", default=None, help="folder for the streamed features (default: the "
                     "system's temporary folder; 7 GB at 10⁶ frames of 60 markers)")
     a = ap.parse_args(argv)
-    with tempfile.TemporaryDirectory(dir=a.tmp) as tmp:
-        return _run(a, tmp)
+    from fxspace.pipelines._dask import check_stage_scheduler, dask_client
+
+    check_stage_scheduler(a.scheduler, a.workers, "--scheduler")
+    with tempfile.TemporaryDirectory(dir=a.tmp) as tmp, dask_client(a.scheduler,
+                                                                     a.workers) as client:
+        return _run(a, tmp, client)
 
 
-def _run(a, tmp: str) -> int:
+def _run(a, tmp: str, client=None) -> int:
     import jax
     import jax.numpy as jnp
 
@@ -213,8 +238,9 @@ def _run(a, tmp: str) -> int:
     base = _rss_mb()
     print(
         f"T = {T} frames of {source} ({X.shape[1]} markers), k = {a.k}, L = {L} landmarks, "
-        f"{jax.device_count()} × {jax.devices()[0].platform}, float32; baseline RSS "
-        f"{base:.0f} MB (other agents may share the CPU: times are noisy)",
+        f"{jax.device_count()} × {jax.devices()[0].platform}, float32, "
+        f"{'here' if client is None else f'Dask {a.scheduler} ({a.workers} workers)'}; "
+        f"baseline RSS {base:.0f} MB (other agents may share the CPU: times are noisy)",
         flush=True,
     )
     out: dict = {"T": T, "source": source, "k": a.k, "L": L}
@@ -223,7 +249,7 @@ def _run(a, tmp: str) -> int:
 
     with Stage("features + k-NN graph (streamed)"):
         # the (T, P) features live in a memory-mapped .npy, never whole in RAM
-        g = fx.expression.neighbourhood_graph_blocks(X, k=a.k, store=store)
+        g = fx.expression.neighbourhood_graph_blocks(X, k=a.k, store=store, client=client)
         out["max_degree"] = int(g.indices.shape[1])
     F = np.load(store, mmap_mode="r")
     with Stage("k-NN recall (1000 frames, exact)", "check"):
@@ -233,7 +259,8 @@ def _run(a, tmp: str) -> int:
     with Stage("landmark geodesics"):
         fx.expression.check_sparse_connected(g)
         # the navigation pipeline's landmarks: max-min in rounds of [graph] landmark_batch
-        geo = fx.farthest_point_landmarks(g, L, batch=GraphConfig().landmark_batch or None)
+        batch = GraphConfig().landmark_batch or None
+        geo = fx.farthest_point_landmarks(g, L, batch=batch, client=client if batch else None)
     with Stage("landmark MDS"):
         mds = fx.landmark_mds(geo, dim=2)
         jax.block_until_ready(mds.embedding)
@@ -249,7 +276,7 @@ def _run(a, tmp: str) -> int:
     out["chain_peak_mb"] = max(r["peak_mb"] for r in chain)
 
     if not a.no_navigation and mds is not None:
-        _navigation(a, g, mds, out)
+        _navigation(a, g, mds, out, client)
 
     if not a.no_peers and g is not None and geo is not None:
         from scipy.sparse.csgraph import dijkstra
@@ -316,8 +343,10 @@ def _run(a, tmp: str) -> int:
     ours = [r for r in Stage.rows if r["group"] == "ours"]
     out["frames"] = T
     out["seconds"] = round(sum(r["s"] for r in ours), 1)
-    # the process's own peak (ru_maxrss: every stage and the frames' making included)
-    out["peak_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 2)
+    # the process's own peak (ru_maxrss: every stage and the frames' making included), or
+    # the sampled peak of it and its workers together where that is higher
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**10
+    out["peak_rss_gb"] = round(max([own] + [r["peak_mb"] for r in Stage.rows]) / 2**10, 2)
     print("\nsummary (ours, features to the route down to frames):")
     for key in ("frames", "seconds", "peak_rss_gb", "links_bridged", "levels_converged",
                 "knn_recall", "knn_distance_ratio"):  # fmt: skip
