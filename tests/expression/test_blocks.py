@@ -75,3 +75,66 @@ def test_a_two_worker_local_cluster_gives_the_graph_of_one_process():
     assert len(ran) == 2
     np.testing.assert_array_equal(np.asarray(here.indices), np.asarray(there.indices))
     np.testing.assert_array_equal(np.asarray(here.weights), np.asarray(there.weights))
+
+
+def _plain_features(pos):
+    """The features summed the plain way: ``√(dx² + dy² + dz²)`` per pair, then weighted."""
+    from fxspace.expression._features import PAIR_WEIGHT
+
+    x = np.asarray(pos, pos.dtype if pos.dtype.kind == "f" else np.float64)
+    iu, ju = np.triu_indices(x.shape[1], 1)
+    acc = np.zeros((len(x), len(iu)), x.dtype)
+    for c in range(3):
+        acc += (x[:, iu, c] - x[:, ju, c]) ** 2
+    return np.sqrt(acc) * x.dtype.type(PAIR_WEIGHT)
+
+
+@pytest.mark.parametrize("block", [1, 100, 300])
+def test_block_features_are_the_plain_sums_bit_for_bit(block):
+    from fxspace.expression._blocks import _block_features
+
+    pos = _positions(333).astype(np.float32)
+    for p in (pos, np.round(pos * 10).astype(np.int32)):
+        got = _block_features(p, np.arange(len(p)), block)
+        np.testing.assert_array_equal(got, _plain_features(p))
+
+
+def _plain_neighbours(F, Z, num, k):
+    """Each frame's k nearest among its num nearest in Z: the query in frame order, each
+    pair's distance summed alone, ties in the order of the projection's nearest."""
+    from scipy.spatial import cKDTree
+
+    _, ii = cKDTree(Z).query(Z, k=num + 1)
+    out_c, out_d = [], []
+    for i, row in enumerate(ii):
+        c = row[row != i][:num] if (row == i).any() else row[:num]
+        d = np.array([np.sqrt(((F[j] - F[i]) ** 2).sum()) for j in c], F.dtype)
+        o = np.argsort(d, kind="stable")[:k]
+        out_c.append(c[o])
+        out_d.append(d[o])
+    return np.array(out_c), np.array(out_d)
+
+
+@pytest.mark.parametrize("num", [30, 299])
+def test_leaf_ordered_neighbours_equal_the_plain_search(tmp_path, num):
+    """Near-duplicates (0.3 mm noise) and exact duplicates (ties): the leaf-ordered, batched
+    search gives each frame what the plain per-frame search gives, bit for bit; with every
+    frame a candidate it is the brute-force exact k-NN."""
+    from fxspace.expression import _blocks
+
+    rng = np.random.default_rng(1)
+    base = _positions(100, seed=3).astype(np.float32)
+    pos = np.concatenate([base, base[rng.integers(0, 100, 150)], base[:50]])
+    pos[100:250] += rng.normal(0, 0.3, pos[100:250].shape).astype(np.float32)
+    F = _plain_features(pos)
+    path = str(tmp_path / "f.npy")
+    np.save(path, F)
+    Z = np.ascontiguousarray((F - F.mean(axis=0)) @ np.linalg.svd(F - F.mean(axis=0))[2][:8].T)
+    want_c, want_d = _plain_neighbours(F, Z, num, 6)
+    got = [_blocks._neighbours(path, Z, s, min(s + 70, len(F)), num, 6) for s in range(0, 300, 70)]
+    np.testing.assert_array_equal(np.concatenate([c for c, _ in got]), want_c)
+    np.testing.assert_array_equal(np.concatenate([d for _, d in got]), want_d)
+    if num == 299:  # every frame a candidate: the exact k nearest distances
+        D = np.sqrt(((F[:, None, :] - F[None, :, :]) ** 2).sum(axis=2))
+        np.fill_diagonal(D, np.inf)
+        np.testing.assert_array_equal(want_d, np.sort(D, axis=1)[:, :6])
