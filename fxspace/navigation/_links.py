@@ -62,6 +62,7 @@ EXACT_CENTRES = 320
 centre (exact); larger ones the `LinkRule.near` nearest (see the module docstring)."""
 
 _PAIR_CHUNK = 16384
+_SHARE_BUDGET = 1 << 22  # frames × padded centres up to which the levels share compiles
 _HOP_BUDGET = 1 << 25  # entries of the (targets × frames) next-hop rows held at once
 
 
@@ -194,12 +195,15 @@ def _padded(v, size: int, fill=0) -> np.ndarray:
 def _pair_clearance(xy, paths, cf, iu, ju, floor: float, near: int, want_d: bool = False):
     """``(clear, unsure, length)`` of the pairs (iu, ju) (`_clearance_kernel`), walking
     the shortest-path trees into the ju centres' frames, a batch of targets at a time;
-    with ``want_d`` also the ``(c, c)`` geodesic distances between all centres. The
-    centres are padded to `pad_rows` rows, the target batches likewise and the pairs to
-    whole chunks, so the levels of a hierarchy share a few compiles."""
+    with ``want_d`` also the ``(c, c)`` geodesic distances between all centres. On a
+    few thousand frames (`_SHARE_BUDGET`) the centres are padded to `pad_rows` rows, the
+    target batches likewise and the pairs to whole chunks, so the levels of a hierarchy
+    share a few compiles; on more (long walks, a compile is cheap beside them) the
+    chunks hold only real pairs."""
     c = len(cf)
     T = int(paths.num_frames)
-    size = pad_rows(c)
+    share = T * pad_rows(c) <= _SHARE_BUDGET
+    size = pad_rows(c) if share else c
     exact = near >= c
     clear = np.full(len(iu), -np.inf)
     unsure = np.zeros(len(iu), bool)
@@ -211,7 +215,7 @@ def _pair_clearance(xy, paths, cf, iu, ju, floor: float, near: int, want_d: bool
     if exact:  # no near lists (placeholders)
         near_idx = jnp.asarray(np.zeros((1, 1), np.int32))
         cover = jnp.asarray(np.full(1, np.inf, xyj.dtype))
-        chunk = min(_PAIR_CHUNK, size * (size - 1) // 2, (1 << 22) // size)
+        chunk = min(_PAIR_CHUNK, max(size * (size - 1) // 2, 1), (1 << 22) // size)
     else:
         near_idx, cover = _near_lists(xyj, jnp.asarray(np.asarray(xyj)[cfp]), valid, int(near))
         chunk = min(_PAIR_CHUNK, (1 << 22) // max(int(near), 1))
@@ -227,13 +231,14 @@ def _pair_clearance(xy, paths, cf, iu, ju, floor: float, near: int, want_d: bool
         sel = np.flatnonzero(row[ju] >= 0)
         if not len(sel):
             continue
-        rows = max(len(batch), min(pad_rows(len(batch)), per))
+        rows = max(len(batch), min(pad_rows(len(batch)), per)) if share else len(batch)
         hopj = jnp.asarray(_padded(hop, rows, -1))
-        for a in range(0, len(sel), chunk):
-            part = sel[a : a + chunk]
+        step = chunk if share else max(1, min(chunk, len(sel)))
+        for a in range(0, len(sel), step):
+            part = sel[a : a + step]
             cl, un = _clearance_kernel(
                 xyj, hopj, cfj, valid, near_idx, cover,
-                *(jnp.asarray(_padded(v, chunk).astype(np.int32))
+                *(jnp.asarray(_padded(v, step).astype(np.int32))
                   for v in (iu[part], ju[part], row[ju[part]])),
                 jnp.asarray(floor, xyj.dtype), T + 1, bool(exact),
             )  # fmt: skip
