@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from fxspace._progress import progress
 from fxspace._validate import check_int
 from fxspace.errors import FxspaceError
 from fxspace.expression._features import PAIR_WEIGHT
@@ -160,16 +161,20 @@ def _spans(T: int, rows: int) -> list[tuple[int, int]]:
     return [(s, min(s + rows, T)) for s in range(0, T, rows)]
 
 
-def _map(client, fn, shared: tuple, items: list[tuple]) -> list:
+def _map(client, fn, shared: tuple, items: list[tuple], desc: str) -> list:
     """``fn(*shared, *item)`` for each item: here, or as Dask tasks (``shared`` sent to
-    every worker once)."""
+    every worker once); a progress line ``desc`` counts the items done."""
     if client is None:
-        return [fn(*shared, *it) for it in items]
+        return [fn(*shared, *it) for it in progress(items, desc, total=len(items))]
+    from dask.distributed import as_completed
+
     # hash=False: each call its own keys (a content key shared with the call before
     # could be released under the tasks that need it)
     sent = [client.scatter(v, broadcast=True, hash=False) if isinstance(v, np.ndarray) else v
             for v in shared]  # fmt: skip
     futures = [client.submit(fn, *sent, *it, pure=False) for it in items]
+    for _ in progress(as_completed(futures), desc, total=len(futures)):
+        pass
     return client.gather(futures)
 
 
@@ -221,16 +226,19 @@ def neighbourhood_graph_blocks(
         path = str(store)
         P = X.shape[1] * (X.shape[1] - 1) // 2
         np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=(T, P)).flush()
-        _map(client, _features_to_disk, (X,), [(*sp, path, block) for sp in spans])
+        _map(client, _features_to_disk, (X,), [(*sp, path, block) for sp in spans],
+             "k-NN graph: features")  # fmt: skip
         rng = np.random.default_rng(0)
         sample = np.sort(rng.choice(T, min(T, _AXES_SAMPLE), replace=False))
         S = np.load(path, mmap_mode="r")[sample]
         mean = S.mean(axis=0)
         axes = _principal_axes(S, min(int(reduce_dim), P))
         del S
-        Z = np.concatenate(_map(client, _project, (path,), [(*sp, mean, axes) for sp in spans]))
+        Z = np.concatenate(_map(client, _project, (path,), [(*sp, mean, axes) for sp in spans],
+                                "k-NN graph: projection"))  # fmt: skip
         threads = -1 if client is None else 1  # here: every core searches the tree
-        got = _map(client, _neighbours, (path, Z), [(*sp, num, k, threads) for sp in spans])
+        got = _map(client, _neighbours, (path, Z), [(*sp, num, k, threads) for sp in spans],
+                   "k-NN graph: neighbours")  # fmt: skip
     cand = np.concatenate([c for c, _ in got])
     dist = np.concatenate([d for _, d in got])
     rows = np.repeat(np.arange(T, dtype=np.int32), k)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fxspace._progress import progress
 from fxspace.errors import FxspaceError
 
 __all__: list[str] = []
@@ -84,11 +85,14 @@ def _pick(est: np.ndarray, taken: set[int], n: int) -> int:
 def rounds(first: int, num: int, batch: int, n: int, run) -> tuple[list[int], list]:
     """Landmarks ``[first, …]`` (``num``) and their rows, ``batch`` a round (module
     docstring); ``run(sources)`` returns the rows of a list of sources."""
+    bar = iter(progress(range(num), "landmark rows", total=num))
     lm, rows = [first], run([first])
+    next(bar, None)
     mind = rows[0].copy()
     while len(lm) < min(num, batch):  # the first batch: exact max-min
         lm.append(_pick(mind, set(lm), n))
         rows += run(lm[-1:])
+        next(bar, None)
         mind = np.minimum(mind, rows[-1])
     while len(lm) < num:
         bound = np.stack(rows[:_BOUND_ROWS])
@@ -101,6 +105,9 @@ def rounds(first: int, num: int, batch: int, n: int, run) -> tuple[list[int], li
         rows += run(new)
         for r in rows[-len(new) :]:
             mind = np.minimum(mind, r)
+            next(bar, None)
+    for _ in bar:  # closes the progress line
+        pass
     return lm, rows
 
 
