@@ -166,15 +166,13 @@ def _map(client, fn, shared: tuple, items: list[tuple], desc: str) -> list:
     every worker once); a progress line ``desc`` counts the items done."""
     if client is None:
         return [fn(*shared, *it) for it in progress(items, desc, total=len(items))]
-    from dask.distributed import as_completed
-
     # hash=False: each call its own keys (a content key shared with the call before
     # could be released under the tasks that need it)
     sent = [client.scatter(v, broadcast=True, hash=False) if isinstance(v, np.ndarray) else v
             for v in shared]  # fmt: skip
     futures = [client.submit(fn, *sent, *it, pure=False) for it in items]
-    for _ in progress(as_completed(futures), desc, total=len(futures)):
-        pass
+    for f in progress(futures, desc, total=len(futures)):  # done in order
+        f.result()
     return client.gather(futures)
 
 
