@@ -146,6 +146,23 @@ def _draw_frames(server, ctl: NavigatorController, pf: PadFrame, pad: np.ndarray
     )  # fmt: skip
 
 
+class _Aligned:
+    """``[frame]``: that frame's markers rigidly aligned to the first frame
+    (`fxspace.navigation.rigid_align`), then, with ``centre`` and ``axes``, in the face's
+    right/up/out frame; computed when asked (a 10⁶-frame archive is not aligned up front)."""
+
+    def __init__(self, positions, centre=None, axes=None):
+        self.positions, self.centre, self.axes = positions, centre, axes
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __getitem__(self, frame) -> np.ndarray:
+        X = rigid_align(np.asarray(self.positions[int(frame)])[None],
+                        np.asarray(self.positions[0]))[0]  # fmt: skip
+        return X if self.axes is None else (X - self.centre) @ self.axes.T
+
+
 class NavigatorView:
     """The navigator's page: the pad, the face and the controls, drawn from a
     `NavigatorController` (``server.fxspace_view``)."""
@@ -163,14 +180,15 @@ class NavigatorView:
         server.initial_camera.up = (0.0, 1.0, 0.0)
         _draw_frames(server, ctl, self.pf, self.pad)
         # the face: markers aligned to the first frame, seen from the front, right of the pad
-        self.P = rigid_align(data.positions, data.positions[0])
+        # each frame aligned to the first when it is shown (not all 10⁶ frames up front)
+        self.P = _Aligned(data.positions)
         self.face, self.face_note = studio_face(
             self.P[0], data.marker_names or None, head, face_vertices
         )
         self.R = self.face.axes
         rest = (self.face.rest - self.P[0].mean(0)) @ self.R.T  # right, up, out
         self.fc = self.P[0].mean(0) + ((rest.max(0) + rest.min(0)) / 2) @ self.R
-        self.F = (self.P - self.fc) @ self.R.T
+        self.F = _Aligned(data.positions, self.fc, self.R)
         self.fscale = 1.7 / max(float(np.ptp(rest[:, 1])), 1e-12)  # the head ~1.7 tall
         self.gui_status = server.gui.add_markdown(status_text(ctl.status()))
         self.gui_face = server.gui.add_markdown(f"_Face: {self.face_note}_")
