@@ -157,13 +157,16 @@ def sweep_stage(
         chunks = [th_all[i : i + bs] for i in range(0, len(th_all), bs)]
 
         def all_chunks():
-            # two at a time from the first: one ε's Floyd + MDS leaves a CPU core idle part
-            # of the time (1.2x on 2 cores, same numbers); each is cached as it finishes.
-            # JAX compiles a kernel once when both threads ask for it at the same time (the
-            # second waits), so the first two ε share the compiles and overlap their runs
-            ex = ThreadPoolExecutor(max_workers=2, thread_name_prefix="fxspace-sweep")
+            yield chunk(0, chunks[0])  # alone: it compiles what the others reuse
+            # then two at a time: one ε's Floyd + MDS leaves a CPU core idle part of the
+            # time (1.2x on 2 cores, same numbers); each is cached as it finishes. (The
+            # first two at once, sharing the compiles, hung a slow test: both threads
+            # waiting on their results, the CPU idle.) Several local devices: one chunk
+            # at a time (each already runs on every device)
+            workers = 2 if jax.local_device_count() == 1 else 1
+            ex = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="fxspace-sweep")
             try:
-                yield from ex.map(chunk, range(len(chunks)), chunks)
+                yield from ex.map(chunk, range(1, len(chunks)), chunks[1:])
             finally:  # on Ctrl-C: the chunks not started are dropped, the finished kept
                 ex.shutdown(wait=True, cancel_futures=True)
 
