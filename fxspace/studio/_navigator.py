@@ -148,19 +148,40 @@ def _draw_frames(server, ctl: NavigatorController, pf: PadFrame, pad: np.ndarray
 
 class _Aligned:
     """``[frame]``: that frame's markers rigidly aligned to the first frame
-    (`fxspace.navigation.rigid_align`), then, with ``centre`` and ``axes``, in the face's
-    right/up/out frame; computed when asked (a 10⁶-frame archive is not aligned up front)."""
+    (`fxspace.navigation.rigid_align`), computed when asked (a 10⁶-frame archive is not
+    aligned up front); the last frame asked is kept, so the face and its markers drawn for
+    one frame align it once. `in_face` gives them in the face's right/up/out frame."""
 
-    def __init__(self, positions, centre=None, axes=None):
-        self.positions, self.centre, self.axes = positions, centre, axes
+    def __init__(self, positions):
+        self.positions = positions
+        self._last: tuple[int, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
 
     def __getitem__(self, frame) -> np.ndarray:
-        X = rigid_align(np.asarray(self.positions[int(frame)])[None],
-                        np.asarray(self.positions[0]))[0]  # fmt: skip
-        return X if self.axes is None else (X - self.centre) @ self.axes.T
+        f = int(frame)
+        if self._last is None or self._last[0] != f:
+            X = rigid_align(np.asarray(self.positions[f])[None],
+                            np.asarray(self.positions[0]))[0]  # fmt: skip
+            self._last = (f, X)
+        return self._last[1]
+
+    def in_face(self, centre: np.ndarray, axes: np.ndarray) -> _InFace:
+        return _InFace(self, centre, axes)
+
+
+class _InFace:
+    """``[frame]``: an `_Aligned` frame in the face's right/up/out frame."""
+
+    def __init__(self, aligned: _Aligned, centre: np.ndarray, axes: np.ndarray):
+        self.aligned, self.centre, self.axes = aligned, centre, axes
+
+    def __len__(self) -> int:
+        return len(self.aligned)
+
+    def __getitem__(self, frame) -> np.ndarray:
+        return (self.aligned[frame] - self.centre) @ self.axes.T
 
 
 class NavigatorView:
@@ -188,7 +209,7 @@ class NavigatorView:
         self.R = self.face.axes
         rest = (self.face.rest - self.P[0].mean(0)) @ self.R.T  # right, up, out
         self.fc = self.P[0].mean(0) + ((rest.max(0) + rest.min(0)) / 2) @ self.R
-        self.F = _Aligned(data.positions, self.fc, self.R)
+        self.F = self.P.in_face(self.fc, self.R)
         self.fscale = 1.7 / max(float(np.ptp(rest[:, 1])), 1e-12)  # the head ~1.7 tall
         self.gui_status = server.gui.add_markdown(status_text(ctl.status()))
         self.gui_face = server.gui.add_markdown(f"_Face: {self.face_note}_")
