@@ -190,7 +190,10 @@ def _row_runner(graph: NeighbourGraph, method: str, csr, client):
         return lambda src: list(_rows(graph, np.asarray(src), "relax"))
     if method == "auto" and jax.default_backend() != "cpu":
         return lambda src: list(_rows(graph, np.asarray(src), "relax"))
-    return Rows(csr[0], csr[1], np.asarray(graph.weights).dtype, client)
+    from fxspace.expression._row_workers import for_graph
+
+    workers = for_graph(graph, dijkstra_csr) if client is None else None
+    return Rows(csr[0], csr[1], np.asarray(graph.weights).dtype, client, workers)
 
 
 def farthest_point_landmarks(

@@ -51,10 +51,13 @@ def _dijkstra_row(data, indices, indptr, directed: bool, dtype: str, source: int
 
 
 class Rows:
-    """Shortest-path rows of many sources, here or as Dask tasks (the CSR sent once)."""
+    """Shortest-path rows of many sources, here (split between worker processes on a
+    large graph: ``workers``, `fxspace.expression._row_workers`) or as Dask tasks (the CSR
+    sent once)."""
 
-    def __init__(self, csr, directed: bool, dtype, client):
+    def __init__(self, csr, directed: bool, dtype, client, workers=None):
         self.client = client
+        self.workers = workers if client is None else None
         self.shared = (csr.data, csr.indices, csr.indptr)
         self.args = (bool(directed), np.dtype(dtype).str)
         if client is not None:
@@ -62,6 +65,8 @@ class Rows:
                                 for a in self.shared)  # fmt: skip
 
     def __call__(self, sources) -> list[np.ndarray]:
+        if self.workers is not None and len(sources) > 1:
+            return list(self.workers.rows(sources).astype(self.args[1]))
         if self.client is None:
             return [_dijkstra_row(*self.shared, *self.args, s) for s in sources]
         futures = [self.client.submit(_dijkstra_row, *self.shared, *self.args, int(s),

@@ -91,6 +91,13 @@ def _csr(graph):
     return graph.dijkstra_csr()  # the graph's own (csr, directed) for scipy's Dijkstra
 
 
+def _workers(graph):
+    """Worker processes holding the graph's CSR where it is large (`_row_workers`)."""
+    from fxspace.expression._row_workers import for_graph
+
+    return for_graph(graph, _csr)
+
+
 def graph_toward(graph, targets, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     from scipy.sparse.csgraph import dijkstra
 
@@ -98,7 +105,12 @@ def graph_toward(graph, targets, limit: float = np.inf) -> tuple[np.ndarray, np.
     t = _targets(targets, csr.shape[0])
     if not t.size:
         return np.zeros((0, csr.shape[0])), np.zeros((0, csr.shape[0]), np.int32)
-    d, pred = dijkstra(csr, directed=directed, indices=t, return_predecessors=True, limit=limit)
+    w = _workers(graph) if len(t) > 1 else None
+    if w is not None:  # the same Dijkstra, the targets split between processes
+        d, pred = w.rows(t, predecessors=True, limit=limit)
+    else:
+        d, pred = dijkstra(csr, directed=directed, indices=t, return_predecessors=True,
+                           limit=limit)  # fmt: skip
     # on a symmetric graph the predecessor of f on the path from t is f's next hop to t
     hop = np.where(pred < 0, -1, pred).astype(np.int32)
     hop[np.arange(len(t)), t] = t
@@ -112,10 +124,11 @@ def graph_lengths(graph, i, j, batch: int = 64) -> np.ndarray:
     a, b = _pairs(i, j, csr.shape[0])
     out = np.full(len(a), np.inf)
     src, inv = np.unique(a, return_inverse=True)
+    w = _workers(graph) if len(src) > 1 else None
     for s in range(0, len(src), batch):
         rows = src[s : s + batch]
         sel = (inv >= s) & (inv < s + len(rows))
-        d = dijkstra(csr, directed=directed, indices=rows)
+        d = w.rows(rows) if w is not None else dijkstra(csr, directed=directed, indices=rows)
         out[sel] = d[inv[sel] - s, b[sel]]
     return out
 
