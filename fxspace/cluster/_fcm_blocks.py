@@ -33,6 +33,7 @@ its full passes are for all points at once); the clustering is the same fixed po
 from __future__ import annotations
 
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import jax
@@ -91,6 +92,7 @@ def _block_step(x, v, cand, reach, drift, m, p, chunk):
 _block_assign = jax.jit(_assign, static_argnames=("m", "p", "chunk"))
 
 
+_THREADS = 2  # blocks run at once here (each block's step is its own computation)
 _STATES: dict[tuple[str, int], tuple] = {}  # (run, block) -> state, in each process
 
 
@@ -161,7 +163,10 @@ class _Blocks:
 
     def _call(self, fn, items) -> list:
         if self.client is None:
-            return [fn(self.run, *it) for it in items]
+            if len(items) < 2 or _THREADS < 2:
+                return [fn(self.run, *it) for it in items]
+            with ThreadPoolExecutor(_THREADS) as pool:  # XLA leaves cores idle in a block
+                return list(pool.map(lambda it: fn(self.run, *it), items))
         futures = [self.client.submit(fn, self.run, *it, pure=False, workers=w,
                                       allow_other_workers=False)
                    for it, w in zip(items, self.where, strict=True)]  # fmt: skip
