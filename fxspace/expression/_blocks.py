@@ -32,6 +32,8 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +52,8 @@ _ROWS = 256  # frames whose candidates are read at once
 _FEAT_ROWS = 128  # frames whose features are formed at once (in cache)
 _SUB = 8  # frames whose candidate differences are formed at once (in cache)
 _TREES: dict[tuple, Any] = {}  # one k-d tree per projection, per process (worker)
+_TREE_LOCK = threading.Lock()
+_HERE = 2  # blocks at once without a client (threads)
 
 
 def _block_features(positions: np.ndarray, rows: np.ndarray, block: int, out=None) -> np.ndarray:
@@ -102,13 +106,14 @@ def _tree(Z: np.ndarray):
     from scipy.spatial import cKDTree
 
     key = (id(Z), Z.shape)
-    hit = _TREES.get(key)
-    if hit is None or hit[0] is not Z:
-        _TREES.clear()
-        tree = cKDTree(Z)
-        rank = np.empty(len(Z), np.int64)
-        rank[tree.indices] = np.arange(len(Z))
-        hit = _TREES[key] = (Z, tree, rank)
+    with _TREE_LOCK:  # blocks may run in threads: one tree
+        hit = _TREES.get(key)
+        if hit is None or hit[0] is not Z:
+            _TREES.clear()
+            tree = cKDTree(Z)
+            rank = np.empty(len(Z), np.int64)
+            rank[tree.indices] = np.arange(len(Z))
+            hit = _TREES[key] = (Z, tree, rank)
     return hit[1], hit[2]
 
 
@@ -162,10 +167,15 @@ def _spans(T: int, rows: int) -> list[tuple[int, int]]:
 
 
 def _map(client, fn, shared: tuple, items: list[tuple], desc: str) -> list:
-    """``fn(*shared, *item)`` for each item: here, or as Dask tasks (``shared`` sent to
-    every worker once); a progress line ``desc`` counts the items done."""
+    """``fn(*shared, *item)`` for each item: here (`_HERE` at once, in threads: numpy and
+    the k-d tree release the GIL), or as Dask tasks (``shared`` sent to every worker
+    once); a progress line ``desc`` counts the items done."""
     if client is None:
-        return [fn(*shared, *it) for it in progress(items, desc, total=len(items))]
+        if _HERE < 2 or len(items) < 2:
+            return [fn(*shared, *it) for it in progress(items, desc, total=len(items))]
+        with ThreadPoolExecutor(_HERE) as pool:
+            done = pool.map(lambda it: fn(*shared, *it), items)
+            return list(progress(done, desc, total=len(items)))
     # hash=False: each call its own keys (a content key shared with the call before
     # could be released under the tasks that need it)
     sent = [client.scatter(v, broadcast=True, hash=False) if isinstance(v, np.ndarray) else v
