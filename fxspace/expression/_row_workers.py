@@ -67,6 +67,7 @@ class RowWorkers:
 
     def __init__(self, csr, directed: bool, n: int):
         self._csr, self._directed = csr, bool(directed)
+        self.pid = os.getpid()  # a forked child does not share these pipes
         self._lock = threading.Lock()
         self._procs: list[subprocess.Popen] = []
         try:
@@ -83,7 +84,7 @@ class RowWorkers:
         except BaseException:
             self.close()
             raise
-        self._finalizer = weakref.finalize(self, _stop, list(self._procs))
+        self._finalizer = weakref.finalize(self, _stop, list(self._procs), self.pid)
 
     @property
     def size(self) -> int:
@@ -112,7 +113,7 @@ class RowWorkers:
         return np.concatenate(got)
 
     def close(self) -> None:
-        _stop(self._procs)
+        _stop(self._procs, self.pid)
         self._procs = []
 
     def _send(self, p, msg) -> None:
@@ -144,7 +145,9 @@ class RowWorkers:
         )
 
 
-def _stop(procs) -> None:
+def _stop(procs, pid: int) -> None:
+    if os.getpid() != pid:  # a forked child: the workers are its parent's
+        return
     for p in procs:
         try:
             p.stdin.close()  # the worker reads EOF and exits
@@ -177,6 +180,9 @@ def for_graph(graph, csr_of) -> RowWorkers | None:
     key = (id(graph.indices), id(graph.weights))
     with _CURRENT_LOCK:
         hit = _CURRENT.get("entry")
+        if hit is not None and hit[3].pid != os.getpid():  # inherited by a fork: not ours
+            _CURRENT.clear()
+            hit = None
         if hit is not None and hit[0] == key and hit[1]() is graph.indices \
                 and hit[2]() is graph.weights and hit[3].size == n - 1:  # fmt: skip
             return hit[3]
@@ -201,7 +207,7 @@ def _forget(key) -> None:
 
 def _drop() -> None:
     hit = _CURRENT.pop("entry", None)
-    if hit is not None:
+    if hit is not None and hit[3].pid == os.getpid():
         hit[3].close()
 
 

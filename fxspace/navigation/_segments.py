@@ -44,6 +44,8 @@ _EXACT_SPACINGS = 4.0  # the exact pass's points at least this many spacings apa
 # k-d tree calls, a few more frames each (measured on 10⁵ frames: 11.3 s against 16.8 s
 # for 1 spacing and 8 nearest, 14.5 s for 8 spacings; the same blocks)
 _BATCH = 1 << 21  # sample points per k-d tree call
+_BALL_ENTRIES = 1 << 22  # frames of the whole-ball fallback listed at once (as Python
+# ints: at 10⁶ frames one batch of dense balls listed at once took ~10 GB)
 _ROUNDS = 8  # the exact pass's interleaved rounds (blocked segments leave after each)
 _ORDER = (0, 4, 2, 6, 1, 5, 3, 7)  # bit-reversed: each round halves the gaps left
 _SURE_FROM = 0.15  # the sure-block pass runs where ρ is at least this many spacings
@@ -127,22 +129,35 @@ def _exact_blocks(tree, xy, i, j, rho, step):
 
 def _hits(tree, xy, ii, jj, own, pts, rho, reach, k):
     """The segments (indices into ``ii``/``jj``) with a frame (not an end) within ρ,
-    among the frames within ``reach`` of their points ``pts`` (owner ``own``)."""
+    among the frames within ``reach`` of their points ``pts`` (owner ``own``): each
+    point's k nearest, and the whole ball where they do not exhaust it (listed
+    `_BALL_ENTRIES` frames at a time: a ball in a dense clump holds thousands)."""
     d, nb = tree.query(pts, k=k, distance_upper_bound=reach, workers=-1)
     d, nb = d.reshape(len(pts), -1), nb.reshape(len(pts), -1)
     full = np.flatnonzero(np.isfinite(d[:, -1]))  # the ball may hold more than k
-    seg = np.repeat(own, k)[np.isfinite(d).reshape(-1)]
-    flat = nb[np.isfinite(d)]
+    ok = np.isfinite(d)
+    found = [_near(xy, ii, jj, np.repeat(own, k)[ok.reshape(-1)], nb[ok], rho)]
+    del d, nb, ok
     if len(full):
-        lists = tree.query_ball_point(pts[full], reach, return_sorted=False, workers=-1)
-        n = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-        flat = np.concatenate([flat, np.fromiter((q for x in lists for q in x), np.int64,
-                                                 int(n.sum()))])  # fmt: skip
-        seg = np.concatenate([seg, np.repeat(own[full], n)])
+        n = tree.query_ball_point(pts[full], reach, return_length=True, workers=-1)
+        edges = np.concatenate([[0], np.cumsum(n)])
+        s = 0
+        while s < len(full):
+            e = int(np.searchsorted(edges, edges[s] + _BALL_ENTRIES, "right")) - 1
+            e = min(max(e, s + 1), len(full))
+            rows = full[s:e]
+            lists = tree.query_ball_point(pts[rows], reach, return_sorted=False, workers=-1)
+            flat = np.fromiter((q for x in lists for q in x), np.int64, int(n[s:e].sum()))
+            found.append(_near(xy, ii, jj, np.repeat(own[rows], n[s:e]), flat, rho))
+            s = e
+    return np.unique(np.concatenate(found))
+
+
+def _near(xy, ii, jj, seg, flat, rho):
+    """The segments among ``seg`` whose frame ``flat`` (not an end) is within ρ."""
     a = xy[ii[seg]]
     dist = _segment_distance(xy[flat], a, xy[jj[seg]] - a)
-    hit = (dist < rho) & (flat != ii[seg]) & (flat != jj[seg])
-    return np.unique(seg[hit])
+    return seg[(dist < rho) & (flat != ii[seg]) & (flat != jj[seg])]
 
 
 @jax.jit

@@ -124,3 +124,21 @@ def test_an_unguarded_script_runs_once(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.count("top level ran") == 1
     assert "workers 2 rows 4" in out.stdout
+
+
+def test_workers_inherited_by_a_fork_are_left_to_their_parent(graph, workers_on):
+    """A forked child sees its parent's workers in the module: it starts its own and
+    never writes to (or closes) the parent's pipes."""
+    graph_toward(graph, [1, 2])
+    parent = RW._CURRENT["entry"][3]
+    parent.pid = -1  # as a child sees them: another process's
+    try:
+        d, _ = graph_toward(graph, [1, 2, 3])
+        mine = RW._CURRENT["entry"][3]
+        assert mine is not parent and mine.pid == os.getpid()
+        assert all(p.poll() is None for p in parent._procs)  # not closed by the child
+        np.testing.assert_allclose(d, dijkstra(to_scipy(graph), directed=False,
+                                               indices=[1, 2, 3]))  # fmt: skip
+    finally:
+        parent.pid = os.getpid()
+        parent.close()

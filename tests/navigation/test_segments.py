@@ -139,3 +139,25 @@ def test_an_epsilon_graphs_steps_go_by_origin_and_match_every_pair():
     got = segments_near_points(xy, i, j, rho)
     want = _brute_chunked(xy, i, j, rho)
     assert np.array_equal(got, want) and 0 < want.sum() < len(want)
+
+
+def test_whole_balls_listed_a_few_frames_at_a_time_match_brute_force(monkeypatch):
+    """Where a point's nearest frames do not exhaust its ball, the whole ball is listed,
+    `_BALL_ENTRIES` frames at a time (bounded memory in dense clumps): forced here with
+    2 nearest and 7 frames a listing, on clustered points."""
+    from scipy.spatial import cKDTree
+
+    from fxspace.navigation import _segments as S
+
+    monkeypatch.setattr(S, "_NEAREST", 2)
+    monkeypatch.setattr(S, "_BALL_ENTRIES", 7)
+    rng = np.random.default_rng(8)
+    centres = rng.uniform(0, 10, (6, 2))
+    xy = centres[rng.integers(0, 6, 900)] + rng.normal(0, 0.3, (900, 2))
+    i, j = rng.integers(0, 900, 2500), rng.integers(0, 900, 2500)
+    keep = i != j
+    i, j = i[keep], j[keep]
+    rho = 0.02
+    got = S._exact_blocks(cKDTree(xy), xy, i, j, rho, 0.4)
+    want = _brute(xy, i, j, rho)
+    assert np.array_equal(got, want) and 0 < want.sum() < len(want)
