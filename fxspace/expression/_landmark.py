@@ -39,6 +39,7 @@ from fxspace._validate import checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 from fxspace.expression._landmark_rounds import Rows, check_batch, rounds
 from fxspace.expression._mds import MDSResult, _fix_signs, double_centre
+from fxspace.expression._row_workers import for_graph
 from fxspace.expression._sparse import (
     NeighbourGraph,
     check_sparse_connected,
@@ -190,8 +191,6 @@ def _row_runner(graph: NeighbourGraph, method: str, csr, client):
         return lambda src: list(_rows(graph, np.asarray(src), "relax"))
     if method == "auto" and jax.default_backend() != "cpu":
         return lambda src: list(_rows(graph, np.asarray(src), "relax"))
-    from fxspace.expression._row_workers import for_graph
-
     workers = for_graph(graph, dijkstra_csr) if client is None else None
     return Rows(csr[0], csr[1], np.asarray(graph.weights).dtype, client, workers)
 

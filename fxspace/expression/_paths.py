@@ -22,6 +22,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from fxspace.errors import DisconnectedGraphError, FxspaceError
+from fxspace.expression._row_workers import for_graph
 
 __all__ = ["Paths"]
 
@@ -93,8 +94,6 @@ def _csr(graph):
 
 def _workers(graph):
     """Worker processes holding the graph's CSR where it is large (`_row_workers`)."""
-    from fxspace.expression._row_workers import for_graph
-
     return for_graph(graph, _csr)
 
 
