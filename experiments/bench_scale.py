@@ -61,6 +61,10 @@ def _rss_mb() -> float:
     return total / 2**20
 
 
+class _Skipped(Exception):
+    pass
+
+
 class Stage:
     """Time a stage and sample the peak RSS while it runs."""
 
@@ -71,6 +75,8 @@ class Stage:
         self.name, self.group = name, group
 
     def __enter__(self):
+        if Stage.failed:  # caught by _run: nothing after a failed stage runs
+            raise _Skipped(self.name)
         self.peak = _rss_mb()
         self._stop = threading.Event()
 
@@ -96,7 +102,7 @@ class Stage:
             Stage.failed.append(self.name)
             row["error"] = "".join(traceback.format_exception_only(exc_type, exc)).strip()
             print(f"  stage {self.name} FAILED: {row['error']}", file=sys.stderr, flush=True)
-        return True  # keep going; the exit code reports the failure
+        return True  # the next stage is skipped; the exit code reports the failure
 
 
 def _frames(T: int, source: str, seed: int = 0) -> tuple[np.ndarray, str]:
@@ -247,78 +253,88 @@ def _run(a, tmp: str, client=None) -> int:
     F = g = geo = mds = None
     store = os.path.join(tmp, "features.npy")
 
-    with Stage("features + k-NN graph (streamed)"):
-        # the (T, P) features live in a memory-mapped .npy, never whole in RAM
-        g = fx.expression.neighbourhood_graph_blocks(X, k=a.k, store=store, client=client)
-        out["max_degree"] = int(g.indices.shape[1])
-    F = np.load(store, mmap_mode="r")
-    with Stage("k-NN recall (1000 frames, exact)", "check"):
-        q = fx.expression.knn_quality(F, g, k=a.k, sample=1000, seed=a.seed)
-        out["knn_recall"], out["knn_distance_ratio"] = q.recall, round(q.distance_ratio, 4)
-        out["mean_degree"] = float(np.mean(g.degree))
-    with Stage("landmark geodesics"):
-        fx.expression.check_sparse_connected(g)
-        # the navigation pipeline's landmarks: max-min in rounds of [graph] landmark_batch
-        batch = GraphConfig().landmark_batch or None
-        geo = fx.farthest_point_landmarks(g, L, batch=batch, client=client if batch else None)
-    with Stage("landmark MDS"):
-        mds = fx.landmark_mds(geo, dim=2)
-        jax.block_until_ready(mds.embedding)
-    with Stage("score"):
-        out["r_landmark_pairs"] = float(fx.landmark_score(geo, mds.embedding))
-    chain = [
-        r
-        for r in Stage.rows
-        if r["stage"]
-        in ("features + k-NN graph (streamed)", "landmark geodesics", "landmark MDS", "score")
-    ]
-    out["chain_s"] = sum(r["s"] for r in chain)
-    out["chain_peak_mb"] = max(r["peak_mb"] for r in chain)
+    try:  # a failed stage ends the chain: the stages after it have nothing to work on
+        with Stage("features + k-NN graph (streamed)"):
+            # the (T, P) features live in a memory-mapped .npy, never whole in RAM
+            g = fx.expression.neighbourhood_graph_blocks(X, k=a.k, store=store, client=client)
+        with Stage("join the graph's pieces (takes)"):
+            # several takes make a graph in pieces: joined at their closest frames, as the
+            # navigation pipeline's [graph] join = "closest" does
+            g, joins = fx.expression.join_components(g, X)
+            out["components_joined"] = len(joins.sizes) if len(joins.lengths) else 0
+            out["max_degree"] = int(g.indices.shape[1])
+        F = np.load(store, mmap_mode="r")
+        with Stage("k-NN recall (1000 frames, exact)", "check"):
+            q = fx.expression.knn_quality(F, g, k=a.k, sample=1000, seed=a.seed)
+            out["knn_recall"], out["knn_distance_ratio"] = q.recall, round(q.distance_ratio, 4)
+            out["mean_degree"] = float(np.mean(g.degree))
+        with Stage("landmark geodesics"):
+            # the navigation pipeline's landmarks: max-min in rounds of [graph] landmark_batch
+            batch = GraphConfig().landmark_batch or None
+            geo = fx.farthest_point_landmarks(g, L, batch=batch, client=client if batch else None)
+        with Stage("landmark MDS"):
+            mds = fx.landmark_mds(geo, dim=2)
+            jax.block_until_ready(mds.embedding)
+        with Stage("score"):
+            out["r_landmark_pairs"] = float(fx.landmark_score(geo, mds.embedding))
+        chain = [
+            r
+            for r in Stage.rows
+            if r["stage"]
+            in ("features + k-NN graph (streamed)", "join the graph's pieces (takes)",
+                "landmark geodesics", "landmark MDS", "score")
+        ]
+        out["chain_s"] = sum(r["s"] for r in chain)
+        out["chain_peak_mb"] = max(r["peak_mb"] for r in chain)
 
-    if not a.no_navigation and mds is not None:
-        _navigation(a, g, mds, out, client)
+        if not a.no_navigation and mds is not None:
+            _navigation(a, g, mds, out, client)
 
-    if not a.no_peers and g is not None and geo is not None:
-        from scipy.sparse.csgraph import dijkstra
+        if not a.no_peers and g is not None and geo is not None:
+            from scipy.sparse.csgraph import dijkstra
 
-        csr = to_scipy(g)
-        lm = np.asarray(geo.landmarks)
-        with Stage("scipy Dijkstra, same landmarks", "peer"):
-            Dp = dijkstra(csr, directed=False, indices=lm)
-        out["max_rel_diff_vs_scipy"] = float(
-            np.max(np.abs(np.asarray(geo.distances, np.float64) - Dp) / np.maximum(Dp, 1e-9))
-        )
-        out["identical_to_scipy"] = bool(
-            np.array_equal(np.asarray(geo.distances), Dp.astype(np.asarray(geo.distances).dtype))
-        )
-        _landmark_medians(g, L, csr, lm, a.repeats, out)
-        if T <= 50000:
-            from sklearn.neighbors import kneighbors_graph
+            csr = to_scipy(g)
+            lm = np.asarray(geo.landmarks)
+            with Stage("scipy Dijkstra, same landmarks", "peer"):
+                Dp = dijkstra(csr, directed=False, indices=lm)
+            out["max_rel_diff_vs_scipy"] = float(
+                np.max(np.abs(np.asarray(geo.distances, np.float64) - Dp) / np.maximum(Dp, 1e-9))
+            )
+            out["identical_to_scipy"] = bool(
+                np.array_equal(np.asarray(geo.distances),
+                               Dp.astype(np.asarray(geo.distances).dtype))  # fmt: skip
+            )
+            _landmark_medians(g, L, csr, lm, a.repeats, out)
+            if T <= 50000:
+                from sklearn.neighbors import kneighbors_graph
 
-            with Stage("sklearn k-NN graph", "peer"):
-                kneighbors_graph(np.asarray(F), a.k, mode="distance", n_jobs=-1)
-        if T <= a.isomap_max:
-            from sklearn.manifold import Isomap
+                with Stage("sklearn k-NN graph", "peer"):
+                    kneighbors_graph(np.asarray(F), a.k, mode="distance", n_jobs=-1)
+            if T <= a.isomap_max:
+                from sklearn.manifold import Isomap
 
-            with Stage("sklearn Isomap (dense)", "peer"):
-                iso = Isomap(n_neighbors=a.k, n_components=2, path_method="D", n_jobs=-1)
-                Yiso = iso.fit_transform(np.asarray(F, np.float64))
+                with Stage("sklearn Isomap (dense)", "peer"):
+                    iso = Isomap(n_neighbors=a.k, n_components=2, path_method="D", n_jobs=-1)
+                    Yiso = iso.fit_transform(np.asarray(F, np.float64))
 
-    if T <= a.exact_max and g is not None and mds is not None:
-        from scipy.sparse.csgraph import dijkstra
+        if T <= a.exact_max and g is not None and mds is not None:
+            from scipy.sparse.csgraph import dijkstra
 
-        with Stage("exact geodesics (quality)", "exact"):
-            Dex = dijkstra(to_scipy(g), directed=False).astype(np.float32)
-        with Stage("exact classical MDS (quality)", "exact"):
-            cm = fx.classical_mds(jnp.asarray(Dex), dim=2)
-            jax.block_until_ready(cm.embedding)
-        Dj = jnp.asarray(Dex)
-        out["r_exact_embedding"] = float(fx.pearson_score(Dj, cm.embedding))
-        out["r_landmark_embedding"] = float(fx.pearson_score(Dj, mds.embedding))
-        E = fx.pairwise_distances(cm.embedding)
-        out["r_landmark_vs_exact_embedding"] = float(fx.pearson_score(E, mds.embedding))
-        if "Yiso" in locals():
-            out["r_isomap_embedding"] = float(fx.pearson_score(Dj, jnp.asarray(Yiso, Dj.dtype)))
+            with Stage("exact geodesics (quality)", "exact"):
+                Dex = dijkstra(to_scipy(g), directed=False).astype(np.float32)
+            with Stage("exact classical MDS (quality)", "exact"):
+                cm = fx.classical_mds(jnp.asarray(Dex), dim=2)
+                jax.block_until_ready(cm.embedding)
+            Dj = jnp.asarray(Dex)
+            out["r_exact_embedding"] = float(fx.pearson_score(Dj, cm.embedding))
+            out["r_landmark_embedding"] = float(fx.pearson_score(Dj, mds.embedding))
+            E = fx.pairwise_distances(cm.embedding)
+            out["r_landmark_vs_exact_embedding"] = float(fx.pearson_score(E, mds.embedding))
+            if "Yiso" in locals():
+                out["r_isomap_embedding"] = float(fx.pearson_score(Dj, jnp.asarray(Yiso, Dj.dtype)))
+
+    except _Skipped as e:
+        print(f"  stage {e} and the rest skipped after {Stage.failed}", file=sys.stderr)
 
     print(f"\n{'stage':<34} {'group':<6} {'time s':>8} {'peak MB':>9}")
     for r in Stage.rows:
@@ -349,7 +365,7 @@ def _run(a, tmp: str, client=None) -> int:
     out["peak_rss_gb"] = round(max([own] + [r["peak_mb"] for r in Stage.rows]) / 2**10, 2)
     print("\nsummary (ours, features to the route down to frames):")
     for key in ("frames", "seconds", "peak_rss_gb", "links_bridged", "levels_converged",
-                "knn_recall", "knn_distance_ratio"):  # fmt: skip
+                "knn_recall", "knn_distance_ratio", "components_joined"):  # fmt: skip
         if key in out:
             print(f"{key}: {out[key]}")
     out["stages"] = Stage.rows

@@ -2,6 +2,8 @@
 Pearson r, and threshold sweeps over that one chain.
 """
 
+from fxspace.expression._blocks import Joins as Joins
+from fxspace.expression._blocks import join_components as join_components
 from fxspace.expression._blocks import neighbourhood_graph_blocks as neighbourhood_graph_blocks
 from fxspace.expression._features import PAIR_WEIGHT as PAIR_WEIGHT
 from fxspace.expression._features import clean_frames as clean_frames
@@ -84,6 +86,8 @@ __all__ = [
     "knn_quality",
     "knn_recall",
     "neighbourhood_graph_blocks",
+    "Joins",
+    "join_components",
     "graph_from_dense",
     "neighbourhood_graph",
     "sparse_components",

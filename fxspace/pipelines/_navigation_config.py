@@ -39,7 +39,12 @@ class GraphConfig:
     run there too, ``landmark_batch`` of them a round (max-min in rounds,
     `fxspace.expression.farthest_point_landmarks`; 0: one after another, exact max-min,
     in this process). The graph, the landmarks, and so the whole run, are the same
-    wherever they run."""
+    wherever they run.
+
+    ``join`` (``knn``): a k-NN graph in pieces — several takes, each nearer itself than
+    any other — is ``"closest"``: joined at the closest frames between pieces
+    (`fxspace.expression.join_components`; the edges in the metrics' ``graph_joins``),
+    or ``"none"``: refused, naming the pieces."""
 
     kind: str = ""
     threshold: float | str = "max_r"
@@ -52,9 +57,12 @@ class GraphConfig:
     epsilon_max_frames: int = 5000
     scheduler: str = ""
     workers: int = 2
+    join: Literal["closest", "none"] = "closest"
 
     def validate(self) -> None:
         check_stage_scheduler(self.scheduler, self.workers)
+        if self.join not in ("closest", "none"):
+            raise ConfigError(f"graph.join must be 'closest' or 'none', got {self.join!r}")
         if self.kind not in ("", *GRAPH_KINDS):
             raise ConfigError(
                 f"graph.kind must be one of {GRAPH_KINDS} (or unset), got {self.kind!r}"
@@ -174,7 +182,8 @@ class NavSpace(NamedTuple):
     """What navigation (and the navigator app) needs, from the cached stages, for either
     graph kind: the embedding, the frames' `paths` (``Geodesics`` on the ε-graph, the
     `NeighbourGraph` on the k-NN one: `fxspace.expression.Paths`), the hierarchy, ε and
-    where it came from (the k-NN graph's ``k`` there), the embedding's r."""
+    where it came from (the k-NN graph's ``k`` there), the embedding's r; ``joins``: the
+    edges that joined a k-NN graph's pieces (``graph.join``), None when it had one."""
 
     embedding: np.ndarray
     paths: Geodesics | NeighbourGraph
@@ -186,6 +195,7 @@ class NavSpace(NamedTuple):
     sweep: SweepResult | None
     choice: dict | None
     kind: str = "epsilon"
+    joins: dict | None = None
 
     @property
     def geodesics(self):

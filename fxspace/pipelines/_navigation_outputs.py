@@ -150,6 +150,8 @@ def _metrics(cfg: Config, face, ns: NavSpace, routes, play, keys, W, anim, timin
         # links the paper's ρ rule forbids, added so that every route connects (bridges)
         "links_bridged": sum(lv["bridges"] or 0 for lv in levels),
         "graph_kind": ns.kind,
+        # the k-NN graph's pieces (takes) and the edges that joined them (graph.join)
+        "graph_joins": ns.joins,
         # every level's FCM at its fixed point ("6/6"), and the reason where a cap stopped one
         "levels_converged": f"{sum(lv['converged'] for lv in levels)}/{len(levels)}",
         "fcm_not_converged": [

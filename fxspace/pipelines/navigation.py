@@ -48,6 +48,7 @@ from fxspace.expression import (
     epsilon_graph,
     expression_space,
     farthest_point_landmarks,
+    join_components,
     landmark_mds,
     landmark_score,
     neighbourhood_graph_blocks,
@@ -192,9 +193,23 @@ def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None, client) -> dic
     if store is not None:
         store.unlink(missing_ok=True)
     try:
-        check_sparse_connected(g)
-    except FxspaceError as e:  # the user's fix is the config's k
-        raise ConfigError(f"graph.k = {cfg.k}: {e}; raise graph.k") from e
+        if cfg.join == "closest":
+            g, joins = join_components(g, X)
+        else:
+            check_sparse_connected(g)
+            joins = None
+    except FxspaceError as e:  # the user's fix is the config's k (or its join)
+        fix = "raise graph.k" + ("" if cfg.join == "closest" else
+                                 ', or set graph.join = "closest" to join the pieces')  # fmt: skip
+        raise ConfigError(f"graph.k = {cfg.k}: {e}; {fix}") from e
+    if joins is not None and len(joins.lengths):
+        lengths = np.round(joins.lengths, 3).tolist()[:10]
+        stage(f"the k-NN graph was in {len(joins.sizes)} pieces (sizes "
+              f"{joins.sizes.tolist()[:10]}): joined at their closest frames by "
+              f"{len(joins.lengths)} edges (lengths {lengths})")  # fmt: skip
+    out_joins = ({} if joins is None else
+                 {"join_frames": joins.frames, "join_lengths": joins.lengths,
+                  "join_sizes": joins.sizes})  # fmt: skip
     # max-min in rounds: each round's rows as tasks where the graph's blocks ran
     batch = cfg.landmark_batch or None
     geo = farthest_point_landmarks(g, min(cfg.landmarks, T), batch=batch,
@@ -203,7 +218,7 @@ def _knn_space(cfg: GraphConfig, positions, run_dir: Path | None, client) -> dic
     return {
         "indices": np.asarray(g.indices), "weights": np.asarray(g.weights),
         "embedding": np.asarray(mds.embedding, np.float64),
-        "score": float(landmark_score(geo, mds.embedding)),
+        "score": float(landmark_score(geo, mds.embedding)), **out_joins,
     }  # fmt: skip
 
 
@@ -228,9 +243,15 @@ def _load_knn(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpa
         ha = _stage(run_dir, "hierarchy", lambda: hierarchy_to_arrays(
             build_levels(cfg, Y, g, seed, kind="knn", client=client())))  # fmt: skip
     r = float(sp["score"])
+    joins = None
+    if len(sp.get("join_lengths", ())):
+        joins = {"pieces": np.asarray(sp["join_sizes"]).tolist(),
+                 "frames": np.asarray(sp["join_frames"]).tolist(),
+                 "lengths": np.asarray(sp["join_lengths"]).tolist()}  # fmt: skip
+    joined = f", {len(joins['pieces'])} pieces joined" if joins else ""
     return NavSpace(Y, g, hierarchy_from_arrays(ha), float("nan"),
-                    f"k-NN graph, k = {gc.k} (r = {r:.4f})", float("nan"), r, None, None,
-                    "knn")  # fmt: skip
+                    f"k-NN graph, k = {gc.k}{joined} (r = {r:.4f})", float("nan"), r, None,
+                    None, "knn", joins)  # fmt: skip
 
 
 def load_space(cfg: Config, positions, run_dir: Path | None, seed: int) -> NavSpace:

@@ -41,6 +41,7 @@ def test_route_refined_to_every_frame_is_a_graph_walk(tmp_path):
     m = _metrics(d)
     assert m["frames"] == 1500 and m["centres_per_level"] == [6, 12, 24, 1500]
     assert m["graph_kind"] == "knn" and m["path_is_graph_walk"] and m["path_length_frames"] >= 2
+    assert m["graph_joins"] is None  # one take: one piece
     # the paper at this size too: no bridges, ρ by the experiment, every level converged
     assert m["links_bridged"] == 0 and m["rho_experiment"]["chosen_scale"] > 0
     assert m["levels_converged"] == "4/4" and m["fcm_not_converged"] == []
@@ -57,6 +58,26 @@ def test_route_refined_to_every_frame_is_a_graph_walk(tmp_path):
     W = fx.expression.to_scipy(ss.paths)
     fr = np.asarray(routes[-1]["frames"])
     assert np.all(np.asarray(W[fr[:-1], fr[1:]]).ravel() > 0)
+
+
+def test_takes_in_pieces_are_joined_and_said(tmp_path, data_dir):
+    """The shared AnimFace takes resampled: a k-NN graph in pieces (each take nearer itself
+    than the others), joined at their closest frames (graph.join = "closest", the
+    default) and said in the metrics and the space's description; "none" refuses it."""
+    cfg = {**SMALL, "data": {"source": "animface", "target_frames": 3000},
+           "graph": {**SMALL["graph"], "k": 4}}  # two pieces at this k (one at k = 8)
+    (d,) = run_dict(cfg, tmp_path / "run")
+    m = _metrics(d)
+    j = m["graph_joins"]
+    assert len(j["pieces"]) >= 2 and sum(j["pieces"]) == m["frames"] == 3000
+    assert len(j["frames"]) == len(j["lengths"]) == len(j["pieces"]) - 1
+    assert all(x > 0 for x in j["lengths"]) and "pieces joined" in m["threshold_source"]
+    assert m["links_bridged"] == 0 and m["path_is_graph_walk"]
+    none = {**cfg, "graph": {**cfg["graph"], "join": "none"}}
+    with pytest.raises(ConfigError, match='connected components.*graph.join = "closest"'):
+        run_dict(none, tmp_path / "none")
+    with pytest.raises(ConfigError, match="graph.join must be"):
+        run_dict({**cfg, "graph": {**cfg["graph"], "join": "nearest"}}, tmp_path / "bad")
 
 
 @pytest.mark.slow
