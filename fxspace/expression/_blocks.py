@@ -45,6 +45,7 @@ from fxspace.errors import DisconnectedGraphError, FxspaceError
 from fxspace.expression._features import PAIR_WEIGHT
 from fxspace.expression._sparse import (
     NeighbourGraph,
+    _add_edges,
     _pack,
     _principal_axes,
     sparse_components,
@@ -447,10 +448,7 @@ def join_components(
         _, new = np.unique([_root(parent, c) for c in range(n_comp)], return_inverse=True)
         comp = new[comp]
         n_comp = int(new.max()) + 1
-    idx, w = np.asarray(graph.indices), np.asarray(graph.weights)
     a = np.asarray(added)
-    rows = np.concatenate([np.repeat(np.arange(T, dtype=np.int64), idx.shape[1]), a[:, 0]])
-    cols = np.concatenate([idx.reshape(-1).astype(np.int64), a[:, 1]])
-    vals = np.concatenate([w.reshape(-1), a[:, 2].astype(w.dtype)])
-    joined = _pack(rows.astype(np.int32), cols.astype(np.int32), vals, T, w.dtype)
+    ii, jj = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
+    joined = _add_edges(graph, ii, jj, a[:, 2])
     return joined, Joins(a[:, :2].astype(np.int64), a[:, 2].astype(np.float64), sizes)

@@ -75,8 +75,8 @@ class NeighbourGraph(NamedTuple):
 
     # the paths interface of navigation (fxspace.expression._paths.Paths)
     def path(self, i: int, j: int, limit: float | None = None) -> np.ndarray:
-        """Frames of a shortest path i → j (Dijkstra into j, stopped at ``limit`` when
-        that bounds the path's length)."""
+        """Frames of a shortest path i → j (Dijkstra into j, stopped at ``limit``: the
+        path's length when known; an edge that long is the path)."""
         return graph_path(self, i, j, limit)
 
     def lengths(self, i, j) -> np.ndarray:
@@ -113,6 +113,35 @@ def _pack(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int, dtype) -
     w = np.full((n, K), np.inf, dtype)
     idx[r, slot] = c
     w[r, slot] = v
+    return NeighbourGraph(jnp.asarray(idx), jnp.asarray(w))
+
+
+def _add_edges(graph: NeighbourGraph, i, j, d) -> NeighbourGraph:
+    """``graph`` with the undirected edges ``(i[p], j[p])`` of length ``d[p]`` added (none
+    already there), laid out as `_pack` lays out the whole (each row's neighbours in
+    column order, then padding): only the rows they touch are rebuilt, one column added
+    where a row is full."""
+    idx, w = np.asarray(graph.indices), np.asarray(graph.weights)
+    rows = np.concatenate([i, j]).astype(np.int64)
+    cols = np.concatenate([j, i]).astype(np.int64)
+    vals = np.concatenate([d, d]).astype(w.dtype)
+    deg = np.isfinite(w).sum(axis=1)
+    touched = np.unique(rows)
+    K = max(idx.shape[1], int((deg[touched] + np.bincount(rows)[touched]).max()))
+    if K > idx.shape[1]:
+        pad = K - idx.shape[1]
+        idx = np.concatenate([idx, np.repeat(np.arange(len(idx), dtype=idx.dtype)[:, None],
+                                             pad, axis=1)], axis=1)  # fmt: skip
+        w = np.concatenate([w, np.full((len(w), pad), np.inf, w.dtype)], axis=1)
+    else:
+        idx, w = idx.copy(), w.copy()
+    for r in touched:
+        n = deg[r]
+        c = np.concatenate([idx[r, :n], cols[rows == r]])
+        v = np.concatenate([w[r, :n], vals[rows == r]])
+        o = np.argsort(c, kind="stable")
+        idx[r], w[r] = r, np.inf
+        idx[r, : len(c)], w[r, : len(c)] = c[o], v[o]
     return NeighbourGraph(jnp.asarray(idx), jnp.asarray(w))
 
 

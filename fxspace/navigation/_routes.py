@@ -167,15 +167,51 @@ def make_route(
     return Route(int(level), tuple(cs), kf, _route_frames(lv, paths, cs), anc)
 
 
+_LINK_WEIGHTS: dict = {}  # id(lengths or links) -> (weakref, (weights, directed))
+
+
+def _link_weights(lv: Level):
+    """``(w, directed)``: the level's links weighted by their geodesic lengths for scipy's
+    Dijkstra (a stored 0 is an edge: every weight gets 1e-12; ``directed=True`` when the
+    matrix is symmetric: the same distances, half the work); made once while the level
+    lives."""
+    import weakref
+
+    from scipy.sparse import csr_matrix
+
+    src = lv.lengths if lv.lengths is not None else lv.links
+    key = id(src)
+    hit = _LINK_WEIGHTS.get(key)
+    if hit is not None and hit[0]() is src:
+        return hit[1]
+    w = csr_matrix(src, dtype=np.float64, copy=True)
+    w.data = np.where(np.isfinite(w.data), w.data, 0.0) + 1e-12
+    w.sort_indices()
+    out = (w, (w != w.T).nnz == 0)
+    try:
+        ref = weakref.ref(src, lambda _, k=key: _LINK_WEIGHTS.pop(k, None))
+    except TypeError:  # no weak references: not kept
+        return out
+    _LINK_WEIGHTS[key] = (ref, out)
+    return out
+
+
 def _link_path(lv: Level, a: int, b: int) -> list[int]:
     """Shortest chain of links a → … → b (Dijkstra over the links weighted by their
-    geodesic lengths)."""
+    geodesic lengths). The search is bounded first (4 × a's longest link, doubled up to 8
+    times, then none): on a level of 10⁶ centres a chain between near centres settles a
+    few of them, not the level. A bound that reaches b gives the unbounded answer (every
+    centre on a shortest path to b lies within d(b))."""
     from scipy.sparse.csgraph import dijkstra
 
-    w = lv.lengths if lv.lengths is not None else lv.links.astype(np.float64)
-    w = w.copy()
-    w.data = np.where(np.isfinite(w.data), w.data, 0.0) + 1e-12  # a stored 0 is an edge
-    d, pred = dijkstra(w, directed=False, indices=a, return_predecessors=True)
+    w, symmetric = _link_weights(lv)
+    out = w.data[w.indptr[a] : w.indptr[a + 1]]
+    limits = [4.0 * float(out.max()) * 2.0**t for t in range(9)] if len(out) else []
+    for limit in [*limits, np.inf]:
+        d, pred = dijkstra(w, directed=symmetric, indices=a, return_predecessors=True,
+                           limit=limit)  # fmt: skip
+        if np.isfinite(d[b]):
+            break
     if not np.isfinite(d[b]):
         raise NavigationError(
             f"centre {b} cannot be reached from centre {a} through links: the ρ rule leaves "

@@ -434,8 +434,9 @@ class NavigatorController(_RoutePlayback):
         and ``route_level``, ``density`` (frames drawn as one image) with ``n_frames`` and
         ``centres_by_density``, ``guide_level`` (the kept route's level or ``None``) with
         its ``candidates`` and whether picks are ``restricted`` to them, the
-        ``next_candidates`` one level down, the selected ``frame``, ``playing`` and the
-        last ``message``."""
+        ``next_candidates`` one level down, the selected ``frame``, ``playing``, the last
+        ``message``, and ``pieces``: the pieces a k-NN graph was in before they were
+        joined at their closest frames (0: one piece)."""
         r = self.route
         return {
             "level": self.level,
@@ -456,6 +457,7 @@ class NavigatorController(_RoutePlayback):
             "restricted": self._restricted(),
             "next_candidates": np.asarray(self.next_candidates()).tolist(),
             "frame": int(self.selected_frame),
+            "pieces": len((self.data.joins or {}).get("pieces", ())),
             "playing": bool(self.playing),
             "message": self.message,
         }

@@ -45,6 +45,7 @@ class NavData:
     rate: float = 60.0
     threshold: float = float("nan")
     threshold_source: str = ""
+    joins: dict | None = None  # a k-NN graph's pieces and the edges joining them
 
     @property
     def geodesics(self):
@@ -103,7 +104,7 @@ def load_nav_data(target: str | Path, *, restarts: int | None = None) -> NavData
     ns = spec.pipeline.load_space(cfg, face.positions, run_dir, seed)
     return NavData(
         ns.hierarchy, ns.paths, np.asarray(face.positions),
-        tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source,
+        tuple(face.marker_names), face.rate, ns.threshold, ns.threshold_source, ns.joins,
     )  # fmt: skip
 
 

@@ -90,6 +90,10 @@ def status_text(st: dict) -> str:
             if st["bridges"]
             else "",
             f"FCM: {st['fcm']}" if st.get("fcm") else "",
+            f"Takes: the graph's {st['pieces']} pieces joined at their closest frames "
+            "(metrics: graph_joins)"
+            if st.get("pieces")
+            else "",
             f"Key centres: {shown}",
             f"Preview: centre {st['preview']}" if st["preview"] is not None else "",
             f"Selected key: #{st['selected_key']}" if st["selected_key"] is not None else "",

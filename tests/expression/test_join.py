@@ -62,6 +62,15 @@ def test_pieces_joined_by_the_closest_pairs():
     for (i, j), d in zip(joins.frames, joins.lengths, strict=True):
         assert after[(int(i), int(j))] == after[(int(j), int(i))] == np.float64(d)
     assert len(after) == len(before) + 2 * len(joins.lengths)
+    # laid out as a graph packed from all its edges at once
+    from fxspace.expression._sparse import _pack
+
+    idx, w = np.asarray(g.indices), np.asarray(g.weights)
+    rows = np.concatenate([np.repeat(np.arange(len(idx)), idx.shape[1]), joins.frames[:, 0]])
+    cols = np.concatenate([idx.ravel(), joins.frames[:, 1]])
+    ref = _pack(rows, cols, np.concatenate([w.ravel(), joins.lengths]), len(idx), w.dtype)
+    np.testing.assert_array_equal(np.asarray(joined.indices), np.asarray(ref.indices))
+    np.testing.assert_array_equal(np.asarray(joined.weights), np.asarray(ref.weights))
 
 
 @pytest.mark.parametrize("queries, pairs, candidates", [(1, 1, 8), (4, 2, 8), (2, 1, 16)])
@@ -122,3 +131,22 @@ def test_real_takes_joined_near_their_closest_pairs(data_dir):
     assert sparse_components(joined)[0] == 1 and len(joins.lengths) == n - 1
     best = _brute_mst(_features(pos), labels)
     assert best * (1 - 1e-9) <= joins.lengths.sum() <= 1.01 * best
+
+
+def test_added_edges_laid_out_as_a_packed_graph():
+    """Edges added to full rows widen the graph by a column; the rows they touch come out
+    as `graph_from_dense` lays out the whole graph."""
+    from fxspace.expression._sparse import _add_edges
+
+    W = np.full((5, 5), np.inf)
+    for a, b, d in [(0, 1, 1.0), (1, 2, 2.0), (2, 3, 1.5), (3, 4, 0.5)]:
+        W[a, b] = W[b, a] = d
+    g = fx.graph_from_dense(W)
+    assert g.indices.shape == (5, 2)
+    got = _add_edges(g, np.array([1, 0]), np.array([3, 4]), np.array([2.5, 7.0]))
+    W[1, 3] = W[3, 1] = 2.5
+    W[0, 4] = W[4, 0] = 7.0
+    ref = fx.graph_from_dense(W)
+    assert got.indices.shape == (5, 3)
+    np.testing.assert_array_equal(np.asarray(got.indices), np.asarray(ref.indices))
+    np.testing.assert_array_equal(np.asarray(got.weights), np.asarray(ref.weights))

@@ -201,3 +201,39 @@ def test_link_pairs_dense_and_sparse_agree(space):
     assert len(e[0]) == len(e[1]) == 0
     with pytest.raises(fx.FxspaceError, match="no links"):
         link_pairs(None)  # a level without links says so (never an empty answer)
+
+
+def test_bounded_chain_search_is_the_unbounded_one(space):
+    """The chain of links between two centres, searched within growing bounds, is the
+    chain of scipy's unbounded Dijkstra over the level's links (near and far pairs; a pair
+    in another piece is refused as before)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from fxspace.navigation._routes import _link_path
+
+    _, _, h, _ = space
+    lv = h.levels[-1]  # every frame a centre
+    piece = fx.navigation.link_components(lv)
+    w = lv.lengths.astype(np.float64).tocsr()
+    w.data = np.where(np.isfinite(w.data), w.data, 0.0) + 1e-12
+    rng = np.random.default_rng(1)
+    checked = 0
+    linked = np.flatnonzero(np.diff(lv.links.tocsr().indptr) > 0)
+    for a in rng.choice(linked, 12, replace=False):
+        d, pred = dijkstra(w, directed=False, indices=a, return_predecessors=True)
+        same = np.flatnonzero(piece == piece[a])
+        other = np.flatnonzero(piece != piece[a])
+        for b in [int(lv.neighbours(a)[0]), *rng.choice(same, 4).tolist(),
+                  *rng.choice(other, 1).tolist()]:  # fmt: skip
+            if b == a:
+                continue
+            if piece[b] != piece[a]:
+                with pytest.raises(NavigationError, match="cannot be reached"):
+                    _link_path(lv, int(a), b)
+                continue
+            chain = [b]
+            while chain[-1] != a:
+                chain.append(int(pred[chain[-1]]))
+            assert _link_path(lv, int(a), b) == chain[::-1]
+            checked += 1
+    assert checked >= 40

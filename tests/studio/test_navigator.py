@@ -582,3 +582,16 @@ def test_status_line_says_when_a_level_is_not_at_its_fixed_point(data):
     assert fcm_status(data.hierarchy.levels[0]) == ""
     st = NavigatorController(data).status()
     assert st["fcm"] == "" and "FCM:" in status_text({**st, "fcm": note})
+
+
+def test_status_line_says_when_the_graphs_pieces_were_joined(data):
+    """A k-NN run whose takes were joined at their closest frames says so on the status
+    line (the pieces counted); a run in one piece says nothing."""
+    import dataclasses
+
+    st = NavigatorController(data).status()
+    assert st["pieces"] == 0 and "Takes:" not in status_text(st)
+    joins = {"pieces": [400, 300, 100], "frames": [[1, 500], [20, 750]], "lengths": [3.0, 4.0]}
+    st = NavigatorController(dataclasses.replace(data, joins=joins)).status()
+    assert st["pieces"] == 3
+    assert "Takes: the graph's 3 pieces joined at their closest frames" in status_text(st)
