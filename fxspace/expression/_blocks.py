@@ -307,17 +307,24 @@ class _Piece:
             self.outside = np.flatnonzero(comp != c)
             self.out_tree = cKDTree(Z[self.outside])
 
-    def near_outside(self, rows: np.ndarray, num: int):
-        """``(i, j, z)``: each of ``rows``'s ``num`` nearest frames outside the piece."""
+    def near_outside(self, rows: np.ndarray, num: int, bound: float = np.inf):
+        """``(i, j, z)``: each of ``rows``'s ``num`` nearest frames outside the piece,
+        those nearer than ``bound`` in the projection (a bound prunes the tree's search:
+        frames of another take are far, and an unbounded search for them visits much of
+        the tree)."""
         Z = self.Z
         if self.small:
-            dz, jj = self.tree.query(Z[rows], k=min(len(Z), num + len(self.inside)), workers=-1)
-            dz, jj = dz.reshape(len(rows), -1), jj.reshape(len(rows), -1)
-            ok = self.comp[jj] != self.c
+            tree, k, outside = self.tree, min(len(Z), num + len(self.inside)), None
         else:
-            dz, jj = self.out_tree.query(Z[rows], k=min(num, len(self.outside)), workers=-1)
-            dz, jj = dz.reshape(len(rows), -1), self.outside[jj.reshape(len(rows), -1)]
-            ok = np.ones(jj.shape, bool)
+            tree, k, outside = self.out_tree, min(num, len(self.outside)), self.outside
+        dz, jj = tree.query(Z[rows], k=k, workers=-1, distance_upper_bound=bound)
+        dz, jj = dz.reshape(len(rows), -1), jj.reshape(len(rows), -1)
+        ok = np.isfinite(dz)
+        jj = np.where(ok, jj, 0)
+        if outside is None:
+            ok &= self.comp[jj] != self.c
+        else:
+            jj = outside[jj]
         ii = np.broadcast_to(rows[:, None], jj.shape)
         return ii[ok], jj[ok], dz[ok]
 
@@ -336,20 +343,21 @@ def _exact(X, ii, jj, block: int, dtype) -> np.ndarray:
     return np.sqrt(np.add.reduce(diff * diff, axis=1))
 
 
-def _closest_pair(X, piece: _Piece, num: int, pairs: int, queries: int, block: int, dtype):
-    """``(length, i, j)``: the closest pair from the piece to the rest found by a search
-    from ≤ ``queries`` of its frames (evenly spaced), its ``pairs`` nearest candidates
-    measured exactly, then improved one end at a time (each end moved to the frame
-    nearest the other, among ``num`` candidates measured exactly) until no end moves."""
-    inside = piece.inside
-    rows = inside if len(inside) <= queries else inside[
-        np.linspace(0, len(inside) - 1, queries).round().astype(np.int64)]  # fmt: skip
-    ii, jj, dz = piece.near_outside(rows, num)
+def _best_of(X, ii, jj, dz, pairs: int, block: int, dtype, best):
+    """The shortest of the ``pairs`` candidate pairs nearest in the projection, measured
+    exactly, or ``best`` when none is shorter."""
+    if len(dz) == 0:
+        return best
     near = np.argsort(dz, kind="stable")[:pairs]
     ii, jj = ii[near], jj[near]
     d = _exact(X, ii, jj, block, dtype)
     b = int(np.argmin(d))
-    best = (float(d[b]), int(ii[b]), int(jj[b]))
+    return min(best, (float(d[b]), int(ii[b]), int(jj[b])))
+
+
+def _improve(X, piece: _Piece, best, num: int, block: int, dtype):
+    """Move one end of the pair at a time to the frame nearest the other (among ``num``
+    candidates measured exactly) until neither moves."""
     for _ in range(16):
         _, i, j = best
         ci = piece.near_inside(j, num)
@@ -362,6 +370,29 @@ def _closest_pair(X, piece: _Piece, num: int, pairs: int, queries: int, block: i
             break
         best = step
     return best
+
+
+def _closest_pair(X, piece: _Piece, num: int, pairs: int, queries: int, block: int, dtype):
+    """``(length, i, j)``: the closest pair from the piece to the rest that a search finds:
+    a first pair from a few of its frames, improved one end at a time (`_improve`); then
+    ≤ ``queries`` of its frames (evenly spaced), each one's ``num`` nearest outside it in
+    the projection nearer than that pair (the projection's distances are lower bounds
+    of the exact ones: no farther candidate can be shorter), the ``pairs`` nearest of
+    them measured exactly, and the shortest improved again."""
+    inside = piece.inside
+
+    def spaced(n: int) -> np.ndarray:
+        if len(inside) <= n:
+            return inside
+        return inside[np.linspace(0, len(inside) - 1, n).round().astype(np.int64)]
+
+    few = spaced(min(queries, 64))
+    best = _best_of(X, *piece.near_outside(few, min(num, 8)), pairs, block, dtype,
+                    (np.inf, -1, -1))  # fmt: skip
+    best = _improve(X, piece, best, num, block, dtype)
+    found = _best_of(X, *piece.near_outside(spaced(queries), num, best[0] * (1 + 1e-6)),
+                     pairs, block, dtype, best)  # fmt: skip
+    return best if found == best else _improve(X, piece, found, num, block, dtype)
 
 
 def _root(parent: np.ndarray, a: int) -> int:
@@ -383,13 +414,17 @@ def join_components(
     piece is joined to its nearest other piece by one edge, the closest pair of frames
     between them, in rounds until one piece is left (Borůvka: a minimum spanning tree
     over the pieces, J = pieces − 1 edges). The pair is searched in the graph's candidate
-    space (the features' principal axes, a lower bound of the exact distance): from
-    ``queries`` of the piece's frames (evenly spaced), each one's ``candidates`` nearest
-    outside it, the ``pairs`` nearest of those measured exactly and the shortest kept,
-    then improved one end at a time (each end moved to the frame nearest the other)
-    until neither moves. Its length is the exact feature distance, as
-    every edge's: the geodesics stay lengths of real steps between states, and a route
-    from one take to another passes through that pair. Edges already there are kept.
+    space (the features' principal axes, a lower bound of the exact distance): a first
+    pair from a few of the piece's frames, improved one end at a time (each end moved to
+    the frame nearest the other) until neither moves; then, from ``queries`` of its
+    frames (evenly spaced), each one's ``candidates`` nearest outside it and nearer than
+    that pair in the candidate space, the ``pairs`` nearest of those measured exactly,
+    the shortest improved again. The search is not exhaustive (that is a brute-force
+    pass over every pair of frames of two pieces): on small inputs it finds the closest
+    pairs (the tests compare with scipy's ``cdist``), on the AnimFace takes its joins are
+    within 1 % of them. Its length is the exact feature distance, as every edge's: the
+    geodesics stay lengths of real steps between states, and a route from one take to
+    another passes through that pair. Edges already there are kept.
 
     **Arguments:**
 

@@ -203,14 +203,18 @@ def test_link_pairs_dense_and_sparse_agree(space):
         link_pairs(None)  # a level without links says so (never an empty answer)
 
 
-def test_bounded_chain_search_is_the_unbounded_one(space):
-    """The chain of links between two centres, searched within growing bounds, is the
-    chain of scipy's unbounded Dijkstra over the level's links (near and far pairs; a pair
-    in another piece is refused as before)."""
+@pytest.mark.parametrize("small", [4096, 0])
+def test_bounded_chain_search_is_the_unbounded_one(space, small, monkeypatch):
+    """The chain of links between two centres — in Python, stopped at the target, or
+    (``small = 0``) scipy's within growing bounds — is the chain of scipy's unbounded
+    Dijkstra over the level's links (near and far pairs; a pair in another piece is
+    refused as before)."""
     from scipy.sparse.csgraph import dijkstra
 
+    import fxspace.navigation._routes as routes
     from fxspace.navigation._routes import _link_path
 
+    monkeypatch.setattr(routes, "_SMALL_SEARCH", small)
     _, _, h, _ = space
     lv = h.levels[-1]  # every frame a centre
     piece = fx.navigation.link_components(lv)
