@@ -6,6 +6,7 @@ import contextlib
 import logging
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
@@ -30,6 +31,25 @@ def listening(fn: Callable[[str], None]) -> Iterator[None]:
         _LISTENERS.remove(fn)
 
 
+_SILENT = threading.local()
+
+
+@contextlib.contextmanager
+def silent() -> Iterator[None]:
+    """Within the block, this thread's `stage` lines, `note` records and `progress` bars
+    are dropped (work done ahead in a thread, e.g. an app's warm-up, that the main thread
+    does, and says, again)."""
+    _SILENT.on = True
+    try:
+        yield
+    finally:
+        _SILENT.on = False
+
+
+def _silent() -> bool:
+    return getattr(_SILENT, "on", False)
+
+
 def _tell(msg: str) -> None:
     for fn in list(_LISTENERS):
         try:
@@ -40,6 +60,9 @@ def _tell(msg: str) -> None:
 
 def progress(it: Iterable[T], desc: str, total: int | None = None) -> Iterator[T]:
     """Wrap an iterable with a progress bar labelled ``desc``."""
+    if _silent():
+        yield from it
+        return
     if _LISTENERS:
         it = _told(it, desc, total)
     if os.environ.get("FXSPACE_QUIET") == "1":
@@ -59,6 +82,8 @@ def _told(it: Iterable[T], desc: str, total: int | None) -> Iterator[T]:
 
 def stage(msg: str) -> None:
     """A stage line ``[fxspace] msg`` on stderr (silent when ``FXSPACE_QUIET=1``)."""
+    if _silent():
+        return
     _tell(msg)
     if os.environ.get("FXSPACE_QUIET") != "1":
         print(f"[fxspace] {msg}", file=sys.stderr, flush=True)
@@ -69,6 +94,8 @@ def note(msg: str, *, warning: bool = False) -> None:
     inferred or converted, markers cut to a shared set): a `stage` line on stderr and a
     record on the ``fxspace`` logger (INFO, or WARNING with ``warning=True``; tests read
     it with ``caplog``). A warning is printed even when ``FXSPACE_QUIET=1``."""
+    if _silent():
+        return
     _LOG.log(logging.WARNING if warning else logging.INFO, msg)
     if warning:
         _tell(f"warning: {msg}")

@@ -16,6 +16,8 @@ their `NeighbourGraph` (`fxspace.expression.Paths`), whichever the space holds.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from functools import partial
 from types import SimpleNamespace
 from typing import Any, Literal
@@ -37,7 +39,10 @@ from fxspace.errors import FxspaceError
 from fxspace.navigation._level import Hierarchy, Level, level_sizes, pair_csr
 from fxspace.navigation._links import (
     LinkRule,
-    _sweep,
+    _scales,
+    _sweep_level,
+    _sweep_table,
+    _swept,
     choose_link_scale,
     default_link_radius,
     level_links,
@@ -264,16 +269,16 @@ def _frames_fit(x):
     )  # fmt: skip
 
 
-def _fcm_levels(x, sizes, T, key, fcm: FuzzyCMeans) -> list[Level]:
-    """The levels (no links yet): each size's FCM from its starts, the lowest objective."""
-    out: list[Level] = []
+def _fcm_levels(x, sizes, T, key, fcm: FuzzyCMeans) -> Iterator[Level]:
+    """The levels (no links yet), one at a time: each size's FCM from its starts, the
+    lowest objective."""
     prev = None
     for c in sizes:
         key, k_cold, k_ext = jax.random.split(key, 3)
         if c == T:
-            out.append(Level(T, np.asarray(x), np.arange(T, dtype=np.int64), _frames_fit(x),
-                             stats={"init": "frames", "num_steps_split": -1,
-                                    "total_steps": 0}))  # fmt: skip
+            yield Level(T, np.asarray(x), np.arange(T, dtype=np.int64), _frames_fit(x),
+                        stats={"init": "frames", "num_steps_split": -1,
+                               "total_steps": 0})  # fmt: skip
             continue
         inits = _starts(x, c, prev, k_cold, k_ext, fcm)
         # the starts run one after another: on CPU a vmapped while-loop costs more than the
@@ -289,9 +294,8 @@ def _fcm_levels(x, sizes, T, key, fcm: FuzzyCMeans) -> list[Level]:
                  "num_steps_split": int(runs[0].num_steps) if warm and fcm.split else -1,
                  "total_steps": int(sum(int(r.num_steps) for r in runs))}  # fmt: skip
         centers = np.asarray(res.centers)
-        out.append(Level(c, centers, nearest_frames(x, centers), res, stats=stats))
+        yield Level(c, centers, nearest_frames(x, centers), res, stats=stats)
         prev = res
-    return out
 
 
 _FCM_KEYS = ("m", "tol", "max_steps", "criterion", "warm_start", "restarts", "split",
@@ -389,31 +393,84 @@ def build_hierarchy(
         below = below[: check_int(levels, "levels", low=1)]
     sizes = tuple(below) + ((T,) if finest or not below else ())
     key = jax.random.PRNGKey(0) if key is None else key
-    h = Hierarchy(tuple(_fcm_levels(x, sizes, T, key, fcm)), np.asarray(x))
     if paths is None or rule is None:
-        return h
-    return _link_all(h, paths, rule)
+        return Hierarchy(tuple(_fcm_levels(x, sizes, T, key, fcm)), np.asarray(x))
+    # each level's links are made in a thread as its FCM ends, while the next level's
+    # runs (the same work as one after another: the same hierarchy)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="fxspace-links")
+    try:
+        linker = _Linker(np.asarray(x, np.float64), paths, rule, sizes, pool)
+        for lv in _fcm_levels(x, sizes, T, key, fcm):
+            linker.add(lv)
+        return linker.hierarchy(np.asarray(x))
+    finally:  # on an error or an interrupt, the links not started are dropped
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _link_all(h: Hierarchy, paths, rule: LinkRule, clears=None) -> Hierarchy:
-    """Every level's links by ``rule`` (ρ by the experiment when it says so)."""
-    sweep = None
-    clears = {} if clears is None else clears
-    scale = rule.rho
-    if scale == "experiment":
-        sweep, clears = _sweep(h, paths, rule.scales, rule.sweep_max_centres)
-        scale = choose_link_scale(sweep)
-    x = np.asarray(h.embedding, np.float64)
-    out = []
-    for i, lv in enumerate(h.levels):
+class _Linker:
+    """Every level's links by a `LinkRule`, level by level as the levels come (ρ by the
+    experiment once its levels are all there), in order on ``pool`` (a one-thread
+    executor) or here (``None``)."""
+
+    def __init__(self, x, paths, rule: LinkRule, sizes, pool=None):
+        self.x, self.paths, self.rule, self.pool = x, paths, rule, pool
+        self.levels: list[Level] = []
+        self.linked: list = []  # per level: its linked Level (or a future of it)
+        self.rows: dict[int, Any] = {}  # swept level -> its experiment row (or future)
+        self.scale: Any = None if rule.rho == "experiment" else float(rule.rho)
+        self.sweep = None
+        if self.scale is None:
+            self.sc = _scales(rule.scales)
+            self.idx = _swept(sizes, len(x), rule.sweep_max_centres)
+
+    def _run(self, fn, *args):
+        return fn(*args) if self.pool is None else self.pool.submit(fn, *args)
+
+    @staticmethod
+    def _get(v):
+        return v.result() if isinstance(v, Future) else v
+
+    def add(self, lv: Level) -> None:
+        i = len(self.levels)
+        self.levels.append(lv)
+        if self.scale is None and i in self.idx:
+            self.rows[i] = self._run(_sweep_level, self.x, self.paths, lv.center_frames, self.sc)
+            if i == self.idx[-1]:  # the experiment's levels are all there: choose ρ
+                self.scale = self._run(self._choose)
+                self.linked += [self._run(self._link, j) for j in range(len(self.linked), i + 1)]
+            return
+        if self.scale is not None:
+            self.linked += [self._run(self._link, j) for j in range(len(self.linked), i + 1)]
+
+    def _choose(self) -> float:
+        rows = [self._get(self.rows[i]) for i in self.idx]
+        sizes = [self.levels[i].n_clusters for i in self.idx]
+        self.sweep = _sweep_table(self.sc, self.idx, sizes, rows)
+        return choose_link_scale(self.sweep)
+
+    def _link(self, i: int) -> Level:
+        lv, rule = self.levels[i], self.rule
         if rule.max_centres is not None and lv.n_clusters > rule.max_centres:
-            out.append(lv._replace(links=None, bridges=None, lengths=None, radius=float("nan")))
-            continue
-        rho = default_link_radius(x[lv.center_frames], float(scale))
-        clear, D = clears.get(i, (None, None))
-        lk, br, ln = level_links(x, paths, lv.center_frames, rho, rule, clear, D)
-        out.append(lv._replace(links=lk, bridges=br, lengths=ln, radius=rho))
-    return Hierarchy(tuple(out), h.embedding, sweep if sweep is not None else h.link_sweep)
+            return lv._replace(links=None, bridges=None, lengths=None, radius=float("nan"))
+        rho = default_link_radius(self.x[lv.center_frames], float(self._get(self.scale)))
+        clear, D = self._get(self.rows[i])[4] if i in self.rows else (None, None)
+        lk, br, ln = level_links(self.x, self.paths, lv.center_frames, rho, rule, clear, D)
+        return lv._replace(links=lk, bridges=br, lengths=ln, radius=rho)
+
+    def hierarchy(self, embedding, link_sweep=None) -> Hierarchy:
+        if self.scale is None:  # fewer levels than the experiment looks at: never happens
+            raise FxspaceError("the ρ experiment's levels never all came")
+        out = tuple(self._get(v) for v in self.linked)
+        return Hierarchy(out, embedding, self.sweep if self.sweep is not None else link_sweep)
+
+
+def _link_all(h: Hierarchy, paths, rule: LinkRule) -> Hierarchy:
+    """Every level's links by ``rule`` (ρ by the experiment when it says so)."""
+    x = np.asarray(h.embedding, np.float64)
+    linker = _Linker(x, paths, rule, [lv.n_clusters for lv in h.levels])
+    for lv in h.levels:
+        linker.add(lv)
+    return linker.hierarchy(h.embedding, h.link_sweep)
 
 
 @checked

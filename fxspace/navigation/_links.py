@@ -450,37 +450,58 @@ def link_radius_sweep(
     return _sweep(hierarchy, paths, scales, max_centres)[0]
 
 
-def _sweep(hierarchy, paths, scales, max_centres):
-    """`link_radius_sweep` and the swept levels' ``{level: (clearances, distances)}``."""
+def _scales(scales) -> np.ndarray:
     sc = np.asarray(scales, np.float64).reshape(-1)
     if not len(sc) or not np.all(np.isfinite(sc)) or np.any(sc < 0):
         raise FxspaceError(f"scales must be finite numbers >= 0, got {scales!r}")
-    x = np.asarray(hierarchy.embedding)
-    T = len(x)
-    idx = [i for i, lv in enumerate(hierarchy.levels)
-           if (max_centres is None or lv.n_clusters <= max_centres)
-           and (lv.n_clusters < T or i == 0)]  # fmt: skip
+    return sc
+
+
+def _swept(sizes, T: int, max_centres) -> list[int]:
+    """The levels the ρ experiment looks at: at most ``max_centres`` centres, fewer
+    centres than frames (the first level always)."""
+    idx = [i for i, c in enumerate(sizes)
+           if (max_centres is None or c <= max_centres) and (c < T or i == 0)]  # fmt: skip
     if not idx:
         raise FxspaceError(f"no level has at most max_centres={max_centres} centres")
-    shape = (len(idx), len(sc))
-    radii, coverage = np.zeros(shape), np.zeros(shape)
-    links, comps = np.zeros(shape, np.int64), np.zeros(shape, np.int64)
-    clears = {}
-    for a, li in enumerate(idx):
-        frames = hierarchy.levels[li].center_frames
-        radii[a] = [default_link_radius(x[frames], float(s)) for s in sc]
-        # one exact pass answers every ρ: linked at ρ ⇔ clearance ≥ ρ
-        clear, D = _clearances(x, paths, frames, float(np.min(radii[a])))
-        clears[li] = (clear, D)
-        for b, rho in enumerate(radii[a]):
-            lk = clear >= rho
-            np.fill_diagonal(lk, False)
-            labels = _components(lk)
-            links[a, b] = int(lk.sum() // 2)
-            comps[a, b] = len(np.unique(labels))
-            coverage[a, b] = _coverage(labels)
-    sizes = np.asarray([hierarchy.levels[i].n_clusters for i in idx])
-    return LinkRadiusSweep(sc, np.asarray(idx), sizes, radii, links, comps, coverage), clears
+    return idx
+
+
+def _sweep_level(x, paths, frames, sc: np.ndarray):
+    """One level of the ρ experiment: ``(radii, links, pieces, coverage, (clear, D))``
+    at each scale of ``sc``; one exact pass answers every ρ (linked at ρ ⇔ clearance ≥ ρ)."""
+    radii = np.asarray([default_link_radius(x[frames], float(s)) for s in sc])
+    clear, D = _clearances(x, paths, frames, float(np.min(radii)))
+    links, comps, coverage = [], [], []
+    for rho in radii:
+        lk = clear >= rho
+        np.fill_diagonal(lk, False)
+        labels = _components(lk)
+        links.append(int(lk.sum() // 2))
+        comps.append(len(np.unique(labels)))
+        coverage.append(_coverage(labels))
+    return radii, links, comps, coverage, (clear, D)
+
+
+def _sweep_table(sc, idx, sizes, rows) -> LinkRadiusSweep:
+    """The `LinkRadiusSweep` of the swept levels' `_sweep_level` rows."""
+    return LinkRadiusSweep(
+        sc, np.asarray(idx), np.asarray(sizes),
+        np.asarray([r[0] for r in rows]).reshape(len(idx), len(sc)),
+        np.asarray([r[1] for r in rows], np.int64).reshape(len(idx), len(sc)),
+        np.asarray([r[2] for r in rows], np.int64).reshape(len(idx), len(sc)),
+        np.asarray([r[3] for r in rows], np.float64).reshape(len(idx), len(sc)),
+    )  # fmt: skip
+
+
+def _sweep(hierarchy, paths, scales, max_centres):
+    """`link_radius_sweep` and the swept levels' ``{level: (clearances, distances)}``."""
+    sc = _scales(scales)
+    x = np.asarray(hierarchy.embedding)
+    idx = _swept([lv.n_clusters for lv in hierarchy.levels], len(x), max_centres)
+    rows = [_sweep_level(x, paths, hierarchy.levels[i].center_frames, sc) for i in idx]
+    sizes = [hierarchy.levels[i].n_clusters for i in idx]
+    return _sweep_table(sc, idx, sizes, rows), {i: r[4] for i, r in zip(idx, rows, strict=True)}
 
 
 @checked

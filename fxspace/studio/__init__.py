@@ -8,11 +8,14 @@ the pipeline's ``APP`` (``"module:function"``; the function takes the target and
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from fxspace._progress import silent
 from fxspace._validate import check_int
 from fxspace.errors import FxspaceError
 from fxspace.studio._edit_controller import EditorController as EditorController
@@ -155,7 +158,28 @@ def serve_config(config: str | Path, port: int = 8080, out: str | Path | None = 
     if exp in _opens_config() or Path(config).is_dir():
         return app(config, port=port, **kwargs)
     host = kwargs.get("host", "127.0.0.1")
+    warm = _warm_up(app, config, kwargs)
     with waiting_page(port, host, bool(kwargs.get("environment_map", False)),
                       f"preparing {Path(config).name}") as port:  # fmt: skip
         run_dir = prepare_config(config, out)
+    if warm is not None:
+        warm.join()  # the app takes what it made
     return app(run_dir, port=port, **kwargs)
+
+
+def _warm_up(app: Callable[..., Any], config, kwargs: dict) -> threading.Thread | None:
+    """Start the app module's ``warm(config, **kwargs)`` (what the app needs besides the
+    run's stages: a face rig read and compiled) in a thread, silent, while the stages
+    are prepared: the machine's cores are not all busy with them. Its failure is not
+    reported here: the app does the same work again and says what failed."""
+    warm = getattr(importlib.import_module(app.__module__), "warm", None)
+    if warm is None:
+        return None
+
+    def run() -> None:
+        with contextlib.suppress(Exception), silent():
+            warm(config, **kwargs)
+
+    t = threading.Thread(target=run, name="fxspace-warm", daemon=True)
+    t.start()
+    return t

@@ -483,6 +483,23 @@ def serve_navigator(
     return server, ctl
 
 
+def warm(config: str | Path, **kwargs) -> None:
+    """What the navigator of ``config`` needs besides the run's stages, made ahead
+    (`fxspace.studio.serve_config` runs it in a thread while the stages are prepared):
+    the face solved from the first frame's markers — the rig read and bound, its solver
+    compiled (`studio_face` keeps it for the app) — and one frame posed."""
+    from fxspace.datasets import load_face
+    from fxspace.pipelines import resolve_config
+
+    spec = resolve_config(config, experiment=("navigation", "navigation_scale"))[0]
+    face = load_face(spec.config.data, spec.seed)
+    P0 = _Aligned(face.positions)[0]
+    head = kwargs.get("head", "face/ict")
+    f, _ = studio_face(P0, tuple(face.marker_names) or None, head,
+                       kwargs.get("face_vertices", 6000))  # fmt: skip
+    f.vertices(_Aligned(face.positions)[min(1, len(face.positions) - 1)])
+
+
 def serve(target: str | Path, port: int = 8080, **kwargs):
     """``fxspace studio TARGET`` for a navigation run folder (its cached stages are read)
     or config (computed without a cache): load and serve."""

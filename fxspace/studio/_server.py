@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -279,12 +281,35 @@ class RigFace:
         return [(name, V[used], f, colour) for name, colour, used, f in self._split]
 
 
+_FACES: dict = {}  # the faces studio_face made last (an app's warm-up, then the app)
+_FACES_LOCK = threading.Lock()
+
+
 def studio_face(rest_markers: np.ndarray, names=None, rig: str | Path | None = "face/ict",
                 n_vertices: int = 2500):  # fmt: skip
     """``(face, note)``: the head an app shows for these neutral markers — a `RigFace`
     of ``rig`` (a path under the data root or anywhere; default the ICT Face Model) when
     it is there and the markers are named so that they bind, else the template
-    `DenseFace` — and one line saying which and why (shown on the page)."""
+    `DenseFace` — and one line saying which and why (shown on the page).
+
+    The last two are kept (keyed by the markers' values, names, rig, size and data
+    root): an app's warm-up (`fxspace.studio.serve_config`) makes the face while the
+    stages are prepared, and the app takes it; a second caller waits for the first."""
+    rest = np.ascontiguousarray(rest_markers, np.float64)
+    key = (hashlib.sha256(rest.tobytes()).hexdigest(), rest.shape,
+           None if names is None else tuple(map(str, names)), None if rig is None else str(rig),
+           int(n_vertices), os.environ.get("FXSPACE_DATA"))  # fmt: skip
+    with _FACES_LOCK:
+        hit = _FACES.get(key)
+        if hit is None:
+            hit = _make_face(rest_markers, names, rig, n_vertices)
+            while len(_FACES) >= 2:
+                _FACES.pop(next(iter(_FACES)))
+            _FACES[key] = hit
+    return hit
+
+
+def _make_face(rest_markers, names, rig, n_vertices):
     from fxspace.data import data_path
 
     if rig is None or not names:

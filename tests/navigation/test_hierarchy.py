@@ -345,3 +345,26 @@ def test_hierarchy_rho_by_experiment_and_bridges_option(space):
         np.testing.assert_allclose(b.lengths.toarray(), a.lengths.toarray())
     with pytest.raises(fx.FxspaceError, match="rho_scale"):
         fx.build_hierarchy(X, geo, c0=8, rho_scale="paper")
+
+
+@pytest.mark.parametrize("rho", ["experiment", 0.5])
+def test_links_made_beside_the_fcm_are_those_made_after_it(both, rho):
+    """`build_hierarchy` makes each level's links in a thread while the next level's FCM
+    runs: the same hierarchy (every array) as the levels first and their links after,
+    one after another (`relink`'s path), for ρ by the experiment and a fixed ρ."""
+    from fxspace.navigation import LinkRule, hierarchy_to_arrays
+    from fxspace.navigation._hierarchy import _link_all
+
+    X, paths, h = both
+    fcm = h.levels[1].fit  # the kind of FCM of this graph kind
+    solver = (fx.navigation.TruncatedFuzzyCMeans(nearest=4) if hasattr(fcm, "indices")
+              else fx.navigation.FuzzyCMeans())  # fmt: skip
+    kw = dict(c0=8, key=jax.random.PRNGKey(0), fcm=solver)
+    rule = LinkRule(rho=rho)
+    beside = fx.build_hierarchy(X, paths, links=rule, **kw)
+    after = _link_all(fx.build_hierarchy(X, paths, links=False, **kw), paths, rule)
+    a, b = hierarchy_to_arrays(beside), hierarchy_to_arrays(after)
+    assert sorted(a) == sorted(b)
+    for k in a:
+        np.testing.assert_array_equal(np.asarray(a[k]), np.asarray(b[k]), err_msg=k)
+    assert (beside.link_sweep is None) == (rho != "experiment")

@@ -108,3 +108,65 @@ def test_browser_config_opens_a_progress_page_then_the_app(tmp_path, chromium):
     server, ctl = got["app"]
     server.stop()
     assert server.get_port() == port and read_status(tmp_path / "run")["status"] == "partial"
+
+
+def test_silent_drops_this_threads_lines_only(caplog):
+    """`fxspace._progress.silent`: stage lines, notes and progress of the thread inside
+    it are dropped (an app's warm-up repeats work the main thread says), another
+    thread's are not."""
+    from fxspace._progress import listening, note, progress, silent, stage
+
+    caplog.set_level("INFO", logger="fxspace")
+    heard = []
+    with listening(heard.append):
+        with silent():
+            stage("hidden stage")
+            note("hidden note")
+            assert list(progress(range(3), "hidden bar")) == [0, 1, 2]
+            other = threading.Thread(target=stage, args=("other thread",))
+            other.start()
+            other.join()
+        stage("shown after")
+        note("shown note")
+    assert heard == ["other thread", "shown after", "shown note"]
+    assert "shown note" in caplog.text
+    assert "hidden" not in caplog.text  # the note's logger record too
+
+
+def test_the_apps_warm_up_runs_beside_and_its_face_is_the_apps(monkeypatch):
+    """``fxspace studio CONFIG`` starts the app module's ``warm(config, **kwargs)`` in a
+    silent thread while the stages are prepared; a failure there is left to the app;
+    the navigator's warm-up face is the one the app then takes (`studio_face` keeps it)."""
+    import sys
+    import types
+
+    from fxspace.studio import _warm_up
+    from fxspace.studio._server import studio_face
+
+    mod = types.ModuleType("fxspace_test_app")
+    seen = []
+
+    def warm(config, **kw):
+        from fxspace._progress import stage
+
+        stage("warming")  # silent
+        seen.append((config, kw, threading.current_thread().name))
+
+    def serve(target, port=0, **kw):
+        return target
+
+    mod.warm, mod.serve = warm, serve
+    serve.__module__ = mod.__name__
+    monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    t = _warm_up(serve, "cfg.toml", {"head": None})
+    t.join(timeout=30)
+    assert seen == [("cfg.toml", {"head": None}, "fxspace-warm")]
+    mod.warm = lambda config, **kw: 1 / 0  # the app says what fails, not the warm-up
+    _warm_up(serve, "cfg.toml", {}).join(timeout=30)
+    del mod.warm
+    assert _warm_up(serve, "cfg.toml", {}) is None  # no warm-up: nothing started
+
+    rest = np.random.default_rng(0).normal(size=(12, 3)) * 30
+    a = studio_face(rest, None, None, 500)
+    assert studio_face(rest.copy(), None, None, 500) is a  # the same markers: kept
+    assert studio_face(rest + 1.0, None, None, 500) is not a
