@@ -40,7 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from fxspace._progress import progress
-from fxspace._validate import check_int
+from fxspace._validate import check_int, checked
 from fxspace.errors import DisconnectedGraphError, FxspaceError
 from fxspace.expression._features import PAIR_WEIGHT
 from fxspace.expression._sparse import (
@@ -402,6 +402,7 @@ def _root(parent: np.ndarray, a: int) -> int:
     return int(a)
 
 
+@checked
 def join_components(
     graph: NeighbourGraph, positions, *, candidates: int = 64, pairs: int = 16384,
     queries: int = 4096, max_components: int = 256, reduce_dim: int = 8, block: int = 2048,
