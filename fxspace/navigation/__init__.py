@@ -30,13 +30,13 @@ from fxspace.navigation._links import EXACT_CENTRES as EXACT_CENTRES
 from fxspace.navigation._links import LINK_SCALES as LINK_SCALES
 from fxspace.navigation._links import LinkRule as LinkRule
 from fxspace.navigation._links import center_links as center_links
-from fxspace.navigation._links import choose_link_scale as choose_link_scale
 from fxspace.navigation._links import default_link_radius as default_link_radius
 from fxspace.navigation._links import link_clearance as link_clearance
-from fxspace.navigation._links import link_radius_sweep as link_radius_sweep
 from fxspace.navigation._playback import Playback as Playback
 from fxspace.navigation._playback import playback as playback
 from fxspace.navigation._playback import rigid_align as rigid_align
+from fxspace.navigation._rho import choose_link_scale as choose_link_scale
+from fxspace.navigation._rho import link_radius_sweep as link_radius_sweep
 from fxspace.navigation._routes import NavigationError as NavigationError
 from fxspace.navigation._routes import Route as Route
 from fxspace.navigation._routes import bridge_keys as bridge_keys

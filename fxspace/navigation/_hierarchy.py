@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from types import SimpleNamespace
 from typing import Any, Literal
@@ -37,16 +37,8 @@ from fxspace.cluster import (
 )
 from fxspace.errors import FxspaceError
 from fxspace.navigation._level import Hierarchy, Level, level_sizes, pair_csr
-from fxspace.navigation._links import (
-    LinkRule,
-    _scales,
-    _sweep_level,
-    _sweep_table,
-    _swept,
-    choose_link_scale,
-    default_link_radius,
-    level_links,
-)
+from fxspace.navigation._links import LinkRule, default_link_radius, level_links
+from fxspace.navigation._rho import _link_all, _Linker
 from fxspace.results import RESULTS
 
 __all__ = [
@@ -405,72 +397,6 @@ def build_hierarchy(
         return linker.hierarchy(np.asarray(x))
     finally:  # on an error or an interrupt, the links not started are dropped
         pool.shutdown(wait=True, cancel_futures=True)
-
-
-class _Linker:
-    """Every level's links by a `LinkRule`, level by level as the levels come (ρ by the
-    experiment once its levels are all there), in order on ``pool`` (a one-thread
-    executor) or here (``None``)."""
-
-    def __init__(self, x, paths, rule: LinkRule, sizes, pool=None):
-        self.x, self.paths, self.rule, self.pool = x, paths, rule, pool
-        self.levels: list[Level] = []
-        self.linked: list = []  # per level: its linked Level (or a future of it)
-        self.rows: dict[int, Any] = {}  # swept level -> its experiment row (or future)
-        self.scale: Any = None if rule.rho == "experiment" else float(rule.rho)
-        self.sweep = None
-        if self.scale is None:
-            self.sc = _scales(rule.scales)
-            self.idx = _swept(sizes, len(x), rule.sweep_max_centres)
-
-    def _run(self, fn, *args):
-        return fn(*args) if self.pool is None else self.pool.submit(fn, *args)
-
-    @staticmethod
-    def _get(v):
-        return v.result() if isinstance(v, Future) else v
-
-    def add(self, lv: Level) -> None:
-        i = len(self.levels)
-        self.levels.append(lv)
-        if self.scale is None and i in self.idx:
-            self.rows[i] = self._run(_sweep_level, self.x, self.paths, lv.center_frames, self.sc)
-            if i == self.idx[-1]:  # the experiment's levels are all there: choose ρ
-                self.scale = self._run(self._choose)
-                self.linked += [self._run(self._link, j) for j in range(len(self.linked), i + 1)]
-            return
-        if self.scale is not None:
-            self.linked += [self._run(self._link, j) for j in range(len(self.linked), i + 1)]
-
-    def _choose(self) -> float:
-        rows = [self._get(self.rows[i]) for i in self.idx]
-        sizes = [self.levels[i].n_clusters for i in self.idx]
-        self.sweep = _sweep_table(self.sc, self.idx, sizes, rows)
-        return choose_link_scale(self.sweep)
-
-    def _link(self, i: int) -> Level:
-        lv, rule = self.levels[i], self.rule
-        if rule.max_centres is not None and lv.n_clusters > rule.max_centres:
-            return lv._replace(links=None, bridges=None, lengths=None, radius=float("nan"))
-        rho = default_link_radius(self.x[lv.center_frames], float(self._get(self.scale)))
-        clear, D = self._get(self.rows[i])[4] if i in self.rows else (None, None)
-        lk, br, ln = level_links(self.x, self.paths, lv.center_frames, rho, rule, clear, D)
-        return lv._replace(links=lk, bridges=br, lengths=ln, radius=rho)
-
-    def hierarchy(self, embedding, link_sweep=None) -> Hierarchy:
-        if self.scale is None:  # fewer levels than the experiment looks at: never happens
-            raise FxspaceError("the ρ experiment's levels never all came")
-        out = tuple(self._get(v) for v in self.linked)
-        return Hierarchy(out, embedding, self.sweep if self.sweep is not None else link_sweep)
-
-
-def _link_all(h: Hierarchy, paths, rule: LinkRule) -> Hierarchy:
-    """Every level's links by ``rule`` (ρ by the experiment when it says so)."""
-    x = np.asarray(h.embedding, np.float64)
-    linker = _Linker(x, paths, rule, [lv.n_clusters for lv in h.levels])
-    for lv in h.levels:
-        linker.add(lv)
-    return linker.hierarchy(h.embedding, h.link_sweep)
 
 
 @checked

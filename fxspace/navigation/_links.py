@@ -3,8 +3,9 @@
 Two centres are *linked* when the shortest path between their frames, drawn in 2-D as
 the polyline through its frames, passes within ρ of no other centre; ρ is a scale × the
 level's median nearest-centre spacing, the scale chosen by the paper's experiment
-(`link_radius_sweep`, `choose_link_scale`). Written once against the frames' *paths*
-(`fxspace.expression.Paths`: `Geodesics` or a `NeighbourGraph`):
+(`fxspace.navigation._rho`: `link_radius_sweep`, `choose_link_scale`). Written once
+against the frames' *paths* (`fxspace.expression.Paths`: `Geodesics` or a
+`NeighbourGraph`):
 
 - a level of at most `EXACT_CENTRES` centres: every pair, every segment against every
   centre (exact), walking each pair's path along the shortest-path trees into the
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -36,11 +37,8 @@ from fxspace._validate import checked
 from fxspace.cluster import pad_rows
 from fxspace.cluster import squared_distances as _sq_dists
 from fxspace.errors import FxspaceError
-from fxspace.navigation._level import LinkRadiusSweep, _components, pair_csr
+from fxspace.navigation._level import LinkRadiusSweep, pair_csr
 from fxspace.navigation._segments import segments_near_points
-
-if TYPE_CHECKING:
-    from fxspace.navigation._level import Hierarchy
 
 __all__ = [
     "EXACT_CENTRES",
@@ -48,10 +46,8 @@ __all__ = [
     "LinkRule",
     "LinkRadiusSweep",
     "center_links",
-    "choose_link_scale",
     "default_link_radius",
     "link_clearance",
-    "link_radius_sweep",
 ]
 
 LINK_SCALES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
@@ -421,95 +417,3 @@ def center_links(
     rule = LinkRule(rho=float(rho), bridges=bool(bridge), exact_centres=n_exact)
     links, bridges, _ = level_links(embedding, paths, center_frames, float(rho), rule)
     return links, bridges
-
-
-def _coverage(labels: np.ndarray) -> float:
-    c = len(labels)
-    if c < 2:
-        return 1.0
-    sizes = np.unique(labels, return_counts=True)[1].astype(np.float64)
-    return float(np.sum(sizes * (sizes - 1)) / (c * (c - 1)))
-
-
-@checked
-def link_radius_sweep(
-    hierarchy: Hierarchy,
-    paths,
-    scales=LINK_SCALES,
-    *,
-    max_centres: int | None = 320,
-) -> LinkRadiusSweep:
-    """Links by the paper's rule (no bridges, exact: one `link_clearance` pass per level)
-    at each ρ of ``scales`` on every level with at most ``max_centres`` centres (and
-    fewer centres than frames): how many links, how many groups they leave, and the
-    fraction of centre pairs a route can join (Kim & Jung §4.2: "the circle's radius is
-    set by experiment"); `choose_link_scale` reads the answer off it.
-
-    **Example:** ``sw = fx.navigation.link_radius_sweep(h, space.geodesics)``
-    """
-    return _sweep(hierarchy, paths, scales, max_centres)[0]
-
-
-def _scales(scales) -> np.ndarray:
-    sc = np.asarray(scales, np.float64).reshape(-1)
-    if not len(sc) or not np.all(np.isfinite(sc)) or np.any(sc < 0):
-        raise FxspaceError(f"scales must be finite numbers >= 0, got {scales!r}")
-    return sc
-
-
-def _swept(sizes, T: int, max_centres) -> list[int]:
-    """The levels the ρ experiment looks at: at most ``max_centres`` centres, fewer
-    centres than frames (the first level always)."""
-    idx = [i for i, c in enumerate(sizes)
-           if (max_centres is None or c <= max_centres) and (c < T or i == 0)]  # fmt: skip
-    if not idx:
-        raise FxspaceError(f"no level has at most max_centres={max_centres} centres")
-    return idx
-
-
-def _sweep_level(x, paths, frames, sc: np.ndarray):
-    """One level of the ρ experiment: ``(radii, links, pieces, coverage, (clear, D))``
-    at each scale of ``sc``; one exact pass answers every ρ (linked at ρ ⇔ clearance ≥ ρ)."""
-    radii = np.asarray([default_link_radius(x[frames], float(s)) for s in sc])
-    clear, D = _clearances(x, paths, frames, float(np.min(radii)))
-    links, comps, coverage = [], [], []
-    for rho in radii:
-        lk = clear >= rho
-        np.fill_diagonal(lk, False)
-        labels = _components(lk)
-        links.append(int(lk.sum() // 2))
-        comps.append(len(np.unique(labels)))
-        coverage.append(_coverage(labels))
-    return radii, links, comps, coverage, (clear, D)
-
-
-def _sweep_table(sc, idx, sizes, rows) -> LinkRadiusSweep:
-    """The `LinkRadiusSweep` of the swept levels' `_sweep_level` rows."""
-    return LinkRadiusSweep(
-        sc, np.asarray(idx), np.asarray(sizes),
-        np.asarray([r[0] for r in rows]).reshape(len(idx), len(sc)),
-        np.asarray([r[1] for r in rows], np.int64).reshape(len(idx), len(sc)),
-        np.asarray([r[2] for r in rows], np.int64).reshape(len(idx), len(sc)),
-        np.asarray([r[3] for r in rows], np.float64).reshape(len(idx), len(sc)),
-    )  # fmt: skip
-
-
-def _sweep(hierarchy, paths, scales, max_centres):
-    """`link_radius_sweep` and the swept levels' ``{level: (clearances, distances)}``."""
-    sc = _scales(scales)
-    x = np.asarray(hierarchy.embedding)
-    idx = _swept([lv.n_clusters for lv in hierarchy.levels], len(x), max_centres)
-    rows = [_sweep_level(x, paths, hierarchy.levels[i].center_frames, sc) for i in idx]
-    sizes = [hierarchy.levels[i].n_clusters for i in idx]
-    return _sweep_table(sc, idx, sizes, rows), {i: r[4] for i, r in zip(idx, rows, strict=True)}
-
-
-@checked
-def choose_link_scale(sweep: LinkRadiusSweep) -> float:
-    """The largest ρ scale of ``sweep`` at which every swept level stays in one piece
-    (coverage 1): the widest circles, so the fewest links that pass by another centre,
-    that still let every centre reach every other. When no scale joins every level, the
-    largest scale with the best worst-level coverage (the levels left in pieces then
-    need bridges, ``LinkRule(bridges=True)``, to route across them)."""
-    worst = np.round(np.min(np.asarray(sweep.coverage), axis=0), 9)
-    return float(sweep.scales[np.flatnonzero(worst == worst.max())[-1]])

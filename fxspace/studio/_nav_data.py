@@ -19,10 +19,11 @@ from fxspace.navigation import (
     make_route,
     path_candidates,
     refine_route,
+    rigid_align,
 )
 from fxspace.results import result_message
 
-__all__ = ["DENSITY_ABOVE", "NavData", "load_nav_data", "fcm_status"]
+__all__ = ["DENSITY_ABOVE", "NavData", "load_nav_data", "fcm_status", "Aligned", "InFace"]
 
 
 DENSITY_ABOVE = 20_000
@@ -134,3 +135,41 @@ def fcm_status(lv) -> str:
         return ""
     return (f"not at its fixed point — {repr(lv.result).removeprefix('RESULTS.')} after "
             f"{lv.num_steps} iterations: {result_message(lv.result)}")  # fmt: skip
+
+
+class Aligned:
+    """``[frame]``: that frame's markers rigidly aligned to the first frame
+    (`fxspace.navigation.rigid_align`), computed when asked (a 10⁶-frame archive is not
+    aligned up front); the last frame asked is kept, so the face and its markers drawn for
+    one frame align it once. `in_face` gives them in the face's right/up/out frame."""
+
+    def __init__(self, positions):
+        self.positions = positions
+        self._last: tuple[int, np.ndarray] | None = None
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __getitem__(self, frame) -> np.ndarray:
+        f = int(frame)
+        if self._last is None or self._last[0] != f:
+            X = rigid_align(np.asarray(self.positions[f])[None],
+                            np.asarray(self.positions[0]))[0]  # fmt: skip
+            self._last = (f, X)
+        return self._last[1]
+
+    def in_face(self, centre: np.ndarray, axes: np.ndarray) -> InFace:
+        return InFace(self, centre, axes)
+
+
+class InFace:
+    """``[frame]``: an `Aligned` frame in the face's right/up/out frame."""
+
+    def __init__(self, aligned: Aligned, centre: np.ndarray, axes: np.ndarray):
+        self.aligned, self.centre, self.axes = aligned, centre, axes
+
+    def __len__(self) -> int:
+        return len(self.aligned)
+
+    def __getitem__(self, frame) -> np.ndarray:
+        return (self.aligned[frame] - self.centre) @ self.axes.T

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fxspace.navigation import link_pairs, rigid_align
+from fxspace.navigation import link_pairs
 from fxspace.studio._nav_controller import (
     DENSITY_ABOVE,
     NavData,
@@ -44,6 +44,7 @@ from fxspace.studio._nav_controller import (
     _short,
     load_nav_data,
 )
+from fxspace.studio._nav_data import Aligned
 from fxspace.studio._server import (
     PadFrame,
     Player,
@@ -150,44 +151,6 @@ def _draw_frames(server, ctl: NavigatorController, pf: PadFrame, pad: np.ndarray
     )  # fmt: skip
 
 
-class _Aligned:
-    """``[frame]``: that frame's markers rigidly aligned to the first frame
-    (`fxspace.navigation.rigid_align`), computed when asked (a 10⁶-frame archive is not
-    aligned up front); the last frame asked is kept, so the face and its markers drawn for
-    one frame align it once. `in_face` gives them in the face's right/up/out frame."""
-
-    def __init__(self, positions):
-        self.positions = positions
-        self._last: tuple[int, np.ndarray] | None = None
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-    def __getitem__(self, frame) -> np.ndarray:
-        f = int(frame)
-        if self._last is None or self._last[0] != f:
-            X = rigid_align(np.asarray(self.positions[f])[None],
-                            np.asarray(self.positions[0]))[0]  # fmt: skip
-            self._last = (f, X)
-        return self._last[1]
-
-    def in_face(self, centre: np.ndarray, axes: np.ndarray) -> _InFace:
-        return _InFace(self, centre, axes)
-
-
-class _InFace:
-    """``[frame]``: an `_Aligned` frame in the face's right/up/out frame."""
-
-    def __init__(self, aligned: _Aligned, centre: np.ndarray, axes: np.ndarray):
-        self.aligned, self.centre, self.axes = aligned, centre, axes
-
-    def __len__(self) -> int:
-        return len(self.aligned)
-
-    def __getitem__(self, frame) -> np.ndarray:
-        return (self.aligned[frame] - self.centre) @ self.axes.T
-
-
 class NavigatorView:
     """The navigator's page: the pad, the face and the controls, drawn from a
     `NavigatorController` (``server.fxspace_view``)."""
@@ -206,7 +169,7 @@ class NavigatorView:
         _draw_frames(server, ctl, self.pf, self.pad)
         # the face: markers aligned to the first frame, seen from the front, right of the pad
         # each frame aligned to the first when it is shown (not all 10⁶ frames up front)
-        self.P = _Aligned(data.positions)
+        self.P = Aligned(data.positions)
         self.face, self.face_note = studio_face(
             self.P[0], data.marker_names or None, head, face_vertices
         )
@@ -493,11 +456,11 @@ def warm(config: str | Path, **kwargs) -> None:
 
     spec = resolve_config(config, experiment=("navigation", "navigation_scale"))[0]
     face = load_face(spec.config.data, spec.seed)
-    P0 = _Aligned(face.positions)[0]
+    P0 = Aligned(face.positions)[0]
     head = kwargs.get("head", "face/ict")
     f, _ = studio_face(P0, tuple(face.marker_names) or None, head,
                        kwargs.get("face_vertices", 6000))  # fmt: skip
-    f.vertices(_Aligned(face.positions)[min(1, len(face.positions) - 1)])
+    f.vertices(Aligned(face.positions)[min(1, len(face.positions) - 1)])
 
 
 def serve(target: str | Path, port: int = 8080, **kwargs):

@@ -353,7 +353,7 @@ def test_links_made_beside_the_fcm_are_those_made_after_it(both, rho):
     runs: the same hierarchy (every array) as the levels first and their links after,
     one after another (`relink`'s path), for ρ by the experiment and a fixed ρ."""
     from fxspace.navigation import LinkRule, hierarchy_to_arrays
-    from fxspace.navigation._hierarchy import _link_all
+    from fxspace.navigation._rho import _link_all
 
     X, paths, h = both
     fcm = h.levels[1].fit  # the kind of FCM of this graph kind

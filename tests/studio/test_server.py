@@ -141,7 +141,7 @@ def test_the_apps_warm_up_runs_beside_and_its_face_is_the_apps(monkeypatch):
     import types
 
     from fxspace.studio import _warm_up
-    from fxspace.studio._server import studio_face
+    from fxspace.studio._faces import studio_face
 
     mod = types.ModuleType("fxspace_test_app")
     seen = []
