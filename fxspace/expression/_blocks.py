@@ -422,10 +422,11 @@ def join_components(
     that pair in the candidate space, the ``pairs`` nearest of those measured exactly,
     the shortest improved again. The search is not exhaustive (that is a brute-force
     pass over every pair of frames of two pieces): on small inputs it finds the closest
-    pairs (the tests compare with scipy's ``cdist``), on the AnimFace takes its joins are
-    within 1 % of them. Its length is the exact feature distance, as every edge's: the
-    geodesics stay lengths of real steps between states, and a route from one take to
-    another passes through that pair. Edges already there are kept.
+    pairs (the tests compare with scipy's ``cdist``), and on the AnimFace takes resampled
+    to 6 000 and 12 000 frames it found them too (the test allows 1 %). Its length is the
+    exact feature distance, as every edge's: the geodesics stay lengths of real steps
+    between states, and a route from one take to another passes through that pair. Edges
+    already there are kept.
 
     **Arguments:**
 
