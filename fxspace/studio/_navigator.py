@@ -151,12 +151,15 @@ def _draw_frames(server, ctl: NavigatorController, pf: PadFrame, pad: np.ndarray
     )  # fmt: skip
 
 
+_HEAD, _FACE_VERTICES = "face/ict", 6000  # the navigator's head (its warm-up makes the same)
+
+
 class NavigatorView:
     """The navigator's page: the pad, the face and the controls, drawn from a
     `NavigatorController` (``server.fxspace_view``)."""
 
-    def __init__(self, server, ctl: NavigatorController, face_vertices: int = 6000,
-                 head: str | Path | None = "face/ict"):  # fmt: skip
+    def __init__(self, server, ctl: NavigatorController, face_vertices: int = _FACE_VERTICES,
+                 head: str | Path | None = _HEAD):  # fmt: skip
         self.server, self.ctl = server, ctl
         data = ctl.data
         h = data.hierarchy
@@ -391,10 +394,10 @@ def serve_navigator(
     block: bool = True,
     fps: float = 30.0,
     export_dir: str | Path = "navigator_export",
-    face_vertices: int = 6000,
+    face_vertices: int = _FACE_VERTICES,
     density_above: int = DENSITY_ABOVE,
     options: ServeOptions | None = None,
-    head: str | Path | None = "face/ict",
+    head: str | Path | None = _HEAD,
 ):
     """Serve the navigator for ``data``; ``port=0`` picks a free port (read it with
     ``server.get_port()``; or pass `options`, a `ServeOptions`, which wins over the
@@ -456,11 +459,10 @@ def warm(config: str | Path, **kwargs) -> None:
 
     spec = resolve_config(config, experiment=("navigation", "navigation_scale"))[0]
     face = load_face(spec.config.data, spec.seed)
-    P0 = Aligned(face.positions)[0]
-    head = kwargs.get("head", "face/ict")
-    f, _ = studio_face(P0, tuple(face.marker_names) or None, head,
-                       kwargs.get("face_vertices", 6000))  # fmt: skip
-    f.vertices(Aligned(face.positions)[min(1, len(face.positions) - 1)])
+    P = Aligned(face.positions)
+    f, _ = studio_face(P[0], tuple(face.marker_names) or None, kwargs.get("head", _HEAD),
+                       kwargs.get("face_vertices", _FACE_VERTICES))  # fmt: skip
+    f.vertices(P[min(1, len(face.positions) - 1)])
 
 
 def serve(target: str | Path, port: int = 8080, **kwargs):
