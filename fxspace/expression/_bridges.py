@@ -4,6 +4,10 @@ module docstring on why a bridged graph's r misleads)."""
 
 from __future__ import annotations
 
+import threading
+import weakref
+
+import jax
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
@@ -58,7 +62,6 @@ def bridge_parts(
         raise FxspaceError(
             f"pairwise must be a square (n, n) matrix, got shape {np.shape(pairwise)}")
     check_distance_matrix(pairwise, "pairwise", allow_inf=True)  # once per JAX array
-    P = np.asarray(pairwise, np.float64)
     th = np.asarray(thresholds, np.float64).reshape(-1)
     if np.isnan(th).any():
         raise FxspaceError("thresholds must be numbers (ε), got NaN")
@@ -67,15 +70,51 @@ def bridge_parts(
             f"connected must hold one flag per threshold ({th.shape[0]}), got shape "
             f"{np.shape(connected)}"
         )
-    n = len(P)
+    n = int(np.shape(pairwise)[0])
     out = np.zeros(th.shape, np.int32)
     if n < 3:
         return out
+    held = _held(pairwise)  # a sweep's chunks ask for the same JAX array, one ε at a time
+    tree = held[1] if held is not None else _tree(np.asarray(pairwise, np.float64))
+    if held is None and isinstance(pairwise, jax.Array):
+        held = _hold(pairwise, tree)
+    if tree is None:
+        return out
+    Pp, lo, hi, part, t_conn = tree
+    conn = th >= t_conn if connected is None else np.asarray(connected, bool).reshape(-1)
+    for k in np.argsort(th):
+        if not conn[k]:
+            continue
+        if held is not None and th[k] >= held[2][0]:
+            break  # an ε at or below this one had no bridge: none here either
+        A = (Pp <= th[k]).astype(np.int32)
+        np.fill_diagonal(A, 0)
+        C = np.zeros((n + 1, n + 1), np.int64)
+        C[1:, 1:] = A.cumsum(0).cumsum(1)
+
+        # edges from the block [lo, hi) to the columns before it and after it
+        leaving = (C[hi, lo] - C[lo, lo] - C[hi, 0] + C[lo, 0]) + (
+            C[hi, n] - C[lo, n] - C[hi, hi] + C[lo, hi]
+        )
+        bridged = part[leaving == 1]
+        if not bridged.size:
+            if held is not None:
+                with _LOCK:
+                    held[2][0] = min(held[2][0], float(th[k]))
+            break  # no bridge here, none at any larger ε
+        out[k] = int(bridged.max())
+    return out
+
+
+def _tree(P: np.ndarray):
+    """``(Pp, lo, hi, part, t_conn)``: ``P`` in a minimum spanning tree's depth-first
+    order, each tree edge's subtree block ``[lo, hi)`` and smaller side, and the
+    connecting threshold; ``None`` when ``P`` is disconnected."""
+    n = len(P)
     parent = _spanning_tree(np.where(np.isfinite(P), P, np.inf))
     if parent is None:
-        return out
+        return None
     t_conn = max(float(P[v, parent[v]]) for v in range(1, n))
-    conn = th >= t_conn if connected is None else np.asarray(connected, bool).reshape(-1)
     kids: list[list[int]] = [[] for _ in range(n)]
     for v in range(1, n):
         kids[parent[v]].append(v)
@@ -91,25 +130,33 @@ def bridge_parts(
             size[parent[v]] += size[v]
     tin = np.empty(n, np.int64)
     tin[order_a] = np.arange(n)
-    Pp = P[np.ix_(order_a, order_a)]
     lo = tin[order_a[1:]]
     sz = size[order_a[1:]]
-    hi = lo + sz
-    part = np.minimum(sz, n - sz)
-    for k in np.argsort(th):
-        if not conn[k]:
-            continue
-        A = (Pp <= th[k]).astype(np.int32)
-        np.fill_diagonal(A, 0)
-        C = np.zeros((n + 1, n + 1), np.int64)
-        C[1:, 1:] = A.cumsum(0).cumsum(1)
+    return P[np.ix_(order_a, order_a)], lo, lo + sz, np.minimum(sz, n - sz), t_conn
 
-        # edges from the block [lo, hi) to the columns before it and after it
-        leaving = (C[hi, lo] - C[lo, lo] - C[hi, 0] + C[lo, 0]) + (
-            C[hi, n] - C[lo, n] - C[hi, hi] + C[lo, hi]
-        )
-        bridged = part[leaving == 1]
-        if not bridged.size:
-            break  # no bridge here, none at any larger ε
-        out[k] = int(bridged.max())
-    return out
+
+# The tree of the last pairwise JAX arrays asked about (immutable: held by a weak reference,
+# so an id reused by another array is never taken for it), with the smallest ε known to
+# have no bridge: a sweep cut into one-ε chunks builds the tree once, and skips every ε
+# above the first bridge-free one, as one call over all thresholds does.
+_TREES: dict[int, tuple] = {}
+_LOCK = threading.Lock()
+
+
+def _held(pairwise):
+    with _LOCK:
+        got = _TREES.get(id(pairwise))
+    if got is None or got[0]() is not pairwise:
+        return None
+    return got
+
+
+def _hold(pairwise, tree):
+    got = (weakref.ref(pairwise), tree, [np.inf])
+    with _LOCK:
+        for k in [k for k, v in _TREES.items() if v[0]() is None]:
+            del _TREES[k]
+        while len(_TREES) >= 2:
+            del _TREES[next(iter(_TREES))]
+        _TREES[id(pairwise)] = got
+    return got

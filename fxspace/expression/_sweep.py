@@ -196,7 +196,7 @@ def threshold_sweep(
     if traced:
         bridge = jnp.full(th.shape, -1, jnp.int32)
     else:
-        bridge = jnp.asarray(bridge_parts(np.asarray(P), np.asarray(th), np.asarray(conn)))
+        bridge = jnp.asarray(bridge_parts(P, np.asarray(th), np.asarray(conn)))
     return SweepResult(th, r, conn, ncomp, deg, eig, int(P.shape[0]), bridge)
 
 

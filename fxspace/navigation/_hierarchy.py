@@ -389,14 +389,17 @@ def build_hierarchy(
         return Hierarchy(tuple(_fcm_levels(x, sizes, T, key, fcm)), np.asarray(x))
     # each level's links are made in a thread as its FCM ends, while the next level's
     # runs (the same work as one after another: the same hierarchy)
+    # (and the finest level's steps tested in a thread of their own from the start)
     pool = ThreadPoolExecutor(1, thread_name_prefix="fxspace-links")
+    pre = ThreadPoolExecutor(1, thread_name_prefix="fxspace-steps")
     try:
-        linker = _Linker(np.asarray(x, np.float64), paths, rule, sizes, pool)
+        linker = _Linker(np.asarray(x, np.float64), paths, rule, sizes, pool, pre)
         for lv in _fcm_levels(x, sizes, T, key, fcm):
             linker.add(lv)
         return linker.hierarchy(np.asarray(x))
     finally:  # on an error or an interrupt, the links not started are dropped
         pool.shutdown(wait=True, cancel_futures=True)
+        pre.shutdown(wait=True, cancel_futures=True)
 
 
 @checked

@@ -307,17 +307,39 @@ def _candidate_pairs(pos: np.ndarray, near: int) -> tuple[np.ndarray, np.ndarray
     return key // c, key % c
 
 
-def _step_links(xy, paths, rho: float):
-    """The links of a level where every frame is a centre: the steps that are shortest
-    paths whose segment passes no other frame within ρ (exact,
-    `fxspace.navigation._segments`). ``(i, j, length)``."""
+def _check_rho(rho: float) -> None:
     if not rho > 0:
         raise FxspaceError(
             f"rho must be > 0 on the level where every frame is a centre, got {rho}: the "
             "embedding's frames coincide"
         )
+
+
+def step_blocks(xy, paths, rho: float):
+    """``(i, j, length, blocked, rho)``: the graph's steps that are shortest paths and
+    which of them pass another frame within ρ. A step blocked at ρ is blocked at every
+    larger ρ, so these answer any ρ' ≥ ρ by testing only the rest (`_step_links`'s
+    ``pre``): made at the smallest ρ the experiment may choose, beside the FCM levels."""
+    _check_rho(rho)
     i, j, w = paths.steps()
-    blocked = segments_near_points(xy, i, j, rho)
+    return i, j, w, segments_near_points(xy, i, j, rho), float(rho)
+
+
+def _step_links(xy, paths, rho: float, pre=None):
+    """The links of a level where every frame is a centre: the steps that are shortest
+    paths whose segment passes no other frame within ρ (exact,
+    `fxspace.navigation._segments`). ``(i, j, length)``. ``pre``: `step_blocks` at a
+    ρ₀ ≤ ρ (only the steps it left clear are tested again)."""
+    _check_rho(rho)
+    if pre is None or not pre[4] <= rho:
+        i, j, w = paths.steps()
+        blocked = segments_near_points(xy, i, j, rho)
+    else:
+        i, j, w, blocked, rho0 = pre
+        blocked = blocked.copy()
+        if rho > rho0:
+            rest = np.flatnonzero(~blocked)
+            blocked[rest] = segments_near_points(xy, i[rest], j[rest], rho)
     return i[~blocked], j[~blocked], w[~blocked]
 
 
@@ -347,15 +369,17 @@ def _bridges(c: int, li, lj, ci, cj, cw):
     return ci[sel], cj[sel], cw[sel]
 
 
-def level_links(xy, paths, center_frames, rho: float, rule: LinkRule, clear=None, D=None):
+def level_links(xy, paths, center_frames, rho: float, rule: LinkRule, clear=None, D=None,
+                pre=None):
     """``(links, bridges, lengths)`` ``csr_array``\\ s of one level (see the module
     docstring); ``clear``/``D``: the level's clearances and centre distances when the ρ
-    experiment has them (the links are then read off them)."""
+    experiment has them (the links are then read off them); ``pre``: on the level where
+    every frame is a centre, its `step_blocks` at a ρ₀ ≤ ρ."""
     xy, cf = _check(xy, paths, center_frames)
     c = len(cf)
     T = int(paths.num_frames)
     if c == T and np.array_equal(cf, np.arange(T)):  # every frame a centre
-        i, j, w = _step_links(xy, paths, rho)
+        i, j, w = _step_links(xy, paths, rho, pre)
         cand = paths.steps() if rule.bridges else None
     else:
         if clear is None and c >= 2:

@@ -19,6 +19,7 @@ from fxspace.navigation._links import (
     _clearances,
     default_link_radius,
     level_links,
+    step_blocks,
 )
 
 __all__ = ["link_radius_sweep", "choose_link_scale"]
@@ -116,12 +117,19 @@ def choose_link_scale(sweep: LinkRadiusSweep) -> float:
     return float(sweep.scales[np.flatnonzero(worst == worst.max())[-1]])
 
 
+def _finest_blocks(x, paths, scale: float):
+    """`step_blocks` of the level where every frame is a centre at ρ = ``scale`` × the
+    frames' spacing (None where that is 0: its links then say why)."""
+    rho = default_link_radius(x, scale)
+    return step_blocks(x, paths, rho) if rho > 0 else None
+
+
 class _Linker:
     """Every level's links by a `LinkRule`, level by level as the levels come (ρ by the
     experiment once its levels are all there), in order on ``pool`` (a one-thread
     executor) or here (``None``)."""
 
-    def __init__(self, x, paths, rule: LinkRule, sizes, pool=None):
+    def __init__(self, x, paths, rule: LinkRule, sizes, pool=None, pre_pool=None):
         self.x, self.paths, self.rule, self.pool = x, paths, rule, pool
         self.levels: list[Level] = []
         self.linked: list = []  # per level: its linked Level (or a future of it)
@@ -131,6 +139,16 @@ class _Linker:
         if self.scale is None:
             self.sc = _scales(rule.scales)
             self.idx = _swept(sizes, len(x), rule.sweep_max_centres)
+        # the level where every frame is a centre needs no FCM: on ``pre_pool`` (a thread
+        # of its own) its steps are tested at once, at the smallest ρ its scale can be
+        # (blocked there, blocked at any larger ρ), while the FCM levels run and the other
+        # levels are linked; its links then test only the steps left clear
+        T = len(x)
+        self.pre = None
+        least = float(np.min(self.sc)) if self.scale is None else self.scale
+        if (pre_pool is not None and T in sizes and least > 0
+                and (rule.max_centres is None or T <= rule.max_centres)):  # fmt: skip
+            self.pre = pre_pool.submit(_finest_blocks, x, paths, least)
 
     def _run(self, fn, *args):
         return fn(*args) if self.pool is None else self.pool.submit(fn, *args)
@@ -163,7 +181,9 @@ class _Linker:
             return lv._replace(links=None, bridges=None, lengths=None, radius=float("nan"))
         rho = default_link_radius(self.x[lv.center_frames], float(self._get(self.scale)))
         clear, D = self._get(self.rows[i])[4] if i in self.rows else (None, None)
-        lk, br, ln = level_links(self.x, self.paths, lv.center_frames, rho, rule, clear, D)
+        pre = self._get(self.pre) if lv.n_clusters == len(self.x) and self.pre else None
+        lk, br, ln = level_links(self.x, self.paths, lv.center_frames, rho, rule, clear, D,
+                                 pre)  # fmt: skip
         return lv._replace(links=lk, bridges=br, lengths=ln, radius=rho)
 
     def hierarchy(self, embedding, link_sweep=None) -> Hierarchy:

@@ -179,6 +179,26 @@ def test_bridge_parts_match_edge_removal(rng):
     assert max(want) >= 12  # the chain between the blobs is a bridge somewhere
 
 
+def test_bridge_parts_one_eps_at_a_time_is_one_call_over_all(rng):
+    """A sweep cut into one-ε chunks asks about the same JAX array again and again: the
+    tree is built once and every ε above the first bridge-free one skipped, with the
+    numbers of one call over all ε (and of edge removal)."""
+    import fxspace.expression._bridges as B
+
+    X = np.concatenate([rng.normal(0, 1, (14, 3)), np.linspace(0, 1, 8)[:, None] * [9, 0, 0],
+                        rng.normal(0, 1, (12, 3)) + [9, 0, 0]])  # fmt: skip
+    P = jnp.asarray(np.linalg.norm(X[:, None] - X[None], axis=-1), jnp.float32)
+    th = float(fx.connecting_threshold(P)) * np.array([1.0, 1.2, 1.5, 2.0, 3.0, 6.0])
+    whole = fx.expression.bridge_parts(np.asarray(P), th)
+    one = [int(fx.expression.bridge_parts(P, th[k : k + 1])[0]) for k in range(len(th))]
+    np.testing.assert_array_equal(one, whole)
+    np.testing.assert_array_equal(whole, [_bridge_parts_by_removal(np.asarray(P), e) for e in th])
+    first_free = th[np.flatnonzero(whole == 0)[0]]
+    assert B._held(P)[2][0] == first_free  # the bound that skips the larger ε
+    Q = jnp.asarray(np.asarray(P) * 2.0)  # another array: its own tree, its own answer
+    np.testing.assert_array_equal(fx.expression.bridge_parts(Q, 2.0 * th), whole)
+
+
 def test_choose_threshold_skips_bridged_eps_fast():
     """The rule on a hand-made sweep: the best r sits on a graph a bridge splits 40/60."""
     z = np.zeros(4)

@@ -368,3 +368,31 @@ def test_links_made_beside_the_fcm_are_those_made_after_it(both, rho):
     for k in a:
         np.testing.assert_array_equal(np.asarray(a[k]), np.asarray(b[k]), err_msg=k)
     assert (beside.link_sweep is None) == (rho != "experiment")
+
+
+@pytest.mark.parametrize("factor", [1.0, 1.5, 4.0])
+def test_finest_links_from_blocks_at_a_smaller_rho_are_the_direct_ones(both, factor):
+    """The finest level's steps are tested at the experiment's smallest ρ₀ beside the FCM
+    levels (`step_blocks`); its links at ρ ≥ ρ₀ then test only the steps left clear: the
+    same links as testing every step at ρ, and the blocks at ρ₀ equal the direct test."""
+    from fxspace.navigation._links import _step_links, step_blocks
+    from fxspace.navigation._segments import segments_near_points
+
+    X, paths, _ = both
+    xy = np.asarray(X, np.float64)
+    rho0 = fx.navigation.default_link_radius(xy, 0.05)
+    pre = step_blocks(xy, paths, rho0)
+    i, j, w, blocked, r0 = pre
+    np.testing.assert_array_equal(blocked, segments_near_points(xy, i, j, rho0))
+    rho = factor * r0
+    got = _step_links(xy, paths, rho, pre)
+    want = _step_links(xy, paths, rho)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert 0 < len(got[0]) < len(i)  # some steps are links, some are blocked
+    if factor == 4.0:  # steps clear at ρ₀ that ρ blocks: the rest was tested again
+        assert len(got[0]) < int((~blocked).sum())
+    # a ρ below ρ₀ cannot use the blocks: every step is tested at it
+    low = _step_links(xy, paths, 0.5 * r0, pre)
+    for a, b in zip(low, _step_links(xy, paths, 0.5 * r0), strict=True):
+        np.testing.assert_array_equal(a, b)

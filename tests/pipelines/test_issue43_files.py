@@ -473,6 +473,22 @@ def test_corrupt_member_of_a_cache_npz_is_recomputed(tmp_path):
     assert np.array_equal(got["x"], np.ones(2))
 
 
+def test_flipped_byte_in_a_stored_cache_array_is_recomputed(tmp_path, capsys):
+    """Stage arrays are stored undeflated (fast to write): a flipped byte inside an
+    array's data, past its header, is still found (the member's CRC-32)."""
+    reset_cache(tmp_path, "k")
+    cached_arrays(tmp_path, "s", lambda: {"x": np.arange(4096.0)})
+    p = tmp_path / "cache" / "s.npz"
+    data = bytearray(p.read_bytes())
+    at = data.index(np.arange(4096.0)[2000:2001].tobytes())  # a value inside the array
+    data[at] ^= 0xFF
+    with p.open("r+b") as f:
+        f.write(bytes(data))
+    got = cached_arrays(tmp_path, "s", lambda: {"x": np.ones(2)})
+    assert np.array_equal(got["x"], np.ones(2))
+    assert "s.npz is damaged (BadZipFile)" in capsys.readouterr().out
+
+
 def test_cache_that_is_a_file_falls_back_with_a_message(tmp_path, toy, capsys):
     r = tmp_path / "r"
     r.mkdir()
