@@ -96,3 +96,21 @@ def test_candidate_lists_give_the_full_search_steps(rng, c, p):
     assert int(res.num_steps) == 40
     ref = _truncated_fcm_reference(x, v0, p, 40)
     np.testing.assert_allclose(np.asarray(res.centers), ref, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize(("n", "rows", "sizes"), [
+    (100_000, 65536, [50_000, 50_000]), (10, 4, [4, 3, 3]), (12, 4, [4, 4, 4]), (7, 7, [7])])
+def test_blocks_are_as_few_as_rows_allow_and_of_equal_size(n, rows, sizes):
+    """`rows_per_task` bounds a block: as few blocks as it allows, their sizes within one
+    point of each other (the threads finish a step together, one compiled kernel), every
+    point in exactly one block, in order."""
+    from fxspace.cluster._fcm_blocks import _STATES, _Blocks
+
+    x = np.arange(2 * n, dtype=np.float32).reshape(n, 2)
+    b = _Blocks(x, rows, 3, None)
+    try:
+        parts = [np.asarray(_STATES[b.run, i][0]) for i in b.blocks]
+        assert [len(p) for p in parts] == sizes
+        np.testing.assert_array_equal(np.concatenate(parts), x)
+    finally:
+        b.close()
