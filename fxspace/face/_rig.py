@@ -46,7 +46,7 @@ from fxspace.runs import save_npz_atomic
 
 __all__ = ["Rig", "read_rig", "rig_from_arrays", "rig_cache_dir", "ICT_PARTS"]
 
-_CACHE_VERSION = "rig-2"
+_CACHE_VERSION = "rig-3"  # rig-3: shape files the index does not list are left out
 
 #: vertex ranges (inclusive, 0-indexed) of the ICT Face Model's parts (its README)
 ICT_PARTS: dict[str, tuple[int, int]] = {
@@ -234,8 +234,9 @@ def _read_folder(folder: Path, npath: Path, shapes, ident) -> dict:
     meta = folder / "vertex_indices.json"
     info = _vertex_indices(meta, len(V)) if meta.is_file() else {}
     if info.get("expressions"):
-        # the rig's own order (ICT: the 53 ARKit-named shapes); every listed shape must
-        # have its file, and a shape file the list lacks is kept after the listed ones
+        # the rig's own list is the rig (ICT: the 53 ARKit-named shapes, in its order);
+        # every listed shape must have its file, and a shape file the list lacks is left
+        # out, and said (ICT's folder also holds PupilDilate_L/R, which the list leaves out)
         listed = list(info["expressions"])
         absent = [n for n in listed if n not in dict(shapes)]
         if absent:
@@ -243,7 +244,13 @@ def _read_folder(folder: Path, npath: Path, shapes, ident) -> dict:
                 f"{meta}: 'expressions' lists {absent[:5]} with no .obj/.obj.gz file in "
                 f"{folder}; add the files or remove them from the list"
             )
-        order = listed + [n for n in order if n not in set(listed)]
+        unlisted = [n for n in order if n not in set(listed)]
+        if unlisted:
+            more = ", …" if len(unlisted) > 6 else ""
+            print(f"[fxspace] {folder.name}: {len(unlisted)} shape file(s) not in "
+                  f"{meta.name}'s 'expressions' left out of the rig "
+                  f"({', '.join(unlisted[:6])}{more}); list them there to use them")  # fmt: skip
+        order = listed
     paths = dict(shapes)
     D = np.empty((len(order), len(V), 3))
     for k, name in enumerate(progress(order, desc=f"reading {folder.name} shapes")):

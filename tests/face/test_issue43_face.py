@@ -208,12 +208,20 @@ def test_other_faces_with_the_same_vertex_count_are_refused(folder):
         fx.face.read_rig(d, cache=False)
 
 
-def test_vertex_indices_json_checked_and_never_drops_shapes(folder):
+def test_vertex_indices_json_checked_and_says_the_shapes_it_leaves_out(folder, capsys):
+    """The rig's own list is the rig (ICT: its 53 ARKit shapes, while its folder also
+    holds PupilDilate_L/R and, in the shared copy, cheekRaiser_L/R): a shape file the
+    list lacks is left out, and said by name with the fix; without a list, every file."""
     d, rig, N0, F = folder
+    assert fx.face.read_rig(d, cache=False).names == ("shape0", "shape1", "shape2")
     meta = d / "vertex_indices.json"
-    meta.write_text(json.dumps({"expressions": ["shape2"]}))
+    meta.write_text(json.dumps({"expressions": ["shape2", "shape0"]}))
+    capsys.readouterr()
     r = fx.face.read_rig(d, cache=False)
-    assert r.names == ("shape2", "shape0", "shape1")  # the listed first, none dropped
+    assert r.names == ("shape2", "shape0")  # the list, in its order
+    out = capsys.readouterr().out
+    assert "1 shape file(s) not in vertex_indices.json's 'expressions' left out" in out
+    assert "(shape1); list them there to use them" in out
     for bad, msg in [([1, 2], "JSON object"), ({"expressions": "shape2"}, "list of distinct"),
                      ({"idx_to_landmark_verts": [[1, 2]]}, "vertex indices"),
                      ({"idx_to_landmark_verts": list(range(10))}, "68"),
