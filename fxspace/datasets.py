@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -179,8 +180,20 @@ def face_data_files(cfg: FaceData) -> list[Path]:
     return [Path(p) for p in cfg.paths]
 
 
-def _sequences(cfg: FaceData, seed: int) -> list[tuple]:
-    if cfg.source == "synthetic":
+_SYNTHETIC: dict = {}  # the last synthetic take made in this process: key -> sequences
+_SYNTHETIC_LOCK = threading.Lock()
+_SYNTHETIC_KEEP = 2e7  # kept only up to this many marker positions (10⁵ frames × 60: 6e6)
+
+
+def _synthetic(cfg: FaceData, seed: int) -> list[tuple]:
+    """The synthetic take of ``cfg``, made once per process for takes of up to
+    `_SYNTHETIC_KEEP` positions: `fxspace studio` reads it three times (its stages, the
+    app's warm-up thread and the app), 0.9 s each at 10⁵ frames. `load_face` copies the
+    positions it works on, so the kept take is never written."""
+    key = (cfg.synthetic_markers, cfg.synthetic_frames, int(seed), cfg.synthetic_noise_mm)
+    with _SYNTHETIC_LOCK:  # a second reader waits for the first's take
+        if key in _SYNTHETIC:
+            return _SYNTHETIC[key]
         syn = synthetic_face(
             n_markers=cfg.synthetic_markers,
             n_frames=cfg.synthetic_frames,
@@ -189,7 +202,16 @@ def _sequences(cfg: FaceData, seed: int) -> list[tuple]:
         )
         mode = np.asarray(syn.mode)
         mode = np.where(mode < 0, len(syn.mode_names), mode)
-        return [("synthetic", syn.sequence, mode, (*syn.mode_names, "neutral"))]
+        out = [("synthetic", syn.sequence, mode, (*syn.mode_names, "neutral"))]
+        _SYNTHETIC.clear()
+        if cfg.synthetic_markers * cfg.synthetic_frames <= _SYNTHETIC_KEEP:
+            _SYNTHETIC[key] = out
+        return out
+
+
+def _sequences(cfg: FaceData, seed: int) -> list[tuple]:
+    if cfg.source == "synthetic":
+        return list(_synthetic(cfg, seed))
     if cfg.source == "animface":
         paths = [data_path("face", t) for t in cfg.takes]
     else:
@@ -367,7 +389,7 @@ def load_face(cfg: FaceData, seed: int = 0) -> FaceFrames:
                 f"{take}: units {s.units!r} are not a length unit fxspace knows; set "
                 f"[data] units to one of {sorted(UNIT_SCALES)}"
             )
-        pos = np.asarray(s.positions, np.float64)
+        pos = np.array(s.positions, np.float64)  # a copy: the take may be kept (`_synthetic`)
         pos, idx = _handle_missing(pos, cfg, take, names, counts, reading)
         lab = (np.full(len(seq.positions), k) if lab is None else np.asarray(lab))[idx]
         per_take.append((pos, idx, lab, k))

@@ -150,3 +150,35 @@ def test_synthetic_markers_outside_the_layout_refused_by_the_config(n):
     """Issue 43.8: `synthetic_markers = 10` passed validation and failed mid-run."""
     with pytest.raises(ConfigError, match=r"data.synthetic_markers must lie in \[12, 200\]"):
         FaceData(source="synthetic", synthetic_markers=n).validate()
+
+
+def test_a_synthetic_take_is_made_once_a_process_and_never_written(monkeypatch):
+    """`fxspace studio` reads its synthetic take three times (stages, warm-up, app): the
+    take is made once (a second reader waits for the first), and what `load_face` gives
+    is each caller's own copy; a change of any key field makes a new take, and a take past
+    `_SYNTHETIC_KEEP` positions is not kept."""
+    import fxspace.datasets as D
+
+    calls = []
+    real = D.synthetic_face
+
+    def counted(**kw):
+        calls.append(kw)
+        return real(**kw)
+
+    monkeypatch.setattr(D, "synthetic_face", counted)
+    monkeypatch.setattr(D, "_SYNTHETIC", {})
+    cfg = FaceData(source="synthetic", synthetic_frames=300, synthetic_markers=20)
+    a = load_face(cfg, 0)
+    a.positions[:] = 0.0  # the caller's own copy
+    b = load_face(cfg, 0)
+    assert len(calls) == 1 and np.abs(b.positions).max() > 1.0
+    np.testing.assert_array_equal(b.positions, load_face(cfg, 0).positions)
+    load_face(cfg, 1)  # another seed: another take
+    load_face(FaceData(source="synthetic", synthetic_frames=300, synthetic_markers=20,
+                       synthetic_noise_mm=0.5), 0)  # fmt: skip
+    assert len(calls) == 3
+    monkeypatch.setattr(D, "_SYNTHETIC_KEEP", 100)  # too big to keep
+    load_face(cfg, 0)
+    load_face(cfg, 0)
+    assert len(calls) == 5

@@ -325,6 +325,28 @@ def blocked_fcm(x, v0, m: float, p: int, tol: float, max_steps: int, chunk: int,
                            jnp.asarray(steps, jnp.int32), result, stats)  # fmt: skip
 
 
+def precompile(n: int, d: int, dtype, sizes, m: float, nearest: int, chunk: int,
+               rows: int) -> None:
+    """Compile, without running them, the block kernels that `blocked_fcm` will call for
+    ``n`` points of ``d`` dimensions in blocks of at most ``rows`` and each centre count in
+    ``sizes`` (the shapes `_Blocks` gives: equal blocks ±1 point), so the runs find them
+    compiled. A hierarchy's levels each need their own (one per centre count: ~0.5 s
+    each on a CPU); run in a thread beside the first level, they leave the FCM's path."""
+    dt = np.dtype(dtype)
+    rows = check_rows(rows, n)
+    lens = sorted({len(a) for a in np.array_split(np.empty(n, bool), -(-n // rows))})
+    ch = min(int(chunk), rows)
+    sds = jax.ShapeDtypeStruct
+    with jax.enable_x64(bool(dt == np.float64)):
+        for c in sizes:
+            p, k = min(int(nearest), int(c)), min(_CAND, int(c))
+            for nb in lens:
+                x, v = sds((nb, d), dt), sds((int(c), d), dt)
+                _block_step.lower(x, v, sds((nb, k), np.int32), sds((nb,), dt), sds((), dt),
+                                  float(m), p, ch).compile()  # fmt: skip
+                _block_assign.lower(x, v, float(m), p, min(ch, nb)).compile()
+
+
 def check_rows(rows_per_task, n: int) -> int:
     """``rows_per_task`` as an int in ``[1, n]``, or an `FxspaceError` naming the fix."""
     if isinstance(rows_per_task, bool) or not isinstance(rows_per_task, (int, np.integer)):

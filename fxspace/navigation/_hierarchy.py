@@ -83,6 +83,11 @@ class FuzzyCMeans:
         if not self.split and int(self.restarts) < 1:
             raise FxspaceError("split=False needs restarts >= 1 (the k-means++-extend starts)")
 
+    def precompile(self, x, sizes) -> None:
+        """Compile ahead what the runs for each centre count in ``sizes`` will need (a
+        thread beside the first level; here nothing: the full solver compiles as it
+        runs)."""
+
     def run(self, x, c: int, init_centers):
         """One FCM run from ``init_centers`` ``(c, d)``."""
         return fuzzy_cmeans(x, c, self.m, init_centers=init_centers, tol=self.tol,
@@ -114,6 +119,16 @@ class TruncatedFuzzyCMeans(FuzzyCMeans):
         if self.accelerate is not None and self.rows_per_task is None and self.client is None:
             raise FxspaceError("accelerate applies to the block solver: set rows_per_task or "
                                "client too")  # fmt: skip
+
+    def precompile(self, x, sizes) -> None:
+        """With `rows_per_task` here (no client): the block kernels of each centre count
+        in ``sizes`` compiled ahead (`fxspace.cluster._fcm_blocks.precompile`)."""
+        if self.rows_per_task is None or self.client is not None or not len(sizes):
+            return
+        from fxspace.cluster._fcm_blocks import precompile
+
+        n, d = x.shape
+        precompile(n, d, x.dtype, sizes, self.m, self.nearest, self.chunk, self.rows_per_task)
 
     def run(self, x, c: int, init_centers):
         """One FCM run; with `rows_per_task` or `client`, a block of points a task, here
@@ -385,18 +400,33 @@ def build_hierarchy(
         below = below[: check_int(levels, "levels", low=1)]
     sizes = tuple(below) + ((T,) if finest or not below else ())
     key = jax.random.PRNGKey(0) if key is None else key
-    if paths is None or rule is None:
-        return Hierarchy(tuple(_fcm_levels(x, sizes, T, key, fcm)), np.asarray(x))
-    # each level's links are made in a thread as its FCM ends, while the next level's
-    # runs (the same work as one after another: the same hierarchy)
-    # (and the finest level's steps tested in a thread of their own from the start)
+    # the later levels' FCM kernels compiled in a thread while the first level runs
+    comp = ThreadPoolExecutor(1, thread_name_prefix="fxspace-compile")
+    ahead = comp.submit(fcm.precompile, x, [c for c in sizes[1:] if c < T])
+    try:
+        if paths is None or rule is None:
+            out = Hierarchy(tuple(_fcm_levels(x, sizes, T, key, fcm)), np.asarray(x))
+            ahead.result()  # a failure there is a bug: said, not hidden
+            return out
+        return _linked(x, paths, rule, sizes, T, key, fcm, ahead)
+    finally:
+        comp.shutdown(wait=True, cancel_futures=True)
+
+
+def _linked(x, paths, rule, sizes, T, key, fcm, ahead) -> Hierarchy:
+    """The levels and their links: each level's links made in a thread as its FCM ends,
+    while the next level's runs (the same work as one after another: the same
+    hierarchy), and the finest level's steps tested in a thread of their own from the
+    start."""
     pool = ThreadPoolExecutor(1, thread_name_prefix="fxspace-links")
     pre = ThreadPoolExecutor(1, thread_name_prefix="fxspace-steps")
     try:
         linker = _Linker(np.asarray(x, np.float64), paths, rule, sizes, pool, pre)
         for lv in _fcm_levels(x, sizes, T, key, fcm):
             linker.add(lv)
-        return linker.hierarchy(np.asarray(x))
+        out = linker.hierarchy(np.asarray(x))
+        ahead.result()
+        return out
     finally:  # on an error or an interrupt, the links not started are dropped
         pool.shutdown(wait=True, cancel_futures=True)
         pre.shutdown(wait=True, cancel_futures=True)

@@ -135,9 +135,9 @@ def _hits(tree, xy, ii, jj, own, pts, rho, reach, k):
     d, nb = tree.query(pts, k=k, distance_upper_bound=reach, workers=-1)
     d, nb = d.reshape(len(pts), -1), nb.reshape(len(pts), -1)
     full = np.flatnonzero(np.isfinite(d[:, -1]))  # the ball may hold more than k
-    ok = np.isfinite(d)
-    found = [_near(xy, ii, jj, np.repeat(own, k)[ok.reshape(-1)], nb[ok], rho)]
-    del d, nb, ok
+    del d
+    found = [own[_near_rows(xy, ii, jj, own, nb, rho)]]
+    del nb
     if len(full):
         n = tree.query_ball_point(pts[full], reach, return_length=True, workers=-1)
         edges = np.concatenate([[0], np.cumsum(n)])
@@ -151,6 +151,52 @@ def _hits(tree, xy, ii, jj, own, pts, rho, reach, k):
             found.append(_near(xy, ii, jj, np.repeat(own[rows], n[s:e]), flat, rho))
             s = e
     return np.unique(np.concatenate(found))
+
+
+_NEAR_ROWS = 1 << 15  # points a call of the compiled near test (one compile: one shape)
+
+
+@jax.jit
+def _near_kernel(xy, a_idx, b_idx, nb, rho):
+    """Per point: whether one of its listed frames ``nb`` (``len(xy) − 1``: none; the
+    segment's ends excluded) is strictly within ρ of the segment ``xy[a] → xy[b]``
+    (`_segment_distance`'s formula, in ``xy``'s dtype)."""
+    a = xy[a_idx]
+    v = xy[b_idx] - a
+    L2 = jnp.maximum(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1], 1e-300)
+    q = xy[nb]
+    w0, w1 = q[..., 0] - a[:, None, 0], q[..., 1] - a[:, None, 1]
+    t = jnp.clip((w0 * v[:, None, 0] + w1 * v[:, None, 1]) / L2[:, None], 0.0, 1.0)
+    dx = q[..., 0] - (a[:, None, 0] + t * v[:, None, 0])
+    dy = q[..., 1] - (a[:, None, 1] + t * v[:, None, 1])
+    other = (nb != a_idx[:, None]) & (nb != b_idx[:, None]) & (nb < xy.shape[0] - 1)
+    return jnp.any(other & (jnp.sqrt(dx * dx + dy * dy) < rho), axis=1)
+
+
+def _near_rows(xy, ii, jj, own, nb, rho):
+    """Which points ``own`` (their segment) have one of their k-d tree neighbours ``nb``
+    ``(P, k)`` (``len(xy)``: none) strictly within ρ of their segment, other than its ends:
+    one compiled pass over the ``(P, k)`` lists, `_NEAR_ROWS` points a call, in float64
+    (the segment test of `_near`, fused: no flat list of pairs)."""
+    T = len(xy)
+    P = len(own)
+    out = np.zeros(P, bool)
+    if not P:
+        return out
+    with jax.enable_x64(True):
+        xyp = jnp.asarray(np.concatenate([xy, np.zeros((1, 2))]), jnp.float64)  # row T: none
+        r = jnp.asarray(rho, jnp.float64)
+        rows = min(_NEAR_ROWS, P)
+        for s in range(0, P, rows):
+            e = min(s + rows, P)
+            a = np.zeros(rows, np.int64)
+            b = np.zeros(rows, np.int64)
+            q = np.full((rows, nb.shape[1]), T, np.int64)
+            a[: e - s], b[: e - s] = ii[own[s:e]], jj[own[s:e]]
+            q[: e - s] = nb[s:e]
+            out[s:e] = np.asarray(_near_kernel(xyp, jnp.asarray(a), jnp.asarray(b),
+                                               jnp.asarray(q), r))[: e - s]  # fmt: skip
+    return out
 
 
 def _near(xy, ii, jj, seg, flat, rho):

@@ -114,3 +114,39 @@ def test_blocks_are_as_few_as_rows_allow_and_of_equal_size(n, rows, sizes):
         np.testing.assert_array_equal(np.concatenate(parts), x)
     finally:
         b.close()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_precompiled_block_kernels_leave_the_runs_nothing_to_compile(dtype):
+    """`precompile` (a hierarchy's later levels, compiled in a thread beside the first)
+    compiles exactly the block kernels `blocked_fcm` then calls: the runs for every
+    centre count given, with unequal blocks (1001 points in blocks of ≤ 300: 250 and
+    251), compile neither `_block_step` nor `_assign`; a count not given does (the check
+    can fail)."""
+    from fxspace.cluster import _fcm_blocks as FB
+
+    def kernels_compiled(run):
+        import jax.monitoring as mon
+
+        names = []
+
+        def heard(event, _duration, **kw):
+            if event == "/jax/core/compile/backend_compile_duration":
+                names.append(kw.get("fun_name"))
+
+        mon.register_event_duration_secs_listener(heard)
+        try:
+            run()
+        finally:
+            mon.unregister_event_duration_listener(heard)
+        return [n for n in names if n in ("jit(_block_step)", "jit(_assign)")]
+
+    x = np.random.default_rng(0).normal(size=(1001, 2)).astype(dtype)
+    m = 2.0 + 1e-3 * (dtype == np.float64)  # a static argument no other test compiles with
+    got = kernels_compiled(lambda: FB.precompile(len(x), 2, dtype, [5, 12], m, 3, 128, 300))
+    assert len(got) in (0, 8)  # 2 counts × 2 block sizes × 2 kernels (0: already compiled)
+    for c, want in ((5, 0), (12, 0), (7, 4)):
+        v0 = x[np.linspace(0, 1000, c).astype(int)]
+        with jax.enable_x64(dtype == np.float64):
+            got = kernels_compiled(lambda v0=v0: FB.blocked_fcm(x, v0, m, 3, 1e-4, 50, 128, 300))
+        assert len(got) == want, (c, got)

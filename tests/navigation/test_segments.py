@@ -161,3 +161,64 @@ def test_whole_balls_listed_a_few_frames_at_a_time_match_brute_force(monkeypatch
     got = S._exact_blocks(cKDTree(xy), xy, i, j, rho, 0.4)
     want = _brute(xy, i, j, rho)
     assert np.array_equal(got, want) and 0 < want.sum() < len(want)
+
+
+@pytest.mark.parametrize("rows", [7, 1 << 15])
+def test_the_compiled_near_test_is_the_pairwise_one(monkeypatch, rows):
+    """`_near_rows` (the exact pass's fused test over each point's (P, k) neighbour list,
+    in fixed-size calls) answers as `_near` over the flat list of pairs: missing
+    neighbours (T), the segments' own ends and a last call padded past the points."""
+    from fxspace.navigation import _segments as S
+
+    monkeypatch.setattr(S, "_NEAR_ROWS", rows)
+    rng = np.random.default_rng(3)
+    xy = rng.normal(0, 1, (400, 2))
+    i = rng.integers(0, 400, 300)
+    j = (i + rng.integers(1, 400, 300)) % 400
+    own = rng.integers(0, 300, 1001)  # points, each on a segment
+    nb = rng.integers(0, 400, (1001, 6))
+    nb[rng.random(nb.shape) < 0.3] = 400  # beyond the reach: none
+    nb[:50, 0] = i[own[:50]]  # a segment's own ends are never a hit
+    nb[50:100, 1] = j[own[50:100]]
+    ok = nb < 400
+    pair_point = np.repeat(np.arange(len(own)), 6)[ok.ravel()]
+    for rho in (0.02, 0.1, 0.5):
+        got = S._near_rows(xy, i, j, own, nb, rho)
+        # _near over the flat pairs, each point its own "segment" (a copy of its ends)
+        want = np.zeros(len(own), bool)
+        want[S._near(xy, i[own], j[own], pair_point, nb[ok], rho)] = True
+        assert np.array_equal(got, want), (rho, int((got != want).sum()))
+        assert 0 < got.sum() < len(got)  # both answers occur
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="Linux nice")
+def test_the_early_finest_test_runs_at_a_lower_priority_in_its_own_thread_only():
+    """The finest level's early test (`_finest_blocks(..., background=True)`, on a thread
+    of its own beside the FCM levels) lowers its own thread's priority, not the caller's
+    process: the main thread's nice value is unchanged, and the answer is the same."""
+    import os
+    import threading
+
+    from fxspace.expression import NeighbourGraph
+    from fxspace.navigation._rho import _BACKGROUND_NICE, _finest_blocks
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(300, 2))
+    d = np.linalg.norm(x[:, None] - x[None], axis=2)
+    nb = np.argsort(d, axis=1)[:, 1:6]
+    g = NeighbourGraph(nb.astype(np.int32), np.take_along_axis(d, nb, 1))
+    main = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    seen = {}
+
+    def run():
+        seen["out"] = _finest_blocks(x, g, 0.3, True)
+        seen["nice"] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    t = threading.Thread(target=run)
+    t.start()
+    t.join()
+    assert seen["nice"] == min(main + _BACKGROUND_NICE, 19)
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == main
+    want = _finest_blocks(x, g, 0.3)
+    for a, b in zip(seen["out"], want, strict=True):
+        np.testing.assert_array_equal(a, b)
