@@ -56,8 +56,10 @@ __all__ = ["neighbourhood_graph_blocks", "Joins", "join_components"]
 _AXES_SAMPLE = 20000
 _ROWS = 256  # frames whose candidates are read at once
 _FEAT_ROWS = 128  # frames whose features are formed at once (in cache)
-_SEARCH_EPS = 1.0  # the candidate search's k-d tree tolerance (measured on 10⁵ frames of
-# the synthetic face: the search 4.3 → 1.3 s, one thread; recall unchanged)
+_SEARCH_EPS = 0.5  # the candidate search's k-d tree tolerance (measured on 10⁵ frames of
+# the synthetic face: the search 4.3 → 1.9 s, one thread; recall unchanged. AnimFace
+# resampled to 6 000 frames: recall 0.987 → 0.985 and the takes stay apart; at 1.0,
+# 0.982 and a false edge joined two takes)
 _SUB = 8  # frames whose candidate differences are formed at once (in cache)
 _TREES: dict[tuple, Any] = {}  # one k-d tree per projection, per process (worker)
 _TREE_LOCK = threading.Lock()
@@ -173,8 +175,13 @@ def _neighbours(path: str, Z, start: int, stop: int, num: int, k: int, workers: 
     return out_c, out_d
 
 
-def _spans(T: int, rows: int) -> list[tuple[int, int]]:
-    return [(s, min(s + rows, T)) for s in range(0, T, rows)]
+def _spans(T: int, rows: int, parts: int = 1) -> list[tuple[int, int]]:
+    """Consecutive spans of at most ``rows`` frames, their number a multiple of ``parts``
+    (the threads that run them: none idle at the end), of equal sizes ±1."""
+    n = -(-T // max(1, rows))
+    n = min(T, -(-n // parts) * parts) if T else 0
+    edges = np.linspace(0, T, n + 1).round().astype(np.int64) if n else np.zeros(1, np.int64)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def _map(client, fn, shared: tuple, items: list[tuple], desc: str) -> list:
@@ -219,9 +226,9 @@ def neighbourhood_graph_blocks(
     - `search_eps`: the candidate search's tolerance in the projection (the k-d tree's
       ``eps``: each of a frame's candidates within ``1 + search_eps`` of its true
       ``candidates``-th nearest there; 0: exact there). The k kept are still chosen by
-      exact feature distances among the candidates; the default, 1, halves the search
-      and keeps every exact neighbour on the real captures (`knn_quality`: recall 1.0 on
-      AnimFace resampled to 10⁵ frames, as with 0).
+      exact feature distances among the candidates; the default, 0.5, halves the search
+      and keeps the exact neighbours on the real captures as 0 does (`knn_quality` on
+      AnimFace resampled: recall 1.0 at 10⁵ frames, 0.985 against 0.987 at 6 000).
 
     **Returns:** a `NeighbourGraph`; the same with or without a client.
 
@@ -241,7 +248,7 @@ def neighbourhood_graph_blocks(
     if not all(np.isfinite(X[s:e]).all() for s, e in _spans(T, rows_per_task)):
         raise FxspaceError("positions contain NaN/inf: clean the frames first (clean_frames)")
     dtype = X.dtype if X.dtype.kind == "f" else np.dtype(np.float64)
-    spans = _spans(T, rows_per_task)
+    spans = _spans(T, rows_per_task, _HERE if client is None else 1)
     with contextlib.ExitStack() as stack:
         if store is None:
             store = Path(stack.enter_context(tempfile.TemporaryDirectory())) / "features.npy"
