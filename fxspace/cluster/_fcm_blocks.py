@@ -151,9 +151,12 @@ class _Blocks:
         # the sizes come out equal (10⁵ points: 2 × 50 000, not 65 536 + 34 464)
         parts = np.array_split(x, -(-len(x) // rows))
         self.blocks = range(len(parts))
+        self.pool = None
         if client is None:
             for b, part in enumerate(parts):
                 _init(self.run, b, part, c)
+            if len(parts) > 1 and _THREADS > 1:  # one pool for every step (not one a step)
+                self.pool = ThreadPoolExecutor(_THREADS, thread_name_prefix="fxspace-fcm")
             return
         workers = sorted(client.scheduler_info()["workers"])
         if not workers:
@@ -167,10 +170,10 @@ class _Blocks:
 
     def _call(self, fn, items) -> list:
         if self.client is None:
-            if len(items) < 2 or _THREADS < 2:
+            if self.pool is None:
                 return [fn(self.run, *it) for it in items]
-            with ThreadPoolExecutor(_THREADS) as pool:  # XLA leaves cores idle in a block
-                return list(pool.map(lambda it: fn(self.run, *it), items))
+            # XLA leaves cores idle in a block: the blocks of a step at once
+            return list(self.pool.map(lambda it: fn(self.run, *it), items))
         futures = [self.client.submit(fn, self.run, *it, pure=False, workers=w,
                                       allow_other_workers=False)
                    for it, w in zip(items, self.where, strict=True)]  # fmt: skip
@@ -184,6 +187,8 @@ class _Blocks:
 
     def close(self) -> None:
         if self.client is None:
+            if self.pool is not None:
+                self.pool.shutdown(wait=True)
             _drop(self.run)
         else:
             self.client.run(_drop, self.run)
