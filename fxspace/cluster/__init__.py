@@ -10,6 +10,7 @@ from fxspace.cluster._fcm import fcm_objective as fcm_objective
 from fxspace.cluster._fcm import kmeanspp_extend as kmeanspp_extend
 from fxspace.cluster._fcm import kmeanspp_init as kmeanspp_init
 from fxspace.cluster._fcm import squared_distances as squared_distances
+from fxspace.cluster._fcm_blocks import precompile as precompile_fcm_blocks
 from fxspace.cluster._fcm_front import fuzzy_cmeans as fuzzy_cmeans
 from fxspace.cluster._fcm_sparse import SparseFCMResult as SparseFCMResult
 from fxspace.cluster._kernel_kmeans import KernelKMeansResult as KernelKMeansResult
@@ -24,6 +25,7 @@ __all__ = [
     "fcm_memberships",
     "fcm_objective",
     "fuzzy_cmeans",
+    "precompile_fcm_blocks",
     "kmeanspp_extend",
     "pad_rows",
     "kmeanspp_init",

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from fxspace._validate import _is_tracer
+from fxspace._validate import _is_tracer, check_int, check_scalar
 from fxspace.cluster._fcm import _tiny
 from fxspace.cluster._fcm_sparse import (
     _CAND,
@@ -332,12 +332,32 @@ def blocked_fcm(x, v0, m: float, p: int, tol: float, max_steps: int, chunk: int,
 
 def precompile(n: int, d: int, dtype, sizes, m: float, nearest: int, chunk: int,
                rows: int) -> None:
-    """Compile, without running them, the block kernels that `blocked_fcm` will call for
-    ``n`` points of ``d`` dimensions in blocks of at most ``rows`` and each centre count in
-    ``sizes`` (the shapes `_Blocks` gives: equal blocks ±1 point), so the runs find them
-    compiled. A hierarchy's levels each need their own (one per centre count: ~0.5 s
-    each on a CPU); run in a thread beside the first level, they leave the FCM's path."""
-    dt = np.dtype(dtype)
+    """Compile, without running them, the block kernels that `fuzzy_cmeans` with
+    ``nearest`` and ``rows_per_task`` (no client) will call, for each centre count in
+    ``sizes``: the runs then find them compiled. A hierarchy's levels each need their own
+    (one per centre count: ~0.5 s each on a CPU); `fxspace.navigation.build_hierarchy`
+    compiles its later levels' in a thread beside the first level's run.
+
+    **Arguments:** `n`, `d`: the points and their dimensions; `dtype`: theirs (float32 or
+    float64); `sizes`: the centre counts; `m`, `nearest`, `chunk`, `rows`: as given to
+    `fuzzy_cmeans` (``rows`` its ``rows_per_task``).
+
+    **Example:** ``fx.cluster.precompile_fcm_blocks(100_000, 2, np.float32, [20, 40],
+    2.0, 8, 8192, 65536)``"""
+    n = check_int(n, "n", low=1)
+    d = check_int(d, "d", low=1)
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise FxspaceError(f"dtype must be float32 or float64 (the points'), got {dtype!r}")
+    if isinstance(sizes, (str, bytes)) or not hasattr(sizes, "__iter__"):
+        raise FxspaceError(f"sizes must be a sequence of centre counts, got {sizes!r}")
+    sizes = [check_int(c, "sizes[i]", low=1, high=n) for c in sizes]
+    m = check_scalar(m, "m", low=1.0, low_open=True)
+    nearest = check_int(nearest, "nearest", low=1)
+    chunk = check_int(chunk, "chunk", low=1)
     rows = check_rows(rows, n)
     lens = sorted({len(a) for a in np.array_split(np.empty(n, bool), -(-n // rows))})
     ch = min(int(chunk), rows)

@@ -2,8 +2,6 @@
 Pearson r, and threshold sweeps over that one chain.
 """
 
-from fxspace.expression._blocks import Joins as Joins
-from fxspace.expression._blocks import join_components as join_components
 from fxspace.expression._blocks import neighbourhood_graph_blocks as neighbourhood_graph_blocks
 from fxspace.expression._features import PAIR_WEIGHT as PAIR_WEIGHT
 from fxspace.expression._features import clean_frames as clean_frames
@@ -18,6 +16,8 @@ from fxspace.expression._geodesic import floyd_warshall as floyd_warshall
 from fxspace.expression._geodesic import geodesic_distances as geodesic_distances
 from fxspace.expression._geodesic import next_hops as next_hops
 from fxspace.expression._geodesic import shortest_path as shortest_path
+from fxspace.expression._join import Joins as Joins
+from fxspace.expression._join import join_components as join_components
 from fxspace.expression._landmark import LandmarkBasis as LandmarkBasis
 from fxspace.expression._landmark import LandmarkGeodesics as LandmarkGeodesics
 from fxspace.expression._landmark import farthest_point_landmarks as farthest_point_landmarks
