@@ -30,7 +30,9 @@ from fxspace.errors import FxspaceError
 
 __all__: list[str] = []
 
-_BOUND_ROWS = 32  # landmarks whose rows make the lower bound (cost O(32·T) a pick)
+_BOUND_ROWS = 32  # landmarks whose rows make the lower bound (cost O(32) a frame estimated)
+_TOP = 4096  # frames ranked by their distance to the landmarks first (all where a scan needs)
+_SCAN = 512  # frames estimated at once in a round's pick
 _CSRS: dict[tuple, tuple] = {}  # the rebuilt CSR, per process (worker)
 
 
@@ -87,6 +89,58 @@ def _pick(est: np.ndarray, taken: set[int], n: int) -> int:
     return nxt
 
 
+def _ranked(mind: np.ndarray, top: int) -> np.ndarray:
+    """Frames by ``mind``, largest first, ties by index (`np.argmax`'s order): at least
+    the ``top`` first and every frame tied with the last of them; all where ``top`` ≥ T."""
+    if top < len(mind):
+        lim = mind[np.argpartition(-mind, top - 1)[top - 1]]
+        some = np.flatnonzero(mind >= lim)
+        return some[np.lexsort((some, -mind[some]))]
+    return np.lexsort((np.arange(len(mind)), -mind))
+
+
+def _scan(order: np.ndarray, mind, bound, new: list[int]) -> tuple[float, int, bool]:
+    """``(best, frame, settled)``: the largest ``min(mind, lower bounds from new)`` over
+    ``order`` (the first frame among ties), scanned `_SCAN` frames at a time in ``order``
+    until the next ``mind`` is below the best found (no later frame can beat it:
+    ``settled``); unsettled where ``order`` ran out first."""
+    best, arg = -np.inf, -1
+    for s in range(0, len(order), _SCAN):
+        cand = order[s : s + _SCAN]
+        if mind[cand[0]] < best:
+            return best, arg, True
+        est = mind[cand]
+        for b in new:
+            est = np.minimum(est, np.max(np.abs(bound[:, b : b + 1] - bound[:, cand]), axis=0))
+        m = est.max()
+        if m >= best:
+            i = int(cand[est == m].min())
+            arg = i if m > best else min(arg, i)
+            best = m
+    return best, arg, len(order) == len(mind)
+
+
+def round_picks(mind: np.ndarray, bound: np.ndarray, taken: set[int], count: int,
+                n: int) -> list[int]:  # fmt: skip
+    """A round's ``count`` picks: each the frame of largest ``mind`` (the distance to the
+    landmarks whose rows are known) lowered by `lower_bound` from the round's earlier
+    picks — exactly `np.argmax` of that estimate over all frames, but found lazily: the
+    frames in decreasing ``mind`` (`_ranked`), each estimated only until the next
+    ``mind`` is below the best estimate found (an estimate never exceeds ``mind``). On
+    10⁵ frames the round's T-wide bounds were 0.7 s of the 3.0 s landmark pass."""
+    new: list[int] = []
+    order = _ranked(mind, _TOP)
+    for _ in range(count):
+        best, arg, settled = _scan(order, mind, bound, new)
+        if not settled:  # the top frames ran out before the stop: scan them all
+            order = _ranked(mind, len(mind))
+            best, arg, settled = _scan(order, mind, bound, new)
+        if best == 0:  # fewer distinct frames than landmarks asked for
+            arg = next(i for i in range(n) if i not in taken and i not in new)
+        new.append(arg)
+    return new
+
+
 def rounds(first: int, num: int, batch: int, n: int, run) -> tuple[list[int], list]:
     """Landmarks ``[first, …]`` (``num``) and their rows, ``batch`` a round (module
     docstring); ``run(sources)`` returns the rows of a list of sources."""
@@ -99,13 +153,11 @@ def rounds(first: int, num: int, batch: int, n: int, run) -> tuple[list[int], li
         rows += run(lm[-1:])
         next(bar, None)
         mind = np.minimum(mind, rows[-1])
+    bound = None
     while len(lm) < num:
-        bound = np.stack(rows[:_BOUND_ROWS])
-        est, new = mind.copy(), []
-        for _ in range(min(batch, num - len(lm))):
-            new.append(_pick(est, set(lm) | set(new), n))
-            est = np.minimum(est, lower_bound(bound, new[-1]))
-            est[new[-1]] = 0
+        if bound is None or len(bound) < min(len(rows), _BOUND_ROWS):  # fixed once full
+            bound = np.stack(rows[:_BOUND_ROWS])
+        new = round_picks(mind, bound, set(lm), min(batch, num - len(lm)), n)
         lm += new
         rows += run(new)
         for r in rows[-len(new) :]:

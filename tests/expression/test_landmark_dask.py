@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import fxspace as fx
-from fxspace.expression import farthest_point_landmarks, graph_from_dense
-from fxspace.expression._landmark_rounds import lower_bound
+from fxspace.expression import _landmark_rounds, farthest_point_landmarks, graph_from_dense
+from fxspace.expression._landmark_rounds import lower_bound, round_picks
 from fxspace.synthetic import synthetic_face
 
 
@@ -66,6 +66,42 @@ def test_the_lower_bound_never_exceeds_the_geodesic():
         assert lb[b] == 0
         assert np.all(lb <= true * (1 + 1e-6) + 1e-6)
         assert lb.max() > 0.5 * true.max()  # and is not vacuous
+
+
+def _eager_picks(mind, bound, taken, count, n):
+    """A round's picks as the rounds were first written: the whole estimate each pick."""
+    est, new = mind.copy(), []
+    for _ in range(count):
+        nxt = int(np.argmax(est))
+        if est[nxt] == 0:
+            nxt = next(i for i in range(n) if i not in taken and i not in new)
+        new.append(nxt)
+        est = np.minimum(est, lower_bound(bound, nxt))
+        est[nxt] = 0
+    return new
+
+
+@pytest.mark.parametrize("top", [4096, 3])
+def test_a_rounds_lazy_picks_are_the_whole_estimates_argmax(monkeypatch, top):
+    """`round_picks` estimates frames only until no later one can win: the same picks
+    as the T-wide estimate (ties to the lower frame as `np.argmax`), also where the
+    ranked top runs out (``top`` = 3) and where every frame is taken or tied at 0."""
+    monkeypatch.setattr(_landmark_rounds, "_TOP", top)
+    monkeypatch.setattr(_landmark_rounds, "_SCAN", 4)
+    rng = np.random.default_rng(1)
+    for _ in range(150):
+        T, K = int(rng.integers(3, 400)), int(rng.integers(1, 6))
+        rows = np.round(rng.random((K, T)) * rng.integers(1, 5)).astype(np.float32)  # ties
+        taken = set(rng.choice(T, min(K, T - 1), replace=False).tolist())
+        mind = rows.min(axis=0)
+        mind[list(taken)] = 0
+        count = int(min(8, T - len(taken)))
+        assert round_picks(mind, rows, taken, count, T) == _eager_picks(mind, rows, taken,
+                                                                         count, T)
+    g = _graph(800)  # a real graph's rows
+    rows = np.asarray(farthest_point_landmarks(g, 12).distances, np.float32)
+    mind = rows.min(axis=0)
+    assert round_picks(mind, rows, set(), 8, 800) == _eager_picks(mind, rows, set(), 8, 800)
 
 
 def test_more_landmarks_than_frames_asked_in_rounds():
