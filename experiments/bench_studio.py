@@ -270,6 +270,20 @@ def _fmt(r: dict, key: str) -> str:
     return f"{r[key]:>8.1f}" if key in r else f"{'—':>8}"
 
 
+def _shown(args: list[str]) -> list[str]:
+    """The arguments as the page shows the command: without ``--json PATH`` (where a copy
+    of the rows went, not what was measured)."""
+    out, skip = [], False
+    for x in args:
+        if skip:
+            skip = False
+        elif x == "--json":
+            skip = True
+        elif not x.startswith("--json="):
+            out.append(x)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
@@ -365,7 +379,7 @@ def main(argv=None) -> int:
             "studio",
             record,
             title="Apps: seconds to the first rendered frame",
-            command="python experiments/bench_studio.py " + " ".join(sys.argv[1:]),
+            command="python experiments/bench_studio.py " + " ".join(_shown(sys.argv[1:])),
         )
     if a.json:
         from fxspace.runs import write_json_atomic

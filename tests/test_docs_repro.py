@@ -92,3 +92,18 @@ def test_benchmark_page_in_the_site_equals_its_records():
     assert (root / "measured.md").read_text() == render_bench(records)
     for rec in records:
         assert (root / "figures" / f"{rec['name']}.png").is_file()
+
+
+def test_the_studio_bench_shows_its_command_without_the_copy_path():
+    """The measured page shows the command a newcomer runs: ``--json PATH`` (where a copy
+    of the rows went) is left out of the recorded command, every other argument kept."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "bench_studio.py"
+    spec = importlib.util.spec_from_file_location("_bench_studio", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    args = ["--clean", "configs/a.toml", "--json", "/tmp/x.json", "configs/b.toml",
+            "--json=/tmp/y.json", "--timeout", "60"]  # fmt: skip
+    assert mod._shown(args) == ["--clean", "configs/a.toml", "configs/b.toml", "--timeout", "60"]
+    assert mod._shown([]) == []
